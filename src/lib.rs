@@ -1,0 +1,22 @@
+//! hydrolens watches and drives an electro-hydraulic drive (VFD → pump → hydraulic motor) over Modbus TCP:
+//! it polls, estimates speed and load torque, regulates the speed, records, serves a dashboard, and explains
+//! where a plant model and a recording disagree.
+//!
+//! # Layout
+//! The rooms, and which may use which (a room uses only those listed before it):
+//! - [`units`], [`error`]: conversions and the bad-input marker shared by everyone.
+//! - [`plant`]: PURE physics (model file, effects, loads, RK4 integrator, test-stand run). No clock, no I/O.
+//! - [`recording`]: the contract's CSV, read strictly and written streaming with rotation.
+//! - [`modbus`]: the register map (pure), the client, and the plant simulator server.
+//! - [`estimator`]: PURE RLS+SGD and Kalman estimators; fed Δt and samples.
+//!
+//! `main.rs` wires the commands and is the only place `anyhow` lives.
+
+pub mod error;
+pub mod estimator;
+pub mod modbus;
+pub mod plant;
+pub mod recording;
+pub mod units;
+
+pub use error::{BadInput, is_bad_input};

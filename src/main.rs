@@ -1,0 +1,151 @@
+//! The `hydrolens` command line: parses arguments and wires the rooms together. Exit 0 ok, 2 bad input, 1 other.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+use hydrolens::modbus::simulator::Simulator;
+use hydrolens::plant::PlantModel;
+use hydrolens::{BadInput, plant, recording};
+use tokio_util::sync::CancellationToken;
+
+#[derive(Parser)]
+#[command(name = "hydrolens", version, about = "Watch, estimate, regulate and explain an electro-hydraulic drive")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// The plant simulator as a Modbus TCP server, in real time.
+    Sim {
+        #[arg(long, default_value = "config/plant.toml")]
+        model: PathBuf,
+        #[arg(long, default_value = "127.0.0.1:5020")]
+        listen: String,
+        /// Seed of the sensor noise.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Offline test-stand run (setpoint steps and ramps, brake-load steps) written as a recording CSV.
+    Simulate {
+        #[arg(long)]
+        model: PathBuf,
+        /// Length of the run in seconds.
+        #[arg(long)]
+        duration: f64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            if hydrolens::is_bad_input(err.as_ref()) { ExitCode::from(2) } else { ExitCode::from(1) }
+        }
+    }
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Sim { model, listen, seed } => sim(&model, &listen, seed),
+        Command::Simulate { model, duration, seed, out } => simulate(&model, duration, seed, &out),
+    }
+}
+
+fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread().enable_all().build().context("starting the async runtime")
+}
+
+/// A token cancelled on Ctrl-C or SIGTERM.
+fn shutdown_on_signal() -> CancellationToken {
+    let token = CancellationToken::new();
+    let t = token.clone();
+    tokio::spawn(async move {
+        let ctrl_c = tokio::signal::ctrl_c();
+        #[cfg(unix)]
+        {
+            let mut term = match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+                Ok(s) => s,
+                Err(e) => {
+                    tracing::warn!(error = %e, "cannot listen for SIGTERM");
+                    let _ = ctrl_c.await;
+                    t.cancel();
+                    return;
+                }
+            };
+            tokio::select! {
+                _ = ctrl_c => {}
+                _ = term.recv() => {}
+            }
+        }
+        #[cfg(not(unix))]
+        let _ = ctrl_c.await;
+        tracing::info!("shutting down");
+        t.cancel();
+    });
+    token
+}
+
+fn load_model(path: &Path) -> anyhow::Result<PlantModel> {
+    Ok(PlantModel::load(path)?)
+}
+
+fn sim(model_path: &Path, listen: &str, seed: u64) -> anyhow::Result<()> {
+    let model = load_model(model_path)?;
+    let simulator = Simulator::new(model, seed)
+        .map_err(|(key, msg)| BadInput(format!("model file {}: {key} {msg}", model_path.display())))?;
+    let addr: std::net::SocketAddr = listen
+        .parse()
+        .map_err(|e| BadInput(format!("--listen {listen:?}: not an address such as 127.0.0.1:5020 ({e})")))?;
+    runtime()?.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(addr).await.with_context(|| format!("binding {addr}"))?;
+        eprintln!("hydrolens sim: plant simulator on modbus tcp://{}", listener.local_addr()?);
+        simulator.run(listener, shutdown_on_signal()).await.context("simulator")
+    })
+}
+
+/// Progress on a terminal, nothing when piped.
+fn progress(label: &'static str) -> impl FnMut(f64) {
+    let tty = std::io::stderr().is_terminal();
+    let mut last = -1i64;
+    move |fraction: f64| {
+        let pct = (fraction * 100.0).floor() as i64;
+        if tty && pct != last {
+            last = pct;
+            eprint!("\r{label}: {pct:3}%");
+            if pct >= 100 {
+                eprintln!();
+            }
+        }
+    }
+}
+
+fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyhow::Result<()> {
+    if !(duration.is_finite() && duration > 0.0 && duration <= 1e6) {
+        return Err(BadInput(format!("--duration {duration}: expected seconds, > 0 and ≤ 1e6")).into());
+    }
+    let model = load_model(model_path)?;
+    let rec = plant::simulate::test_stand(&model, duration, seed, &mut progress("simulate"))
+        .map_err(|(key, msg)| BadInput(format!("model file {}: {key} {msg}", model_path.display())))?;
+    let file = std::fs::File::create(out).with_context(|| format!("creating {}", out.display()))?;
+    recording::write_csv(file, &rec).with_context(|| format!("writing {}", out.display()))?;
+    eprintln!("simulate: {} samples written to {}", rec.len(), out.display());
+    Ok(())
+}

@@ -1,0 +1,275 @@
+//! The register map of CONTRACT.md: which register holds what, in which type, word order, scale and offset.
+
+use serde::{Deserialize, Serialize};
+
+/// Which Modbus table an entry lives in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Table {
+    /// Input registers (function 04).
+    Input,
+    /// Holding registers (functions 03, 06, 16).
+    Holding,
+}
+
+/// The register's raw type.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ValueType {
+    U16,
+    I16,
+    U32,
+    I32,
+    F32,
+}
+
+impl ValueType {
+    /// How many 16-bit registers the value spans.
+    pub fn words(self) -> u16 {
+        match self {
+            ValueType::U16 | ValueType::I16 => 1,
+            _ => 2,
+        }
+    }
+}
+
+/// Byte order of a 32-bit value across two registers: `abcd` is big-endian with the high word first.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WordOrder {
+    #[default]
+    Abcd,
+    Cdab,
+    Badc,
+    Dcba,
+}
+
+/// One entry of the map: engineering value = raw·scale + offset.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RegisterSpec {
+    pub table: Table,
+    pub address: u16,
+    #[serde(rename = "type")]
+    pub kind: ValueType,
+    #[serde(default = "one")]
+    pub scale: f64,
+    #[serde(default)]
+    pub offset: f64,
+    #[serde(default)]
+    pub word_order: WordOrder,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// Why a value cannot be decoded or encoded.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MapError {
+    #[error("register {address}: expected {expected} words, got {got}")]
+    Length { address: u16, expected: usize, got: usize },
+    #[error("register {address}: value {value} is outside what a {kind:?} can hold at scale {scale}")]
+    Range { address: u16, value: f64, kind: ValueType, scale: f64 },
+    #[error("register {address}: decoded value is not finite")]
+    NotFinite { address: u16 },
+}
+
+impl RegisterSpec {
+    pub const fn new(table: Table, address: u16, kind: ValueType, scale: f64) -> RegisterSpec {
+        RegisterSpec { table, address, kind, scale, offset: 0.0, word_order: WordOrder::Abcd }
+    }
+
+    fn join(self, w: &[u16]) -> u32 {
+        let [a, b] = w[0].to_be_bytes();
+        let [c, d] = w[1].to_be_bytes();
+        let bytes = match self.word_order {
+            WordOrder::Abcd => [a, b, c, d],
+            WordOrder::Cdab => [c, d, a, b],
+            WordOrder::Badc => [b, a, d, c],
+            WordOrder::Dcba => [d, c, b, a],
+        };
+        u32::from_be_bytes(bytes)
+    }
+
+    fn split(self, v: u32) -> [u16; 2] {
+        let [a, b, c, d] = v.to_be_bytes();
+        let [w0, w1] = match self.word_order {
+            WordOrder::Abcd => [[a, b], [c, d]],
+            WordOrder::Cdab => [[c, d], [a, b]],
+            WordOrder::Badc => [[b, a], [d, c]],
+            WordOrder::Dcba => [[d, c], [b, a]],
+        };
+        [u16::from_be_bytes(w0), u16::from_be_bytes(w1)]
+    }
+
+    /// The raw register value, before scale and offset.
+    pub fn decode_raw(&self, words: &[u16]) -> Result<f64, MapError> {
+        let need = usize::from(self.kind.words());
+        if words.len() < need {
+            return Err(MapError::Length { address: self.address, expected: need, got: words.len() });
+        }
+        let raw = match self.kind {
+            ValueType::U16 => f64::from(words[0]),
+            ValueType::I16 => f64::from(words[0] as i16),
+            ValueType::U32 => f64::from(self.join(words)),
+            ValueType::I32 => f64::from(self.join(words) as i32),
+            ValueType::F32 => f64::from(f32::from_bits(self.join(words))),
+        };
+        if raw.is_finite() { Ok(raw) } else { Err(MapError::NotFinite { address: self.address }) }
+    }
+
+    /// The engineering value from the entry's words (the slice starts at this entry's address).
+    pub fn decode(&self, words: &[u16]) -> Result<f64, MapError> {
+        Ok(self.decode_raw(words)? * self.scale + self.offset)
+    }
+
+    /// The words for an engineering value, rounded to the nearest step; a value out of the type's range is an error.
+    pub fn encode(&self, value: f64) -> Result<Vec<u16>, MapError> {
+        let raw = (value - self.offset) / self.scale;
+        let range = MapError::Range { address: self.address, value, kind: self.kind, scale: self.scale };
+        if !raw.is_finite() {
+            return Err(range);
+        }
+        let r = raw.round();
+        let fits = |lo: f64, hi: f64| (lo..=hi).contains(&r);
+        Ok(match self.kind {
+            ValueType::U16 if fits(0.0, 65535.0) => vec![r as u16],
+            ValueType::I16 if fits(-32768.0, 32767.0) => vec![(r as i16) as u16],
+            ValueType::U32 if fits(0.0, 4_294_967_295.0) => self.split(r as u32).to_vec(),
+            ValueType::I32 if fits(-2_147_483_648.0, 2_147_483_647.0) => self.split((r as i32) as u32).to_vec(),
+            ValueType::F32 if raw.abs() <= f64::from(f32::MAX) => self.split((raw as f32).to_bits()).to_vec(),
+            _ => return Err(range),
+        })
+    }
+
+    /// As [`RegisterSpec::encode`] but saturating at the type's range (for a simulator's sensors).
+    pub fn encode_saturating(&self, value: f64) -> Vec<u16> {
+        let (lo, hi) = match self.kind {
+            ValueType::U16 => (0.0, 65535.0),
+            ValueType::I16 => (-32768.0, 32767.0),
+            ValueType::U32 => (0.0, 4_294_967_295.0),
+            ValueType::I32 => (-2_147_483_648.0, 2_147_483_647.0),
+            ValueType::F32 => (-f64::from(f32::MAX), f64::from(f32::MAX)),
+        };
+        let raw = ((value - self.offset) / self.scale).clamp(lo, hi);
+        let raw = if raw.is_nan() { 0.0 } else { raw };
+        self.encode(raw * self.scale + self.offset).unwrap_or_else(|_| vec![0; usize::from(self.kind.words())])
+    }
+}
+
+/// The drive's registers, by what they mean. Names carry the engineering unit.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RegisterMap {
+    pub inlet_pressure_bar: RegisterSpec,
+    pub outlet_pressure_bar: RegisterSpec,
+    pub shaft_speed_rpm: RegisterSpec,
+    pub drive_frequency_hz: RegisterSpec,
+    pub status_word: RegisterSpec,
+    pub sample_counter: RegisterSpec,
+    pub frequency_setpoint_hz: RegisterSpec,
+    pub control_word: RegisterSpec,
+    pub watchdog: RegisterSpec,
+}
+
+/// Status word bits.
+pub mod status {
+    pub const READY: u16 = 1 << 0;
+    pub const RUNNING: u16 = 1 << 1;
+    pub const FAULT: u16 = 1 << 2;
+    pub const COMM_LOSS_TRIP: u16 = 1 << 3;
+}
+
+/// Control word bits.
+pub mod control {
+    pub const RUN: u16 = 1 << 0;
+    pub const FAULT_RESET: u16 = 1 << 7;
+}
+
+impl Default for RegisterMap {
+    fn default() -> Self {
+        use Table::{Holding, Input};
+        use ValueType::{I16, U16};
+        RegisterMap {
+            inlet_pressure_bar: RegisterSpec::new(Input, 0, U16, 0.01),
+            outlet_pressure_bar: RegisterSpec::new(Input, 1, U16, 0.01),
+            shaft_speed_rpm: RegisterSpec::new(Input, 2, I16, 0.1),
+            drive_frequency_hz: RegisterSpec::new(Input, 3, U16, 0.01),
+            status_word: RegisterSpec::new(Input, 4, U16, 1.0),
+            sample_counter: RegisterSpec::new(Input, 5, U16, 1.0),
+            frequency_setpoint_hz: RegisterSpec::new(Holding, 0, U16, 0.01),
+            control_word: RegisterSpec::new(Holding, 1, U16, 1.0),
+            watchdog: RegisterSpec::new(Holding, 2, U16, 1.0),
+        }
+    }
+}
+
+impl RegisterMap {
+    /// The entries by name, for configs and messages.
+    pub fn entries(&self) -> [(&'static str, RegisterSpec); 9] {
+        [
+            ("inlet_pressure_bar", self.inlet_pressure_bar),
+            ("outlet_pressure_bar", self.outlet_pressure_bar),
+            ("shaft_speed_rpm", self.shaft_speed_rpm),
+            ("drive_frequency_hz", self.drive_frequency_hz),
+            ("status_word", self.status_word),
+            ("sample_counter", self.sample_counter),
+            ("frequency_setpoint_hz", self.frequency_setpoint_hz),
+            ("control_word", self.control_word),
+            ("watchdog", self.watchdog),
+        ]
+    }
+
+    /// The smallest block (first address, count) covering every entry of a table, for one batched read.
+    pub fn span(&self, table: Table) -> Option<(u16, u16)> {
+        let specs = self.entries().into_iter().map(|(_, s)| s).filter(|s| s.table == table);
+        let (mut lo, mut hi) = (u32::MAX, 0u32);
+        for s in specs {
+            lo = lo.min(u32::from(s.address));
+            hi = hi.max(u32::from(s.address) + u32::from(s.kind.words()));
+        }
+        (lo < hi).then(|| (lo as u16, (hi - lo) as u16))
+    }
+
+    /// Decodes an entry from a block read at `block_start`.
+    pub fn decode_from(spec: &RegisterSpec, block_start: u16, block: &[u16]) -> Result<f64, MapError> {
+        let at = usize::from(spec.address.wrapping_sub(block_start));
+        spec.decode(block.get(at..).unwrap_or(&[]))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn word_orders_round_trip() {
+        for order in [WordOrder::Abcd, WordOrder::Cdab, WordOrder::Badc, WordOrder::Dcba] {
+            for kind in [ValueType::U32, ValueType::I32, ValueType::F32] {
+                let spec = RegisterSpec { word_order: order, ..RegisterSpec::new(Table::Input, 7, kind, 0.5) };
+                let words = spec.encode(1234.5).expect("fits");
+                assert_eq!(spec.decode(&words).expect("decodes"), 1234.5, "{order:?} {kind:?}");
+            }
+        }
+        // a known pattern: 0x4148_F5C3 is 12.56f32
+        let abcd = RegisterSpec::new(Table::Input, 0, ValueType::F32, 1.0);
+        assert!((abcd.decode(&[0x4148, 0xF5C3]).expect("f32") - 12.56).abs() < 1e-5);
+        let cdab = RegisterSpec { word_order: WordOrder::Cdab, ..abcd };
+        assert!((cdab.decode(&[0xF5C3, 0x4148]).expect("f32") - 12.56).abs() < 1e-5);
+    }
+
+    #[test]
+    fn scales_signs_and_ranges() {
+        let m = RegisterMap::default();
+        assert_eq!(m.shaft_speed_rpm.encode(-100.0).expect("fits"), vec![(-1000i16) as u16]);
+        assert_eq!(m.shaft_speed_rpm.decode(&[(-1000i16) as u16]).expect("i16"), -100.0);
+        assert!(m.frequency_setpoint_hz.encode(-1.0).is_err());
+        assert!(m.frequency_setpoint_hz.encode(700.0).is_err());
+        assert_eq!(m.frequency_setpoint_hz.encode_saturating(700.0), vec![65535]);
+        assert_eq!(m.span(Table::Input), Some((0, 6)));
+        assert_eq!(m.span(Table::Holding), Some((0, 3)));
+        let nan = RegisterSpec::new(Table::Input, 0, ValueType::F32, 1.0);
+        assert!(nan.decode(&[0x7FC0, 0]).is_err());
+    }
+}

@@ -1,0 +1,416 @@
+//! The plant simulator: the plant model behind the default register map, served over Modbus TCP in real time.
+//!
+//! [`DriveSim`] is the drive and plant as a pure state machine stepped one sample at a time; [`Simulator`] adds the
+//! clock and the Modbus TCP server (`serve_until`, so it stops cleanly on a signal).
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::pin::Pin;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use tokio::net::TcpListener;
+use tokio_modbus::server::tcp::{Server, accept_tcp_connection};
+use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
+use tokio_util::sync::CancellationToken;
+
+use super::map::{RegisterMap, Table, control, status};
+use crate::plant::dynamics::{Coefficients, Plant};
+use crate::plant::model::PlantModel;
+use crate::plant::simulate::SensorNoise;
+use crate::units::{pa_to_bar, rad_s_to_rpm};
+
+/// Faults a test can switch on to see how a client copes (the fault-injection harness).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Faults {
+    /// Hold every reply this long before sending it.
+    pub reply_delay: Option<Duration>,
+    /// Answer every request with this Modbus exception.
+    pub exception: Option<ExceptionCode>,
+    /// Never answer (the request is swallowed).
+    pub no_reply: bool,
+    /// The sample counter stops moving (the PLC's data are frozen).
+    pub freeze_counter: bool,
+    /// Report this inlet pressure (bar) instead of the measured one, e.g. out of range.
+    pub inlet_pressure_override_bar: Option<f64>,
+}
+
+/// The ground truth at the current sample, for tests and the demo.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Truth {
+    pub t_s: f64,
+    pub omega_rad_s: f64,
+    pub p_in_bar: f64,
+    pub load_nm: f64,
+    pub f_drive_hz: f64,
+    pub f_set_hz: f64,
+    pub tripped: bool,
+}
+
+/// The drive and plant, stepped one sample at a time, with the register image a PLC would show.
+pub struct DriveSim {
+    model: PlantModel,
+    plant: Plant,
+    noise: SensorNoise,
+    map: RegisterMap,
+    sample: u64,
+    counter: u16,
+    setpoint_hz: f64,
+    control_word: u16,
+    watchdog_value: u16,
+    /// Sample at which the watchdog register last changed; None until the first write arms it.
+    watchdog_changed_at: Option<u64>,
+    tripped: bool,
+    fault: bool,
+    input_image: Vec<u16>,
+    load_nm: f64,
+    pub faults: Faults,
+    /// Writes accepted (all holding-register writes), for tests that check a client wrote nothing.
+    pub writes: u64,
+}
+
+impl DriveSim {
+    /// At standstill, drive stopped, watchdog unarmed.
+    pub fn new(model: PlantModel, seed: u64) -> Result<DriveSim, (String, String)> {
+        let coefficients = Coefficients::from_model(&model)?;
+        let noise = SensorNoise::new(&model, seed);
+        let map = RegisterMap::default();
+        let mut sim = DriveSim {
+            plant: Plant::new(coefficients),
+            noise,
+            map,
+            sample: 0,
+            counter: 0,
+            setpoint_hz: 0.0,
+            control_word: 0,
+            watchdog_value: 0,
+            watchdog_changed_at: None,
+            tripped: false,
+            fault: false,
+            input_image: vec![0; 6],
+            load_nm: 0.0,
+            faults: Faults::default(),
+            writes: 0,
+            model,
+        };
+        sim.refresh_image();
+        Ok(sim)
+    }
+
+    pub fn sample_s(&self) -> f64 {
+        self.model.sample_s()
+    }
+
+    fn comm_timeout_samples(&self) -> u64 {
+        let ms = self.model.drive.as_ref().map_or(1000, |d| d.comm_timeout_ms) as f64;
+        (ms / self.model.sensors.sample_ms).ceil() as u64
+    }
+
+    fn ready(&self) -> bool {
+        !self.tripped && !self.fault
+    }
+
+    fn status_word(&self) -> u16 {
+        let mut s = 0;
+        if self.ready() {
+            s |= status::READY;
+        }
+        if self.ready() && self.control_word & control::RUN != 0 {
+            s |= status::RUNNING;
+        }
+        if self.fault {
+            s |= status::FAULT;
+        }
+        if self.tripped {
+            s |= status::COMM_LOSS_TRIP;
+        }
+        s
+    }
+
+    /// Advances the plant by one sample and refreshes the register image.
+    pub fn step(&mut self) {
+        if let Some(changed) = self.watchdog_changed_at
+            && !self.tripped
+            && self.sample.saturating_sub(changed) >= self.comm_timeout_samples()
+        {
+            self.tripped = true;
+            tracing::warn!(t_s = self.plant.t_s(), "simulator: watchdog unchanged, comm-loss trip");
+        }
+        let run = self.control_word & control::RUN != 0;
+        let f_cmd = if run && self.ready() { self.setpoint_hz } else { 0.0 };
+        let t = self.plant.t_s();
+        self.load_nm = self.model.load.torque_nm(t);
+        self.plant.advance(self.sample_s(), f_cmd, self.load_nm);
+        self.sample += 1;
+        if !self.faults.freeze_counter {
+            self.counter = self.counter.wrapping_add(1);
+        }
+        self.refresh_image();
+    }
+
+    fn refresh_image(&mut self) {
+        let s = self.plant.state();
+        let back_bar = pa_to_bar(self.plant.coefficients().back_pressure_pa);
+        let p_in = self.faults.inlet_pressure_override_bar.unwrap_or(pa_to_bar(s.p_in_pa) + self.noise.pressure());
+        let values = [
+            (self.map.inlet_pressure_bar, p_in),
+            (self.map.outlet_pressure_bar, back_bar + self.noise.pressure()),
+            (self.map.shaft_speed_rpm, rad_s_to_rpm(s.omega_rad_s + self.noise.speed())),
+            (self.map.drive_frequency_hz, s.f_hz),
+            (self.map.status_word, f64::from(self.status_word())),
+            (self.map.sample_counter, f64::from(self.counter)),
+        ];
+        for (spec, v) in values {
+            let words = spec.encode_saturating(v);
+            let at = usize::from(spec.address);
+            self.input_image[at..at + words.len()].copy_from_slice(&words);
+        }
+    }
+
+    /// The ground truth now.
+    pub fn truth(&self) -> Truth {
+        let s = self.plant.state();
+        Truth {
+            t_s: self.plant.t_s(),
+            omega_rad_s: s.omega_rad_s,
+            p_in_bar: pa_to_bar(s.p_in_pa),
+            load_nm: self.load_nm,
+            f_drive_hz: s.f_hz,
+            f_set_hz: self.setpoint_hz,
+            tripped: self.tripped,
+        }
+    }
+
+    /// Sets the drive's fault state (as a PLC would on an overload).
+    pub fn set_fault(&mut self, fault: bool) {
+        self.fault = fault;
+        self.refresh_image();
+    }
+
+    fn holding(&self) -> [u16; 3] {
+        let sp = self.map.frequency_setpoint_hz.encode_saturating(self.setpoint_hz);
+        [sp[0], self.control_word, self.watchdog_value]
+    }
+
+    /// Reads `count` registers from `address` of a table.
+    pub fn read(&self, table: Table, address: u16, count: u16) -> Result<Vec<u16>, ExceptionCode> {
+        let image: Vec<u16> = match table {
+            Table::Input => self.input_image.clone(),
+            Table::Holding => self.holding().to_vec(),
+        };
+        let (a, n) = (usize::from(address), usize::from(count));
+        if n == 0 || a + n > image.len() {
+            return Err(ExceptionCode::IllegalDataAddress);
+        }
+        Ok(image[a..a + n].to_vec())
+    }
+
+    /// Writes holding registers starting at `address`.
+    pub fn write(&mut self, address: u16, values: &[u16]) -> Result<(), ExceptionCode> {
+        let end = usize::from(address) + values.len();
+        if values.is_empty() || end > 3 {
+            return Err(ExceptionCode::IllegalDataAddress);
+        }
+        self.writes += 1;
+        for (i, &v) in values.iter().enumerate() {
+            match usize::from(address) + i {
+                0 => {
+                    let hz =
+                        self.map.frequency_setpoint_hz.decode(&[v]).map_err(|_| ExceptionCode::IllegalDataValue)?;
+                    self.setpoint_hz = hz;
+                }
+                1 => {
+                    let rising_reset = v & control::FAULT_RESET != 0 && self.control_word & control::FAULT_RESET == 0;
+                    if rising_reset {
+                        self.tripped = false;
+                        self.fault = false;
+                        if self.watchdog_changed_at.is_some() {
+                            self.watchdog_changed_at = Some(self.sample);
+                        }
+                    }
+                    self.control_word = v;
+                }
+                _ => {
+                    if self.watchdog_changed_at.is_none() || v != self.watchdog_value {
+                        self.watchdog_changed_at = Some(self.sample);
+                    }
+                    self.watchdog_value = v;
+                }
+            }
+        }
+        self.refresh_image();
+        Ok(())
+    }
+}
+
+/// Shared access to a running simulator's drive, for tests and the demo.
+#[derive(Clone)]
+pub struct SimHandle(Arc<Mutex<DriveSim>>);
+
+impl SimHandle {
+    /// Locks the drive (a poisoned lock is taken over: the state is plain data).
+    pub fn lock(&self) -> MutexGuard<'_, DriveSim> {
+        self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+/// The Modbus face of the simulator.
+struct ModbusService {
+    drive: SimHandle,
+}
+
+type Reply = Result<Option<Response>, ExceptionCode>;
+
+impl tokio_modbus::server::Service for ModbusService {
+    type Request = SlaveRequest<'static>;
+    type Response = Option<Response>;
+    type Exception = ExceptionCode;
+    type Future = Pin<Box<dyn Future<Output = Reply> + Send>>;
+
+    fn call(&self, req: Self::Request) -> Self::Future {
+        let (reply, faults) = {
+            let mut d = self.drive.lock();
+            let faults = d.faults;
+            let reply = match req.request {
+                Request::ReadInputRegisters(a, n) => d.read(Table::Input, a, n).map(Response::ReadInputRegisters),
+                Request::ReadHoldingRegisters(a, n) => d.read(Table::Holding, a, n).map(Response::ReadHoldingRegisters),
+                Request::WriteSingleRegister(a, v) => d.write(a, &[v]).map(|()| Response::WriteSingleRegister(a, v)),
+                Request::WriteMultipleRegisters(a, ref vs) => {
+                    d.write(a, vs).map(|()| Response::WriteMultipleRegisters(a, vs.len() as u16))
+                }
+                _ => Err(ExceptionCode::IllegalFunction),
+            };
+            (reply, faults)
+        };
+        Box::pin(async move {
+            if let Some(delay) = faults.reply_delay {
+                tokio::time::sleep(delay).await;
+            }
+            if faults.no_reply {
+                return Ok(None);
+            }
+            if let Some(code) = faults.exception {
+                return Err(code);
+            }
+            reply.map(Some)
+        })
+    }
+}
+
+/// The simulator: a drive, its clock and its Modbus TCP server.
+pub struct Simulator {
+    drive: SimHandle,
+}
+
+impl Simulator {
+    pub fn new(model: PlantModel, seed: u64) -> Result<Simulator, (String, String)> {
+        Ok(Simulator { drive: SimHandle(Arc::new(Mutex::new(DriveSim::new(model, seed)?))) })
+    }
+
+    pub fn handle(&self) -> SimHandle {
+        self.drive.clone()
+    }
+
+    /// Runs the plant in real time and serves Modbus TCP on `listener` until `shutdown` fires.
+    pub async fn run(self, listener: TcpListener, shutdown: CancellationToken) -> std::io::Result<()> {
+        let addr = listener.local_addr()?;
+        tracing::info!(%addr, "plant simulator serving Modbus TCP");
+        let clock = tokio::spawn(run_clock(self.drive.clone(), shutdown.clone()));
+        let server = Server::new(listener);
+        let drive = self.drive.clone();
+        let on_connected = move |stream, socket_addr: SocketAddr| {
+            let drive = drive.clone();
+            async move {
+                tracing::debug!(%socket_addr, "simulator: client connected");
+                accept_tcp_connection(stream, socket_addr, move |_| Ok(Some(ModbusService { drive: drive.clone() })))
+            }
+        };
+        let on_process_error = |err| tracing::debug!(%err, "simulator: connection ended");
+        let stop = shutdown.clone();
+        let result = server.serve_until(&on_connected, on_process_error, async move { stop.cancelled().await }).await;
+        shutdown.cancel();
+        let _ = clock.await;
+        tracing::info!("plant simulator stopped");
+        result.map(|_| ())
+    }
+}
+
+/// Steps the drive in real time: as many samples as wall time asks for, catching up at most one second.
+async fn run_clock(drive: SimHandle, shutdown: CancellationToken) {
+    let sample_s = drive.lock().sample_s();
+    let period = Duration::from_secs_f64(sample_s);
+    let mut tick = tokio::time::interval(period);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let start = tokio::time::Instant::now();
+    let mut done: u64 = 0;
+    let max_catch_up = (1.0 / sample_s).ceil() as u64;
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            () = shutdown.cancelled() => break,
+        }
+        let due = (start.elapsed().as_secs_f64() / sample_s) as u64;
+        if due.saturating_sub(done) > max_catch_up {
+            done = due - max_catch_up;
+        }
+        let mut d = drive.lock();
+        while done < due {
+            d.step();
+            done += 1;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sim() -> DriveSim {
+        DriveSim::new(PlantModel::reference(), 1).expect("reference is hydraulic")
+    }
+
+    #[test]
+    fn runs_only_with_run_bit_and_trips_on_watchdog() {
+        let mut d = sim();
+        d.write(0, &[2000]).expect("setpoint 20 Hz");
+        for _ in 0..500 {
+            d.step();
+        }
+        assert_eq!(d.truth().f_drive_hz, 0.0, "no run bit, no motion");
+        d.write(1, &[control::RUN]).expect("run");
+        d.write(2, &[1]).expect("arm watchdog");
+        for _ in 0..900 {
+            d.step();
+        }
+        assert!(d.truth().f_drive_hz > 10.0);
+        assert_eq!(d.read(Table::Input, 4, 1).expect("status")[0] & status::RUNNING, status::RUNNING);
+        for _ in 0..200 {
+            d.step();
+        }
+        assert!(d.truth().tripped, "watchdog unchanged for 1.1 s");
+        assert_ne!(d.read(Table::Input, 4, 1).expect("status")[0] & status::COMM_LOSS_TRIP, 0);
+        for _ in 0..2000 {
+            d.step();
+        }
+        assert!(d.truth().f_drive_hz < 0.01, "ramped to 0 Hz");
+        d.write(1, &[control::RUN | control::FAULT_RESET]).expect("reset");
+        assert!(!d.truth().tripped);
+        d.write(1, &[control::RUN]).expect("run");
+        for _ in 0..500 {
+            d.step();
+            d.write(2, &[(d.sample % 1000) as u16]).expect("kick");
+        }
+        assert!(d.truth().f_drive_hz > 10.0, "runs again after reset");
+    }
+
+    #[test]
+    fn counter_moves_once_per_sample_and_bad_addresses_are_refused() {
+        let mut d = sim();
+        let c0 = d.read(Table::Input, 5, 1).expect("counter")[0];
+        d.step();
+        d.step();
+        assert_eq!(d.read(Table::Input, 5, 1).expect("counter")[0], c0.wrapping_add(2));
+        assert_eq!(d.read(Table::Input, 4, 3), Err(ExceptionCode::IllegalDataAddress));
+        assert_eq!(d.write(3, &[1]), Err(ExceptionCode::IllegalDataAddress));
+    }
+}

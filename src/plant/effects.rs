@@ -1,0 +1,146 @@
+//! The catalogue of physics beyond the nominal model (CONTRACT.md "Effects catalogue"); ids and names are fixed.
+
+use serde::{Deserialize, Serialize};
+
+/// Dry friction `T_c·sgn(ω)`.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CoulombFriction {
+    pub torque_nm: f64,
+}
+
+/// Extra friction at low speed on top of Coulomb: `(T_s − T_c)·exp(−(ω/ω_s)²)·sgn(ω)`.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StribeckFriction {
+    pub breakaway_nm: f64,
+    pub speed_rad_s: f64,
+}
+
+/// Constant torque bias: an unmodelled constant load, or a pressure-sensor offset.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TorqueOffset {
+    pub torque_nm: f64,
+}
+
+/// Leakage beyond `hydraulics.leakage_l_min_per_bar` (a worn pump or motor).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct InternalLeakage {
+    pub l_min_per_bar: f64,
+}
+
+/// Delay between the setpoint and the drive's response.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct DeadTime {
+    pub ms: f64,
+}
+
+/// Air in the oil: the effective bulk modulus replaces the model's.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct EntrainedAir {
+    pub bulk_modulus_bar: f64,
+}
+
+/// Induction-motor slip: pump speed falls with pump torque.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct MotorSlip {
+    pub rpm_per_nm: f64,
+}
+
+/// Every effect of the catalogue; `None` = off.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Effects {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub coulomb_friction: Option<CoulombFriction>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stribeck_friction: Option<StribeckFriction>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub torque_offset: Option<TorqueOffset>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub internal_leakage: Option<InternalLeakage>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dead_time: Option<DeadTime>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub entrained_air: Option<EntrainedAir>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub motor_slip: Option<MotorSlip>,
+}
+
+/// The catalogue ids, in the contract's order.
+pub const EFFECT_IDS: [&str; 7] = [
+    "coulomb_friction",
+    "stribeck_friction",
+    "torque_offset",
+    "internal_leakage",
+    "dead_time",
+    "entrained_air",
+    "motor_slip",
+];
+
+impl Effects {
+    /// Ids of the effects that are switched on.
+    pub fn active_ids(&self) -> Vec<&'static str> {
+        let on = [
+            self.coulomb_friction.is_some(),
+            self.stribeck_friction.is_some(),
+            self.torque_offset.is_some(),
+            self.internal_leakage.is_some(),
+            self.dead_time.is_some(),
+            self.entrained_air.is_some(),
+            self.motor_slip.is_some(),
+        ];
+        EFFECT_IDS.iter().zip(on).filter_map(|(id, on)| on.then_some(*id)).collect()
+    }
+
+    /// Checks every parameter, naming the key of the first bad one.
+    pub fn validate(&self) -> Result<(), (String, String)> {
+        let nonneg = |key: &str, v: f64| -> Result<(), (String, String)> {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err((format!("effects.{key}"), format!("must be finite and ≥ 0, got {v}")))
+            }
+        };
+        let positive = |key: &str, v: f64| -> Result<(), (String, String)> {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err((format!("effects.{key}"), format!("must be finite and > 0, got {v}")))
+            }
+        };
+        if let Some(e) = self.coulomb_friction {
+            nonneg("coulomb_friction.torque_nm", e.torque_nm)?;
+        }
+        if let Some(e) = self.stribeck_friction {
+            nonneg("stribeck_friction.breakaway_nm", e.breakaway_nm)?;
+            positive("stribeck_friction.speed_rad_s", e.speed_rad_s)?;
+        }
+        if let Some(e) = self.torque_offset
+            && !e.torque_nm.is_finite()
+        {
+            return Err(("effects.torque_offset.torque_nm".into(), format!("must be finite, got {}", e.torque_nm)));
+        }
+        if let Some(e) = self.internal_leakage {
+            nonneg("internal_leakage.l_min_per_bar", e.l_min_per_bar)?;
+        }
+        if let Some(e) = self.dead_time {
+            nonneg("dead_time.ms", e.ms)?;
+            if e.ms > 10_000.0 {
+                return Err(("effects.dead_time.ms".into(), format!("must be ≤ 10000, got {}", e.ms)));
+            }
+        }
+        if let Some(e) = self.entrained_air {
+            positive("entrained_air.bulk_modulus_bar", e.bulk_modulus_bar)?;
+        }
+        if let Some(e) = self.motor_slip {
+            nonneg("motor_slip.rpm_per_nm", e.rpm_per_nm)?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,291 @@
+//! The plant model file (`config/plant.toml`): parsed strictly, then validated so that every number is usable.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use super::effects::Effects;
+use super::load::LoadSpec;
+
+/// `[drive]`: the frequency drive (VFD) and its induction motor.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Drive {
+    pub pole_pairs: u32,
+    pub ramp_hz_per_s: f64,
+    pub time_constant_s: f64,
+    #[serde(default = "default_max_hz")]
+    pub max_hz: f64,
+    /// Watchdog timeout of the simulated drive's comm-loss monitoring.
+    #[serde(default = "default_comm_timeout_ms")]
+    pub comm_timeout_ms: u64,
+}
+
+fn default_max_hz() -> f64 {
+    60.0
+}
+fn default_comm_timeout_ms() -> u64 {
+    1000
+}
+
+/// `[pump]`: fixed-displacement pump.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Pump {
+    pub displacement_cm3: f64,
+}
+
+/// `[motor]`: the hydraulic motor and what it drives (for a torque-driven recording: the whole mechanism).
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Motor {
+    /// Needed only when the drive torque comes from pressures.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub displacement_cm3: Option<f64>,
+    pub inertia_kg_m2: f64,
+    pub viscous_nm_s_rad: f64,
+}
+
+/// `[hydraulics]`: the high-pressure line between pump and motor.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Hydraulics {
+    pub volume_l: f64,
+    pub bulk_modulus_bar: f64,
+    pub back_pressure_bar: f64,
+    pub leakage_l_min_per_bar: f64,
+}
+
+/// `[sensors]`: white-noise σ of each measurement and the sample period.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Sensors {
+    #[serde(default)]
+    pub pressure_noise_bar: f64,
+    #[serde(default)]
+    pub speed_noise_rad_s: f64,
+    #[serde(default)]
+    pub load_noise_nm: f64,
+    #[serde(default = "default_sample_ms")]
+    pub sample_ms: f64,
+}
+
+fn default_sample_ms() -> f64 {
+    1.0
+}
+
+impl Default for Sensors {
+    fn default() -> Self {
+        Sensors { pressure_noise_bar: 0.0, speed_noise_rad_s: 0.0, load_noise_nm: 0.0, sample_ms: 1.0 }
+    }
+}
+
+/// A whole plant model file. Sections other than `[motor]` are optional in the file, because a torque-driven
+/// recording needs only the mechanics; [`PlantModel::hydraulic`] checks that a simulation has what it needs.
+#[derive(Debug, Clone, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlantModel {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drive: Option<Drive>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pump: Option<Pump>,
+    pub motor: Motor,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hydraulics: Option<Hydraulics>,
+    #[serde(default)]
+    pub sensors: Sensors,
+    #[serde(default)]
+    pub load: LoadSpec,
+    #[serde(default)]
+    pub effects: Effects,
+    /// Estimator settings (λ, η, covariance, noise, bounds); free-form here, validated by the estimator.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub estimator: Option<toml::Table>,
+}
+
+/// The parts a pressure-driven simulation needs, borrowed from a model that has them all.
+#[derive(Debug, Clone, Copy)]
+pub struct HydraulicParts<'a> {
+    pub drive: &'a Drive,
+    pub pump: &'a Pump,
+    pub motor_displacement_cm3: f64,
+    pub hydraulics: &'a Hydraulics,
+}
+
+/// What can be wrong with a model file. Every variant is bad input (exit 2) except `Io`.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    #[error("cannot read model file {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("model file {path}: {message}")]
+    Syntax { path: String, message: String },
+    #[error("model file {path}: key `{key}` {message}")]
+    Invalid { path: String, key: String, message: String },
+}
+
+impl ModelError {
+    /// True when the user can fix it by editing the file (exit code 2).
+    pub fn is_bad_input(&self) -> bool {
+        !matches!(self, ModelError::Io { .. })
+    }
+}
+
+impl PlantModel {
+    /// Reads and validates a model file.
+    pub fn load(path: &Path) -> Result<PlantModel, ModelError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io { path: path.into(), source })?;
+        PlantModel::parse(&text, &path.display().to_string())
+    }
+
+    /// Parses and validates model text; `origin` names the file in errors.
+    pub fn parse(text: &str, origin: &str) -> Result<PlantModel, ModelError> {
+        let model: PlantModel = toml::from_str(text).map_err(|e| ModelError::Syntax {
+            path: origin.to_string(),
+            message: e.to_string().trim_end().to_string(),
+        })?;
+        model.validate().map_err(|(key, message)| ModelError::Invalid { path: origin.to_string(), key, message })?;
+        Ok(model)
+    }
+
+    /// The reference plant of CONTRACT.md (the content of `config/plant.toml`).
+    pub fn reference() -> PlantModel {
+        // The file is the one source of truth; it is embedded so the binary runs anywhere.
+        match PlantModel::parse(REFERENCE_TOML, "config/plant.toml") {
+            Ok(m) => m,
+            Err(e) => unreachable!("the embedded reference plant is valid: {e}"),
+        }
+    }
+
+    /// Writes the model as TOML that [`PlantModel::parse`] accepts.
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).unwrap_or_else(|e| format!("# cannot serialise model: {e}\n"))
+    }
+
+    /// The sample period in seconds.
+    pub fn sample_s(&self) -> f64 {
+        self.sensors.sample_ms * 1e-3
+    }
+
+    /// The sections a pressure-driven simulation needs, or the key that is missing.
+    pub fn hydraulic(&self) -> Result<HydraulicParts<'_>, (String, String)> {
+        let need = |what: &str| (what.to_string(), "is required to simulate the hydraulic plant".to_string());
+        Ok(HydraulicParts {
+            drive: self.drive.as_ref().ok_or_else(|| need("[drive]"))?,
+            pump: self.pump.as_ref().ok_or_else(|| need("[pump]"))?,
+            motor_displacement_cm3: self.motor.displacement_cm3.ok_or_else(|| need("motor.displacement_cm3"))?,
+            hydraulics: self.hydraulics.as_ref().ok_or_else(|| need("[hydraulics]"))?,
+        })
+    }
+
+    /// Checks every number, returning the key and what is wrong with it.
+    pub fn validate(&self) -> Result<(), (String, String)> {
+        fn positive(key: &str, v: f64) -> Result<(), (String, String)> {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err((key.into(), format!("must be finite and > 0, got {v}")))
+            }
+        }
+        fn nonneg(key: &str, v: f64) -> Result<(), (String, String)> {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err((key.into(), format!("must be finite and ≥ 0, got {v}")))
+            }
+        }
+        if let Some(d) = &self.drive {
+            if d.pole_pairs == 0 {
+                return Err(("drive.pole_pairs".into(), "must be ≥ 1, got 0".into()));
+            }
+            positive("drive.ramp_hz_per_s", d.ramp_hz_per_s)?;
+            positive("drive.time_constant_s", d.time_constant_s)?;
+            positive("drive.max_hz", d.max_hz)?;
+            if d.comm_timeout_ms == 0 {
+                return Err(("drive.comm_timeout_ms".into(), "must be ≥ 1, got 0".into()));
+            }
+        }
+        if let Some(p) = &self.pump {
+            positive("pump.displacement_cm3", p.displacement_cm3)?;
+        }
+        if let Some(d) = self.motor.displacement_cm3 {
+            positive("motor.displacement_cm3", d)?;
+        }
+        positive("motor.inertia_kg_m2", self.motor.inertia_kg_m2)?;
+        nonneg("motor.viscous_nm_s_rad", self.motor.viscous_nm_s_rad)?;
+        if let Some(h) = &self.hydraulics {
+            positive("hydraulics.volume_l", h.volume_l)?;
+            positive("hydraulics.bulk_modulus_bar", h.bulk_modulus_bar)?;
+            nonneg("hydraulics.back_pressure_bar", h.back_pressure_bar)?;
+            nonneg("hydraulics.leakage_l_min_per_bar", h.leakage_l_min_per_bar)?;
+        }
+        nonneg("sensors.pressure_noise_bar", self.sensors.pressure_noise_bar)?;
+        nonneg("sensors.speed_noise_rad_s", self.sensors.speed_noise_rad_s)?;
+        nonneg("sensors.load_noise_nm", self.sensors.load_noise_nm)?;
+        positive("sensors.sample_ms", self.sensors.sample_ms)?;
+        if self.sensors.sample_ms > 1000.0 {
+            return Err(("sensors.sample_ms".into(), format!("must be ≤ 1000, got {}", self.sensors.sample_ms)));
+        }
+        self.load.validate()?;
+        self.effects.validate()
+    }
+}
+
+/// `config/plant.toml`, embedded.
+pub const REFERENCE_TOML: &str = include_str!("../../config/plant.toml");
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reference_parses_and_round_trips() {
+        let m = PlantModel::reference();
+        assert_eq!(m.motor.inertia_kg_m2, 0.08);
+        assert!(m.hydraulic().is_ok());
+        let again = PlantModel::parse(&m.to_toml(), "round trip").expect("own output parses");
+        assert_eq!(again, m);
+    }
+
+    #[test]
+    fn unknown_key_is_named() {
+        let text = REFERENCE_TOML.replace("inertia_kg_m2", "inertia_kgm2");
+        let err = PlantModel::parse(&text, "p.toml").expect_err("unknown key");
+        let msg = err.to_string();
+        assert!(msg.contains("inertia_kgm2"), "{msg}");
+        assert!(msg.contains("p.toml"), "{msg}");
+        assert!(err.is_bad_input());
+    }
+
+    #[test]
+    fn wrong_type_and_impossible_values_are_named() {
+        let text = REFERENCE_TOML.replace("volume_l = 0.3", "volume_l = \"big\"");
+        let msg = PlantModel::parse(&text, "p.toml").expect_err("type").to_string();
+        assert!(msg.contains("volume_l"), "{msg}");
+        let text = REFERENCE_TOML.replace("inertia_kg_m2 = 0.08", "inertia_kg_m2 = -0.08");
+        let msg = PlantModel::parse(&text, "p.toml").expect_err("negative").to_string();
+        assert!(msg.contains("motor.inertia_kg_m2"), "{msg}");
+    }
+
+    #[test]
+    fn effects_and_loads_parse() {
+        let text =
+            format!("{REFERENCE_TOML}\n[effects.dead_time]\nms = 30.0\n[effects.coulomb_friction]\ntorque_nm = 1.5\n")
+                .replace("kind = \"recorded\"", "kind = \"steps\"\nlevels_nm = [0.0, 5.0]\nperiod_s = 2.0");
+        let m = PlantModel::parse(&text, "p.toml").expect("valid");
+        assert_eq!(m.effects.active_ids(), vec!["coulomb_friction", "dead_time"]);
+        assert!(matches!(m.load, LoadSpec::Steps { .. }));
+        let bad = text.replace("ms = 30.0", "ms = 30.0\nseconds = 1.0");
+        let msg = PlantModel::parse(&bad, "p.toml").expect_err("unknown effect key").to_string();
+        assert!(msg.contains("seconds"), "{msg}");
+    }
+
+    #[test]
+    fn torque_only_model_is_valid_but_not_simulable_hydraulically() {
+        let m = PlantModel::parse(
+            "[motor]\ninertia_kg_m2 = 95.0\nviscous_nm_s_rad = 200.0\n[load]\nkind = \"none\"\n",
+            "emps",
+        )
+        .expect("valid");
+        assert_eq!(m.hydraulic().expect_err("no pump").0, "[drive]");
+    }
+}

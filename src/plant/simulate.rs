@@ -1,0 +1,129 @@
+//! The offline test-stand run behind `hydrolens simulate`: the plant, the built-in program, noisy sensors.
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+
+use super::dynamics::{Coefficients, Plant};
+use super::excitation;
+use super::model::PlantModel;
+use crate::recording::Recording;
+use crate::units::pa_to_bar;
+
+/// The columns `simulate` writes, in order (CONTRACT.md: measured columns, then `true_*`).
+pub const COLUMNS: [&str; 11] = [
+    "t_s",
+    "f_set_hz",
+    "f_drive_hz",
+    "p_in_bar",
+    "p_out_bar",
+    "omega_rad_s",
+    "load_nm",
+    "true_omega_rad_s",
+    "true_p_in_bar",
+    "true_load_nm",
+    "true_f_drive_hz",
+];
+
+/// What drives a run: the setpoint program and the load over time.
+pub struct Inputs<'a> {
+    pub setpoint_hz: &'a dyn Fn(f64) -> f64,
+    pub load_nm: &'a dyn Fn(f64) -> f64,
+}
+
+/// Runs the test stand for `duration_s` with the built-in setpoint program and the model's `[load]`
+/// (the brake-load steps for `recorded`). Deterministic for a seed.
+pub fn test_stand(
+    model: &PlantModel,
+    duration_s: f64,
+    seed: u64,
+    progress: &mut dyn FnMut(f64),
+) -> Result<Recording, (String, String)> {
+    let load = model.load.clone();
+    let inputs = Inputs { setpoint_hz: &excitation::setpoint_hz, load_nm: &move |t| load.torque_nm(t) };
+    run(model, duration_s, seed, &inputs, progress)
+}
+
+/// Runs the plant for `duration_s` with given inputs, sampling every `sensors.sample_ms`. Row k holds the state at
+/// t_k and the inputs applied over [t_k, t_k+1).
+pub fn run(
+    model: &PlantModel,
+    duration_s: f64,
+    seed: u64,
+    inputs: &Inputs<'_>,
+    progress: &mut dyn FnMut(f64),
+) -> Result<Recording, (String, String)> {
+    let coefficients = Coefficients::from_model(model)?;
+    let dt = model.sample_s();
+    let n = (duration_s / dt).floor() as usize + 1;
+    let mut plant = Plant::new(coefficients);
+    let mut noise = SensorNoise::new(model, seed);
+    let mut columns: Vec<Vec<f64>> = (0..COLUMNS.len()).map(|_| Vec::with_capacity(n)).collect();
+    let back_pressure_bar = pa_to_bar(coefficients.back_pressure_pa);
+    let report_every = (n / 100).max(1);
+    for k in 0..n {
+        let t = k as f64 * dt;
+        let f_set = (inputs.setpoint_hz)(t);
+        let load = (inputs.load_nm)(t);
+        let s = plant.state();
+        let p_in_bar = pa_to_bar(s.p_in_pa);
+        let row = [
+            t,
+            f_set,
+            s.f_hz,
+            p_in_bar + noise.pressure(),
+            back_pressure_bar + noise.pressure(),
+            s.omega_rad_s + noise.speed(),
+            load + noise.load(),
+            s.omega_rad_s,
+            p_in_bar,
+            load,
+            s.f_hz,
+        ];
+        for (col, v) in columns.iter_mut().zip(row) {
+            col.push(v);
+        }
+        plant.advance(dt, f_set, load);
+        if k % report_every == 0 {
+            progress(k as f64 / n as f64);
+        }
+    }
+    progress(1.0);
+    Ok(Recording::from_columns("simulate", COLUMNS.iter().map(|c| c.to_string()).collect(), columns))
+}
+
+/// White sensor noise from a seeded, portable generator.
+pub struct SensorNoise {
+    rng: ChaCha8Rng,
+    pressure: Option<Normal<f64>>,
+    speed: Option<Normal<f64>>,
+    load: Option<Normal<f64>>,
+}
+
+impl SensorNoise {
+    pub fn new(model: &PlantModel, seed: u64) -> SensorNoise {
+        let normal = |sigma: f64| (sigma > 0.0).then(|| Normal::new(0.0, sigma).ok()).flatten();
+        SensorNoise {
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            pressure: normal(model.sensors.pressure_noise_bar),
+            speed: normal(model.sensors.speed_noise_rad_s),
+            load: normal(model.sensors.load_noise_nm),
+        }
+    }
+
+    fn draw(rng: &mut ChaCha8Rng, d: Option<Normal<f64>>) -> f64 {
+        d.map_or(0.0, |d| d.sample(rng))
+    }
+
+    pub fn pressure(&mut self) -> f64 {
+        Self::draw(&mut self.rng, self.pressure)
+    }
+
+    pub fn speed(&mut self) -> f64 {
+        Self::draw(&mut self.rng, self.speed)
+    }
+
+    pub fn load(&mut self) -> f64 {
+        Self::draw(&mut self.rng, self.load)
+    }
+}

@@ -1,0 +1,86 @@
+//! Recordings: the contract's CSV (CONTRACT.md "Recording CSV"), read strictly and written streaming, with rotation.
+
+mod read;
+mod write;
+
+pub use read::{RecordingError, load, parse};
+pub use write::{RotatingWriter, RowWriter, format_value, write_csv};
+
+/// The columns the contract names; anything else in a file is kept but reported once as unknown.
+pub const KNOWN_COLUMNS: [&str; 14] = [
+    "t_s",
+    "f_set_hz",
+    "f_drive_hz",
+    "p_in_bar",
+    "p_out_bar",
+    "omega_rad_s",
+    "theta_rad",
+    "load_nm",
+    "torque_nm",
+    "omega_hat_rad_s",
+    "load_hat_nm",
+    "inertia_hat_kg_m2",
+    "viscous_hat_nm_s_rad",
+    "status_word",
+];
+
+/// A recording held column by column; a missing value is NaN. `t_s` is always the first column.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Recording {
+    /// Where it came from (a file name), for messages.
+    pub source: String,
+    names: Vec<String>,
+    columns: Vec<Vec<f64>>,
+}
+
+impl Recording {
+    /// Builds a recording from named columns of equal length.
+    pub fn from_columns(source: &str, names: Vec<String>, columns: Vec<Vec<f64>>) -> Recording {
+        debug_assert_eq!(names.len(), columns.len());
+        debug_assert!(columns.windows(2).all(|w| w[0].len() == w[1].len()));
+        Recording { source: source.to_string(), names, columns }
+    }
+
+    pub fn names(&self) -> &[String] {
+        &self.names
+    }
+
+    /// A column by name.
+    pub fn column(&self, name: &str) -> Option<&[f64]> {
+        self.names.iter().position(|n| n == name).map(|i| self.columns[i].as_slice())
+    }
+
+    /// A column by name, only if it holds at least one value.
+    pub fn present(&self, name: &str) -> Option<&[f64]> {
+        self.column(name).filter(|c| c.iter().any(|v| v.is_finite()))
+    }
+
+    /// Time stamps (s); empty only for a recording built empty.
+    pub fn t_s(&self) -> &[f64] {
+        self.column("t_s").unwrap_or(&[])
+    }
+
+    pub fn len(&self) -> usize {
+        self.columns.first().map_or(0, Vec::len)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Adds (or replaces) a column.
+    pub fn set_column(&mut self, name: &str, values: Vec<f64>) {
+        match self.names.iter().position(|n| n == name) {
+            Some(i) => self.columns[i] = values,
+            None => {
+                self.names.push(name.to_string());
+                self.columns.push(values);
+            }
+        }
+    }
+
+    /// Row `k` as values in column order.
+    pub fn row(&self, k: usize) -> impl Iterator<Item = f64> + '_ {
+        self.columns.iter().map(move |c| c[k])
+    }
+}

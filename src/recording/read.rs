@@ -1,0 +1,161 @@
+//! Reading a recording CSV: every bad cell is named by file, line and column.
+
+use std::io::Read;
+use std::path::Path;
+
+use super::{KNOWN_COLUMNS, Recording};
+
+/// What can be wrong with a recording. Everything but `Io` is bad input (exit 2).
+#[derive(Debug, thiserror::Error)]
+pub enum RecordingError {
+    #[error("cannot read recording {path}: {source}")]
+    Io { path: String, source: std::io::Error },
+    #[error("recording {path}: {message}")]
+    File { path: String, message: String },
+    #[error("recording {path}, line {line}: {message}")]
+    Line { path: String, line: u64, message: String },
+    #[error("recording {path}, line {line}, column `{column}`: {message}")]
+    Cell { path: String, line: u64, column: String, message: String },
+}
+
+impl RecordingError {
+    pub fn is_bad_input(&self) -> bool {
+        !matches!(self, RecordingError::Io { .. })
+    }
+}
+
+/// Reads a recording file.
+pub fn load(path: &Path) -> Result<Recording, RecordingError> {
+    let name = path.display().to_string();
+    let file = std::fs::File::open(path).map_err(|source| RecordingError::Io { path: name.clone(), source })?;
+    parse(std::io::BufReader::with_capacity(1 << 16, file), &name)
+}
+
+/// Parses recording CSV text; `origin` names it in errors.
+pub fn parse<R: Read>(reader: R, origin: &str) -> Result<Recording, RecordingError> {
+    let file_err = |message: String| RecordingError::File { path: origin.to_string(), message };
+    let mut csv = csv::ReaderBuilder::new().has_headers(true).trim(csv::Trim::All).from_reader(reader);
+    let headers = csv.headers().map_err(|e| file_err(format!("cannot read the header row: {e}")))?.clone();
+    if headers.is_empty() || (headers.len() == 1 && headers[0].is_empty()) {
+        return Err(file_err("the file is empty: expected a header row starting with `t_s`".into()));
+    }
+    let names: Vec<String> = headers.iter().map(str::to_string).collect();
+    let Some(t_index) = names.iter().position(|n| n == "t_s") else {
+        return Err(RecordingError::Line {
+            path: origin.into(),
+            line: 1,
+            message: format!("no `t_s` column (required); the header has {}", names.join(", ")),
+        });
+    };
+    for (i, n) in names.iter().enumerate() {
+        if names[..i].contains(n) {
+            return Err(RecordingError::Line {
+                path: origin.into(),
+                line: 1,
+                message: format!("column `{n}` appears twice"),
+            });
+        }
+    }
+    let unknown: Vec<&str> =
+        names.iter().map(String::as_str).filter(|n| !KNOWN_COLUMNS.contains(n) && !n.starts_with("true_")).collect();
+    if !unknown.is_empty() {
+        tracing::info!(recording = origin, columns = ?unknown, "ignoring unknown columns");
+    }
+    // t_s first, the rest in file order
+    let order: Vec<usize> = std::iter::once(t_index).chain((0..names.len()).filter(|&i| i != t_index)).collect();
+    let mut columns: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
+    let mut record = csv::StringRecord::new();
+    let mut last_t = f64::NEG_INFINITY;
+    loop {
+        match csv.read_record(&mut record) {
+            Ok(false) => break,
+            Ok(true) => {}
+            Err(e) => {
+                let line = e.position().map_or(0, csv::Position::line);
+                return Err(RecordingError::Line { path: origin.into(), line, message: e.to_string() });
+            }
+        }
+        let line = record.position().map_or(0, csv::Position::line);
+        if record.len() != names.len() {
+            return Err(RecordingError::Line {
+                path: origin.into(),
+                line,
+                message: format!("{} fields, expected {} as in the header", record.len(), names.len()),
+            });
+        }
+        for (slot, &i) in order.iter().enumerate() {
+            let cell = &record[i];
+            let value = if cell.is_empty() {
+                f64::NAN
+            } else {
+                cell.parse::<f64>().map_err(|_| RecordingError::Cell {
+                    path: origin.into(),
+                    line,
+                    column: names[i].clone(),
+                    message: format!("expected a number, got {cell:?}"),
+                })?
+            };
+            columns[slot].push(value);
+        }
+        let t = *columns[0].last().unwrap_or(&f64::NAN);
+        if !t.is_finite() {
+            return Err(RecordingError::Cell {
+                path: origin.into(),
+                line,
+                column: "t_s".into(),
+                message: "time is missing or not finite (required in every row)".into(),
+            });
+        }
+        if t <= last_t {
+            return Err(RecordingError::Cell {
+                path: origin.into(),
+                line,
+                column: "t_s".into(),
+                message: format!("time goes backwards or repeats: {t} after {last_t} (must strictly increase)"),
+            });
+        }
+        last_t = t;
+    }
+    if columns[0].is_empty() {
+        return Err(file_err("no data rows after the header".into()));
+    }
+    let ordered_names = order.iter().map(|&i| names[i].clone()).collect();
+    Ok(Recording::from_columns(origin, ordered_names, columns))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse_str(s: &str) -> Result<Recording, RecordingError> {
+        parse(s.as_bytes(), "r.csv")
+    }
+
+    #[test]
+    fn reads_columns_and_missing_values() {
+        let r = parse_str("omega_rad_s,t_s,foo\n1.5,0.0,\n,0.001,3\n").expect("valid");
+        assert_eq!(r.names()[0], "t_s");
+        assert_eq!(r.t_s(), &[0.0, 0.001]);
+        let w = r.column("omega_rad_s").expect("column");
+        assert_eq!(w[0], 1.5);
+        assert!(w[1].is_nan());
+    }
+
+    #[test]
+    fn bad_input_names_line_and_column() {
+        let e = parse_str("t_s,omega_rad_s\n0,1\n0.001,abc\n").expect_err("bad cell").to_string();
+        assert!(e.contains("line 3") && e.contains("omega_rad_s") && e.contains("abc"), "{e}");
+        let e = parse_str("t_s,omega_rad_s\n0,1\n0.002,1\n0.001,1\n").expect_err("backwards").to_string();
+        assert!(e.contains("line 4") && e.contains("t_s"), "{e}");
+        let e = parse_str("omega_rad_s\n1\n").expect_err("no t_s").to_string();
+        assert!(e.contains("t_s") && e.contains("line 1"), "{e}");
+        let e = parse_str("").expect_err("empty").to_string();
+        assert!(e.contains("empty"), "{e}");
+        let e = parse_str("t_s,omega_rad_s\n").expect_err("no rows").to_string();
+        assert!(e.contains("no data rows"), "{e}");
+        let e = parse_str("t_s,omega_rad_s\n0,1,2\n").expect_err("ragged").to_string();
+        assert!(e.contains("line 2"), "{e}");
+        let e = parse_str("t_s,omega_rad_s\n,1\n").expect_err("missing t").to_string();
+        assert!(e.contains("line 2") && e.contains("t_s"), "{e}");
+    }
+}

@@ -1,0 +1,226 @@
+//! Writing recordings: a row writer for streams, a whole-table writer, and an hourly/size rotating file writer.
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use super::Recording;
+
+/// A value as the CSV holds it: shortest round-trip decimal, empty for a missing (non-finite) value.
+pub fn format_value(out: &mut String, v: f64) {
+    use std::fmt::Write as _;
+    if v.is_finite() {
+        let _ = write!(out, "{v}");
+    }
+}
+
+/// Writes rows of a fixed set of columns.
+pub struct RowWriter<W: Write> {
+    out: W,
+    width: usize,
+    line: String,
+}
+
+impl<W: Write> RowWriter<W> {
+    /// Writes the header row.
+    pub fn new(mut out: W, names: &[&str]) -> std::io::Result<RowWriter<W>> {
+        writeln!(out, "{}", names.join(","))?;
+        Ok(RowWriter { out, width: names.len(), line: String::with_capacity(256) })
+    }
+
+    /// Writes one row; it must have one value per column.
+    pub fn write_row(&mut self, values: impl IntoIterator<Item = f64>) -> std::io::Result<()> {
+        self.line.clear();
+        let mut n = 0;
+        for v in values {
+            if n > 0 {
+                self.line.push(',');
+            }
+            format_value(&mut self.line, v);
+            n += 1;
+        }
+        debug_assert_eq!(n, self.width);
+        self.line.push('\n');
+        self.out.write_all(self.line.as_bytes())
+    }
+
+    pub fn flush(&mut self) -> std::io::Result<()> {
+        self.out.flush()
+    }
+
+    pub fn into_inner(self) -> W {
+        self.out
+    }
+}
+
+/// Writes a whole recording as CSV.
+pub fn write_csv<W: Write>(out: W, rec: &Recording) -> std::io::Result<()> {
+    let names: Vec<&str> = rec.names().iter().map(String::as_str).collect();
+    let mut w = RowWriter::new(BufWriter::with_capacity(1 << 16, out), &names)?;
+    for k in 0..rec.len() {
+        w.write_row(rec.row(k))?;
+    }
+    w.flush()
+}
+
+/// A recording split into files `<prefix>-<unix seconds>.csv` in a directory, starting a new file every
+/// `max_age` or `max_bytes`, flushed at most `flush_every` after a row is written.
+pub struct RotatingWriter {
+    dir: PathBuf,
+    prefix: String,
+    names: Vec<String>,
+    max_age: Duration,
+    max_bytes: u64,
+    flush_every: Duration,
+    current: Option<Current>,
+}
+
+struct Current {
+    writer: RowWriter<CountingWriter<BufWriter<File>>>,
+    opened: Instant,
+    last_flush: Instant,
+    path: PathBuf,
+}
+
+/// Counts bytes on their way out, for size rotation.
+struct CountingWriter<W> {
+    inner: W,
+    bytes: u64,
+}
+
+impl<W: Write> Write for CountingWriter<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.bytes += n as u64;
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+impl RotatingWriter {
+    pub fn new(dir: &Path, prefix: &str, names: &[&str], max_age: Duration, max_bytes: u64) -> RotatingWriter {
+        RotatingWriter {
+            dir: dir.to_path_buf(),
+            prefix: prefix.to_string(),
+            names: names.iter().map(|s| s.to_string()).collect(),
+            max_age,
+            max_bytes,
+            flush_every: Duration::from_millis(500),
+            current: None,
+        }
+    }
+
+    /// The file being written, if any.
+    pub fn current_path(&self) -> Option<&Path> {
+        self.current.as_ref().map(|c| c.path.as_path())
+    }
+
+    fn open(&mut self, now: Instant) -> std::io::Result<()> {
+        std::fs::create_dir_all(&self.dir)?;
+        let stamp = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis());
+        let mut path = self.dir.join(format!("{}-{stamp}.csv", self.prefix));
+        let mut i = 1;
+        while path.exists() {
+            path = self.dir.join(format!("{}-{stamp}-{i}.csv", self.prefix));
+            i += 1;
+        }
+        let file = File::create(&path)?;
+        let names: Vec<&str> = self.names.iter().map(String::as_str).collect();
+        let writer =
+            RowWriter::new(CountingWriter { inner: BufWriter::with_capacity(1 << 16, file), bytes: 0 }, &names)?;
+        tracing::info!(file = %path.display(), "recording to new file");
+        self.current = Some(Current { writer, opened: now, last_flush: now, path });
+        Ok(())
+    }
+
+    /// Writes a row, rotating and flushing as due.
+    pub fn write_row(&mut self, now: Instant, values: impl IntoIterator<Item = f64>) -> std::io::Result<()> {
+        let rotate = match &self.current {
+            None => true,
+            Some(c) => now.duration_since(c.opened) >= self.max_age || c.writer.out.bytes >= self.max_bytes,
+        };
+        if rotate {
+            self.close()?;
+            self.open(now)?;
+        }
+        let Some(c) = self.current.as_mut() else { return Ok(()) };
+        c.writer.write_row(values)?;
+        if now.duration_since(c.last_flush) >= self.flush_every {
+            c.writer.flush()?;
+            c.last_flush = now;
+        }
+        Ok(())
+    }
+
+    /// Flushes what is buffered.
+    pub fn flush(&mut self) -> std::io::Result<()> {
+        if let Some(c) = self.current.as_mut() {
+            c.writer.flush()?;
+            c.last_flush = Instant::now();
+        }
+        Ok(())
+    }
+
+    /// Flushes and closes the current file, syncing it to disk.
+    pub fn close(&mut self) -> std::io::Result<()> {
+        if let Some(c) = self.current.take() {
+            let mut counting = c.writer.into_inner();
+            counting.flush()?;
+            let file = counting.inner.into_inner().map_err(|e| e.into_error())?;
+            file.sync_all()?;
+        }
+        Ok(())
+    }
+}
+
+impl Drop for RotatingWriter {
+    fn drop(&mut self) {
+        if let Err(e) = self.close() {
+            tracing::error!(error = %e, "closing the recording failed");
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::recording::parse;
+
+    #[test]
+    fn round_trip_keeps_values_and_gaps() {
+        let rec = Recording::from_columns(
+            "mem",
+            vec!["t_s".into(), "omega_rad_s".into()],
+            vec![vec![0.0, 0.001, 0.002], vec![1.0 / 3.0, f64::NAN, -2.5e-7]],
+        );
+        let mut buf = Vec::new();
+        write_csv(&mut buf, &rec).expect("write");
+        let back = parse(buf.as_slice(), "mem").expect("parse");
+        let w = back.column("omega_rad_s").expect("col");
+        assert_eq!(w[0], 1.0 / 3.0);
+        assert!(w[1].is_nan());
+        assert_eq!(w[2], -2.5e-7);
+    }
+
+    #[test]
+    fn rotates_by_size() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let mut w = RotatingWriter::new(dir.path(), "d", &["t_s", "x"], Duration::from_secs(3600), 100);
+        let now = Instant::now();
+        for k in 0..100 {
+            w.write_row(now, [k as f64, 1.0]).expect("write");
+        }
+        w.close().expect("close");
+        let files: Vec<_> = std::fs::read_dir(dir.path()).expect("dir").collect();
+        assert!(files.len() > 3, "{}", files.len());
+        let mut rows = 0;
+        for f in files {
+            let rec = crate::recording::load(&f.expect("entry").path()).expect("each file is a valid recording");
+            rows += rec.len();
+        }
+        assert_eq!(rows, 100);
+    }
+}

@@ -1,0 +1,55 @@
+//! Unit conversions between the engineering units of configs and registers and the SI used inside.
+
+use std::f64::consts::PI;
+
+/// Pascal per bar.
+pub const PA_PER_BAR: f64 = 1e5;
+
+/// bar → Pa.
+pub fn bar_to_pa(bar: f64) -> f64 {
+    bar * PA_PER_BAR
+}
+
+/// Pa → bar.
+pub fn pa_to_bar(pa: f64) -> f64 {
+    pa / PA_PER_BAR
+}
+
+/// Displacement per revolution (cm³/rev) → per radian (m³/rad).
+pub fn cm3_per_rev_to_m3_per_rad(cm3: f64) -> f64 {
+    cm3 * 1e-6 / (2.0 * PI)
+}
+
+/// Leakage coefficient L/min per bar → m³/(s·Pa).
+pub fn l_min_per_bar_to_si(l_min_per_bar: f64) -> f64 {
+    l_min_per_bar * 1e-3 / 60.0 / PA_PER_BAR
+}
+
+/// Flow m³/s → L/min.
+pub fn m3_s_to_l_min(q: f64) -> f64 {
+    q * 1e3 * 60.0
+}
+
+/// rpm → rad/s.
+pub fn rpm_to_rad_s(rpm: f64) -> f64 {
+    rpm * 2.0 * PI / 60.0
+}
+
+/// rad/s → rpm.
+pub fn rad_s_to_rpm(rad_s: f64) -> f64 {
+    rad_s * 60.0 / (2.0 * PI)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trips() {
+        assert!((pa_to_bar(bar_to_pa(3.25)) - 3.25).abs() < 1e-12);
+        assert!((rad_s_to_rpm(rpm_to_rad_s(1450.0)) - 1450.0).abs() < 1e-9);
+        // 16 cm³/rev at 1500 rpm is 24 L/min
+        let q = cm3_per_rev_to_m3_per_rad(16.0) * rpm_to_rad_s(1500.0);
+        assert!((m3_s_to_l_min(q) - 24.0).abs() < 1e-9);
+    }
+}
