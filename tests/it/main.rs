@@ -1,1 +1,3 @@
+//! The one integration-test binary (faster to build on two cores): each module tests one room through real parts.
 
+mod support;
