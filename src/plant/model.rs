@@ -124,9 +124,12 @@ pub enum ModelError {
 }
 
 impl ModelError {
-    /// True when the user can fix it by editing the file (exit code 2).
+    /// True when the user can fix it: by editing the file, or naming one that exists (exit code 2).
     pub fn is_bad_input(&self) -> bool {
-        !matches!(self, ModelError::Io { .. })
+        match self {
+            ModelError::Io { source, .. } => source.kind() == std::io::ErrorKind::NotFound,
+            _ => true,
+        }
     }
 }
 

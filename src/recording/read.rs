@@ -19,8 +19,12 @@ pub enum RecordingError {
 }
 
 impl RecordingError {
+    /// True when the user can fix it: the file's content, or a path that does not exist (exit code 2).
     pub fn is_bad_input(&self) -> bool {
-        !matches!(self, RecordingError::Io { .. })
+        match self {
+            RecordingError::Io { source, .. } => source.kind() == std::io::ErrorKind::NotFound,
+            _ => true,
+        }
     }
 }
 

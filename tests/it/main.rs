@@ -1,3 +1,5 @@
 //! The one integration-test binary (faster to build on two cores): each module tests one room through real parts.
 
+mod plant;
+mod simulator;
 mod support;
