@@ -142,10 +142,22 @@ fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyhow::
         return Err(BadInput(format!("--duration {duration}: expected seconds, > 0 and ≤ 1e6")).into());
     }
     let model = load_model(model_path)?;
-    let rec = plant::simulate::test_stand(&model, duration, seed, &mut progress("simulate"))
-        .map_err(|(key, msg)| BadInput(format!("model file {}: {key} {msg}", model_path.display())))?;
     let file = std::fs::File::create(out).with_context(|| format!("creating {}", out.display()))?;
-    recording::write_csv(file, &rec).with_context(|| format!("writing {}", out.display()))?;
-    eprintln!("simulate: {} samples written to {}", rec.len(), out.display());
+    let mut writer =
+        recording::RowWriter::new(std::io::BufWriter::with_capacity(1 << 16, file), &plant::simulate::COLUMNS)
+            .with_context(|| format!("writing {}", out.display()))?;
+    let load = model.load.clone();
+    let inputs =
+        plant::simulate::Inputs { setpoint_hz: &plant::excitation::setpoint_hz, load_nm: &move |t| load.torque_nm(t) };
+    let mut sink = |row: &[f64; plant::simulate::COLUMNS.len()]| writer.write_row(row.iter().copied());
+    let rows = plant::simulate::run_into(&model, duration, seed, &inputs, &mut progress("simulate"), &mut sink)
+        .map_err(|e| match e {
+            plant::simulate::RunError::Model(key, msg) => {
+                anyhow::Error::new(BadInput(format!("model file {}: {key} {msg}", model_path.display())))
+            }
+            plant::simulate::RunError::Sink(e) => anyhow::Error::new(e).context(format!("writing {}", out.display())),
+        })?;
+    writer.flush().with_context(|| format!("writing {}", out.display()))?;
+    eprintln!("simulate: {rows} samples written to {}", out.display());
     Ok(())
 }

@@ -53,12 +53,45 @@ pub fn run(
     inputs: &Inputs<'_>,
     progress: &mut dyn FnMut(f64),
 ) -> Result<Recording, (String, String)> {
-    let coefficients = Coefficients::from_model(model)?;
+    let n = (duration_s / model.sample_s()).floor() as usize + 1;
+    let mut columns: Vec<Vec<f64>> = (0..COLUMNS.len()).map(|_| Vec::with_capacity(n)).collect();
+    let mut sink = |row: &[f64; COLUMNS.len()]| {
+        for (col, v) in columns.iter_mut().zip(row) {
+            col.push(*v);
+        }
+        Ok(())
+    };
+    run_into(model, duration_s, seed, inputs, progress, &mut sink).map_err(|e| match e {
+        RunError::Model(key, msg) => (key, msg),
+        RunError::Sink(e) => ("(memory)".into(), e.to_string()),
+    })?;
+    Ok(Recording::from_columns("simulate", COLUMNS.iter().map(|c| c.to_string()).collect(), columns))
+}
+
+/// Why a streamed run stopped.
+#[derive(Debug)]
+pub enum RunError {
+    /// The model lacks something a simulation needs: (key, what).
+    Model(String, String),
+    /// The row sink failed (a full disk, say).
+    Sink(std::io::Error),
+}
+
+/// As [`run`], handing each row (in [`COLUMNS`] order) to `sink` instead of keeping it: memory stays flat for
+/// runs of any length.
+pub fn run_into(
+    model: &PlantModel,
+    duration_s: f64,
+    seed: u64,
+    inputs: &Inputs<'_>,
+    progress: &mut dyn FnMut(f64),
+    sink: &mut dyn FnMut(&[f64; COLUMNS.len()]) -> std::io::Result<()>,
+) -> Result<usize, RunError> {
+    let coefficients = Coefficients::from_model(model).map_err(|(k, m)| RunError::Model(k, m))?;
     let dt = model.sample_s();
     let n = (duration_s / dt).floor() as usize + 1;
     let mut plant = Plant::new(coefficients);
     let mut noise = SensorNoise::new(model, seed);
-    let mut columns: Vec<Vec<f64>> = (0..COLUMNS.len()).map(|_| Vec::with_capacity(n)).collect();
     let back_pressure_bar = pa_to_bar(coefficients.back_pressure_pa);
     let report_every = (n / 100).max(1);
     for k in 0..n {
@@ -80,16 +113,14 @@ pub fn run(
             load,
             s.f_hz,
         ];
-        for (col, v) in columns.iter_mut().zip(row) {
-            col.push(v);
-        }
+        sink(&row).map_err(RunError::Sink)?;
         plant.advance(dt, f_set, load);
         if k % report_every == 0 {
             progress(k as f64 / n as f64);
         }
     }
     progress(1.0);
-    Ok(Recording::from_columns("simulate", COLUMNS.iter().map(|c| c.to_string()).collect(), columns))
+    Ok(n)
 }
 
 /// White sensor noise from a seeded, portable generator.
