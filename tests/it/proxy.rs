@@ -1,0 +1,222 @@
+//! The fault-injection harness's byte-level half: a Modbus TCP proxy on 127.0.0.1 that passes frames through or
+//! damages them on command (stall, drop, refuse, garbage, wrong transaction id, wrong byte count, slow replies).
+#![allow(dead_code)]
+
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use tokio_util::sync::CancellationToken;
+
+/// What the proxy does to traffic.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Fault {
+    /// Pass every frame through.
+    Pass,
+    /// Take requests but never answer.
+    Stall,
+    /// Close every connection, current and new, at once.
+    Drop,
+    /// Stop listening: connections are refused until the mode changes.
+    Refuse,
+    /// Answer with random bytes.
+    Garbage,
+    /// Answer with a transaction id that does not match the request.
+    WrongTransactionId,
+    /// Answer with a byte count that does not match the data.
+    WrongByteCount,
+    /// Pass frames through after a delay.
+    Slow(Duration),
+}
+
+/// A proxy in front of an upstream Modbus TCP server.
+pub struct FaultProxy {
+    pub addr: SocketAddr,
+    fault: Arc<Mutex<Fault>>,
+    /// Cancelled (and replaced) to cut every open connection.
+    cut: Arc<Mutex<CancellationToken>>,
+    stop: CancellationToken,
+}
+
+impl FaultProxy {
+    /// Listens on an ephemeral loopback port and forwards to `upstream`.
+    pub async fn start(upstream: SocketAddr) -> FaultProxy {
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind loopback");
+        let addr = listener.local_addr().expect("addr");
+        let proxy = FaultProxy {
+            addr,
+            fault: Arc::new(Mutex::new(Fault::Pass)),
+            cut: Arc::new(Mutex::new(CancellationToken::new())),
+            stop: CancellationToken::new(),
+        };
+        let (fault, cut, stop) = (proxy.fault.clone(), proxy.cut.clone(), proxy.stop.clone());
+        tokio::spawn(accept_loop(Some(listener), addr, upstream, fault, cut, stop));
+        proxy
+    }
+
+    /// Switches the fault; `Drop` and `Refuse` also cut the connections that are open.
+    pub fn set(&self, fault: Fault) {
+        *self.fault.lock().unwrap_or_else(|e| e.into_inner()) = fault;
+        if matches!(fault, Fault::Drop | Fault::Refuse) {
+            let mut cut = self.cut.lock().unwrap_or_else(|e| e.into_inner());
+            cut.cancel();
+            *cut = CancellationToken::new();
+        }
+    }
+
+    pub fn fault(&self) -> Fault {
+        *self.fault.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+impl Drop for FaultProxy {
+    fn drop(&mut self) {
+        self.stop.cancel();
+        self.cut.lock().unwrap_or_else(|e| e.into_inner()).cancel();
+    }
+}
+
+async fn accept_loop(
+    mut listener: Option<TcpListener>,
+    addr: SocketAddr,
+    upstream: SocketAddr,
+    fault: Arc<Mutex<Fault>>,
+    cut: Arc<Mutex<CancellationToken>>,
+    stop: CancellationToken,
+) {
+    loop {
+        let current = *fault.lock().unwrap_or_else(|e| e.into_inner());
+        if current == Fault::Refuse {
+            listener = None; // closing the socket: connects are refused
+            tokio::select! {
+                () = tokio::time::sleep(Duration::from_millis(10)) => continue,
+                () = stop.cancelled() => return,
+            }
+        }
+        let Some(l) = listener.as_ref() else {
+            match TcpListener::bind(addr).await {
+                Ok(l) => listener = Some(l),
+                Err(_) => tokio::time::sleep(Duration::from_millis(10)).await,
+            }
+            continue;
+        };
+        let accepted = tokio::select! {
+            r = l.accept() => r,
+            () = tokio::time::sleep(Duration::from_millis(20)) => continue,
+            () = stop.cancelled() => return,
+        };
+        let Ok((client, _)) = accepted else { continue };
+        if current == Fault::Drop {
+            drop(client);
+            continue;
+        }
+        let token = cut.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        let fault = fault.clone();
+        tokio::spawn(async move {
+            tokio::select! {
+                _ = relay(client, upstream, fault) => {}
+                () = token.cancelled() => {}
+            }
+        });
+    }
+}
+
+/// Reads one MBAP frame: 7-byte header (transaction, protocol, length, unit) then length − 1 bytes.
+async fn read_frame(s: &mut TcpStream) -> std::io::Result<Vec<u8>> {
+    let mut head = [0u8; 7];
+    s.read_exact(&mut head).await?;
+    let len = usize::from(u16::from_be_bytes([head[4], head[5]]));
+    let mut frame = head.to_vec();
+    frame.resize(7 + len.saturating_sub(1), 0);
+    s.read_exact(&mut frame[7..]).await?;
+    Ok(frame)
+}
+
+async fn relay(mut client: TcpStream, upstream: SocketAddr, fault: Arc<Mutex<Fault>>) -> std::io::Result<()> {
+    let mut server = TcpStream::connect(upstream).await?;
+    let mut noise: u64 = 0x9E37_79B9_7F4A_7C15;
+    loop {
+        let request = read_frame(&mut client).await?;
+        let current = *fault.lock().unwrap_or_else(|e| e.into_inner());
+        match current {
+            Fault::Stall => continue,
+            Fault::Drop | Fault::Refuse => return Ok(()),
+            Fault::Slow(d) => tokio::time::sleep(d).await,
+            _ => {}
+        }
+        server.write_all(&request).await?;
+        let mut reply = read_frame(&mut server).await?;
+        match current {
+            Fault::Garbage => {
+                for b in reply.iter_mut() {
+                    noise ^= noise << 13;
+                    noise ^= noise >> 7;
+                    noise ^= noise << 17;
+                    *b = noise as u8;
+                }
+            }
+            Fault::WrongTransactionId => {
+                reply[0] ^= 0x5A;
+                reply[1] ^= 0xA5;
+            }
+            Fault::WrongByteCount if reply.len() > 8 => {
+                reply[8] = reply[8].wrapping_add(2);
+            }
+            _ => {}
+        }
+        client.write_all(&reply).await?;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use hydrolens::modbus::simulator::Simulator;
+    use hydrolens::plant::PlantModel;
+    use tokio_modbus::prelude::*;
+
+    async fn read(addr: SocketAddr) -> Result<Vec<u16>, String> {
+        let fut = async {
+            let mut ctx = tcp::connect_slave(addr, Slave(1)).await.map_err(|e| format!("connect: {e}"))?;
+            ctx.read_input_registers(0, 6).await.map_err(|e| format!("transport: {e}"))?.map_err(|e| format!("{e:?}"))
+        };
+        tokio::time::timeout(Duration::from_millis(500), fut).await.map_err(|_| "timeout".to_string())?
+    }
+
+    /// Each fault is seen by a plain client as the failure it stands for, and passing through works again after.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn every_fault_shows_as_a_client_error_and_clears() {
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let upstream = listener.local_addr().expect("addr");
+        let sim = Simulator::new(PlantModel::reference(), 3).expect("sim");
+        let stop = CancellationToken::new();
+        let task = tokio::spawn(sim.run(listener, stop.clone()));
+        let proxy = FaultProxy::start(upstream).await;
+        assert_eq!(read(proxy.addr).await.map(|r| r.len()), Ok(6));
+        for fault in [
+            Fault::Stall,
+            Fault::Drop,
+            Fault::Refuse,
+            Fault::Garbage,
+            Fault::WrongTransactionId,
+            Fault::WrongByteCount,
+            Fault::Slow(Duration::from_millis(800)),
+        ] {
+            proxy.set(fault);
+            tokio::time::sleep(Duration::from_millis(30)).await;
+            let r = read(proxy.addr).await;
+            assert!(r.is_err(), "{fault:?} gave {r:?}");
+            if fault == Fault::Refuse {
+                let e = r.expect_err("refused");
+                assert!(e.starts_with("connect"), "refused at connect: {e}");
+            }
+            proxy.set(Fault::Pass);
+            tokio::time::sleep(Duration::from_millis(30)).await;
+            assert_eq!(read(proxy.addr).await.map(|r| r.len()), Ok(6), "after {fault:?}");
+        }
+        stop.cancel();
+        let _ = task.await;
+    }
+}
