@@ -11,7 +11,8 @@ use plotters::prelude::*;
 const SCORE_FROM_S: f64 = 5.0;
 
 fn rmse(a: &[f64], b: &[f64], t: &[f64]) -> f64 {
-    let d: Vec<f64> = a.iter().zip(b).zip(t).filter(|(_, t)| **t >= SCORE_FROM_S).map(|((x, y), _)| (x - y).powi(2)).collect();
+    let d: Vec<f64> =
+        a.iter().zip(b).zip(t).filter(|(_, t)| **t >= SCORE_FROM_S).map(|((x, y), _)| (x - y).powi(2)).collect();
     (d.iter().sum::<f64>() / d.len() as f64).sqrt()
 }
 
@@ -27,7 +28,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let plots = !args.iter().any(|a| a == "--no-plots");
     let load = args.iter().find_map(|a| a.strip_prefix("load=")).unwrap_or("recorded").to_string();
-    let table: String = args.iter().filter(|a| a.contains('=') && !a.starts_with("load=")).map(|a| format!("{a}\n")).collect();
+    let table: String =
+        args.iter().filter(|a| a.contains('=') && !a.starts_with("load=")).map(|a| format!("{a}\n")).collect();
     let mut truth = PlantModel::reference();
     truth.load = match load.as_str() {
         "recorded" => hydrolens::plant::LoadSpec::Recorded,
@@ -68,7 +70,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
         if std::env::var("HL_TRACE").is_ok() {
             for k in (0..e.len()).step_by(2000) {
-                println!("  t={:5.1} J={:.4} B={:.4} L={:.2}/{:.2}", t[k], e[k].inertia_hat_kg_m2, e[k].viscous_hat_nm_s_rad, e[k].load_hat_nm, true_l[k]);
+                println!(
+                    "  t={:5.1} J={:.4} B={:.4} L={:.2}/{:.2}",
+                    t[k], e[k].inertia_hat_kg_m2, e[k].viscous_hat_nm_s_rad, e[k].load_hat_nm, true_l[k]
+                );
             }
         }
         results.push((method, w, l));
@@ -78,7 +83,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "docs/estimator_speed.svg",
             "Speed: measured, true and estimated (rad/s)",
             &t,
-            &[("measured", &meas_w, RGBColor(200, 200, 200)), ("true", &true_w, BLACK), ("rls-sgd", &results[0].1, BLUE), ("kalman", &results[1].1, RED)],
+            &[
+                ("measured", &meas_w, RGBColor(200, 200, 200)),
+                ("true", &true_w, BLACK),
+                ("rls-sgd", &results[0].1, BLUE),
+                ("kalman", &results[1].1, RED),
+            ],
         )?;
         plot(
             "docs/estimator_load.svg",
@@ -90,10 +100,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     Ok(())
 }
 
-fn plot(path: &str, title: &str, t: &[f64], series: &[(&str, &Vec<f64>, RGBColor)]) -> Result<(), Box<dyn std::error::Error>> {
+fn plot(
+    path: &str,
+    title: &str,
+    t: &[f64],
+    series: &[(&str, &Vec<f64>, RGBColor)],
+) -> Result<(), Box<dyn std::error::Error>> {
     // 0–20 s: the first half of the program, readable at this size; every 5th sample.
     let n = t.iter().take_while(|t| **t <= 20.0).count();
-    let (lo, hi) = series.iter().flat_map(|s| s.1[..n].iter()).fold((f64::MAX, f64::MIN), |(lo, hi), v| (lo.min(*v), hi.max(*v)));
+    let (lo, hi) =
+        series.iter().flat_map(|s| s.1[..n].iter()).fold((f64::MAX, f64::MIN), |(lo, hi), v| (lo.min(*v), hi.max(*v)));
     let root = SVGBackend::new(path, (1000, 420)).into_drawing_area();
     root.fill(&WHITE)?;
     let mut chart = ChartBuilder::on(&root)

@@ -64,7 +64,8 @@ impl Kalman {
         let j = self.s.initial_inertia_kg_m2;
         let b = self.s.initial_viscous_nm_s_rad;
         let f = Matrix2::new(1.0 - dt * b / j, -dt / j, 0.0, 1.0);
-        let q = Matrix2::new((dt / j * self.s.torque_noise_nm).powi(2), 0.0, 0.0, self.s.load_rate_nm_per_s.powi(2) * dt);
+        let q =
+            Matrix2::new((dt / j * self.s.torque_noise_nm).powi(2), 0.0, 0.0, self.s.load_rate_nm_per_s.powi(2) * dt);
         self.x = f * self.x + Vector2::new(dt / j * tau, 0.0);
         self.p = f * self.p * f.transpose() + q;
         if let Some(w) = c.omega_rad_s {

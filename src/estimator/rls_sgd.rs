@@ -38,7 +38,8 @@ impl BlockRls {
         let b_ref = (s.viscous_bounds_nm_s_rad[1] / 5.0).max(1e-9);
         let l_ref = j0 * 100.0;
         let j = s.initial_inertia_kg_m2;
-        let theta = Vector3::new(j0 / j, s.initial_viscous_nm_s_rad / j * j0 / b_ref, s.initial_load_nm / j * j0 / l_ref);
+        let theta =
+            Vector3::new(j0 / j, s.initial_viscous_nm_s_rad / j * j0 / b_ref, s.initial_load_nm / j * j0 / l_ref);
         BlockRls {
             theta,
             p: Matrix3::identity() * s.initial_covariance,
@@ -59,8 +60,8 @@ impl BlockRls {
         self.theta[1] * self.b_ref / self.theta[0]
     }
 
-    /// One block: `T` long, speed increment `Δω`, mean drive torque and mean speed.
-    pub fn update(&mut self, t_s: f64, domega: f64, torque_nm: f64, omega_rad_s: f64) {
+    /// One block: `T` long, speed increment `Δω`, mean drive torque and mean speed, σ of the increment's noise.
+    pub fn update(&mut self, t_s: f64, domega: f64, torque_nm: f64, omega_rad_s: f64, noise_sd: f64) {
         let phi = Vector3::new(
             t_s * torque_nm / self.j0,
             -t_s * omega_rad_s * self.b_ref / self.j0,
@@ -85,6 +86,22 @@ impl BlockRls {
         let p_phi = p * phi;
         let denom = 1.0 + phi.dot(&p_phi);
         let residual = domega - phi.dot(&self.theta);
+        // A residual far beyond the noise is a load change (a step of the brake), not news about J or B: it goes
+        // to the load bias alone, whose knowledge is reset, and J, B are left as they were.
+        let sd = noise_sd * denom.sqrt();
+        if residual.abs() > self.s.change_threshold * sd && phi[2] != 0.0 {
+            let mut theta = self.theta;
+            theta[2] += residual / phi[2];
+            let mut p = self.p;
+            for i in 0..3 {
+                p[(i, 2)] = 0.0;
+                p[(2, i)] = 0.0;
+            }
+            p[(2, 2)] = 1.0;
+            self.p = condition(p, self.s.max_covariance_trace, self.s.initial_covariance);
+            self.theta = self.project(theta);
+            return;
+        }
         let gain = p_phi / denom;
         let theta = self.theta + gain * residual;
         let p = p - gain * p_phi.transpose();
@@ -274,7 +291,10 @@ impl RlsSgd {
             let done = std::mem::replace(&mut self.block, Block::start());
             if let Some(prev) = self.previous_block.filter(|p| p.usable() && done.usable()) {
                 let (t, dw, torque, omega) = block_pair(&prev, &done);
-                self.rls.update(t, dw, torque, omega);
+                // Mean of n samples of σ_ω noise, twice; n from the sampled time and this step.
+                let n = |b: &Block| (b.measured_s / dt).max(1.0);
+                let sd = self.s.speed_noise_rad_s * (1.0 / n(&prev) + 1.0 / n(&done)).sqrt();
+                self.rls.update(t, dw, torque, omega, sd);
             }
             self.previous_block = Some(done);
         }

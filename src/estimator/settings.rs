@@ -73,6 +73,8 @@ pub struct EstimatorSettings {
     pub max_covariance_trace: f64,
     /// J and B forget only when the block's drive torque moves this far from its recent mean (N·m).
     pub excitation_torque_nm: f64,
+    /// An RLS residual beyond this many σ is taken as a load change: it resets the load bias and leaves J, B alone.
+    pub change_threshold: f64,
     /// B forgets only when the block's speed moves this far from its recent mean (rad/s).
     pub excitation_speed_rad_s: f64,
     /// Physical range of J as factors of the model's J.
@@ -106,11 +108,12 @@ impl Default for EstimatorSettings {
             lambda: 0.99,
             eta: 0.05,
             speed_bandwidth_rad_s: 60.0,
-            rls_period_s: 0.02,
+            rls_period_s: 0.04,
             load_forgetting: 0.9,
             initial_covariance: 100.0,
             max_covariance_trace: 100.0,
             excitation_torque_nm: 0.5,
+            change_threshold: 4.0,
             excitation_speed_rad_s: 2.0,
             inertia_bounds_factor: [0.2, 5.0],
             viscous_bounds_nm_s_rad: None,
@@ -140,6 +143,7 @@ pub struct Resolved {
     pub max_covariance_trace: f64,
     pub excitation_torque_nm: f64,
     pub excitation_speed_rad_s: f64,
+    pub change_threshold: f64,
     /// The model's nominal J and B: the scale of the normalised RLS parameters and of the bounds.
     pub nominal_inertia_kg_m2: f64,
     pub nominal_viscous_nm_s_rad: f64,
@@ -168,16 +172,17 @@ impl EstimatorSettings {
     /// The `[estimator]` table of a model (defaults when absent), parsed strictly; errors name the key.
     pub fn from_model(model: &PlantModel, origin: &str) -> Result<EstimatorSettings, ModelError> {
         let Some(table) = &model.estimator else { return Ok(EstimatorSettings::default()) };
-        let settings: EstimatorSettings = toml::Value::Table(table.clone()).try_into().map_err(|e: toml::de::Error| {
-            ModelError::Invalid {
+        let settings: EstimatorSettings =
+            toml::Value::Table(table.clone()).try_into().map_err(|e: toml::de::Error| ModelError::Invalid {
                 path: origin.to_string(),
                 key: "[estimator]".into(),
                 message: e.to_string().trim_end().to_string(),
-            }
+            })?;
+        settings.resolve(model).map_err(|(key, message)| ModelError::Invalid {
+            path: origin.to_string(),
+            key,
+            message,
         })?;
-        settings
-            .resolve(model)
-            .map_err(|(key, message)| ModelError::Invalid { path: origin.to_string(), key, message })?;
         Ok(settings)
     }
 
@@ -206,11 +211,13 @@ impl EstimatorSettings {
         });
         // Both pressures carry the sensor noise: σ_τ = D_m·√2·σ_p.
         let torque_noise = s.torque_noise_nm.unwrap_or_else(|| {
-            let from_pressure = displacement.map_or(0.0, |d| d * bar_to_pa(model.sensors.pressure_noise_bar) * 2f64.sqrt());
+            let from_pressure =
+                displacement.map_or(0.0, |d| d * bar_to_pa(model.sensors.pressure_noise_bar) * 2f64.sqrt());
             if from_pressure > 0.0 { from_pressure } else { 0.05 }
         });
         let max_load = pos("max_load_nm", s.max_load_nm)?;
-        let initial_load = check("initial_load_nm", s.initial_load_nm, s.initial_load_nm.abs() <= max_load, "within ±max_load_nm")?;
+        let initial_load =
+            check("initial_load_nm", s.initial_load_nm, s.initial_load_nm.abs() <= max_load, "within ±max_load_nm")?;
         Ok(Resolved {
             lambda: unit("lambda", s.lambda)?,
             eta: check("eta", s.eta, s.eta > 0.0 && s.eta < 2.0, "in (0, 2)")?,
@@ -221,6 +228,7 @@ impl EstimatorSettings {
             max_covariance_trace: pos("max_covariance_trace", s.max_covariance_trace)?,
             excitation_torque_nm: nonneg("excitation_torque_nm", s.excitation_torque_nm)?,
             excitation_speed_rad_s: nonneg("excitation_speed_rad_s", s.excitation_speed_rad_s)?,
+            change_threshold: pos("change_threshold", s.change_threshold)?,
             nominal_inertia_kg_m2: j0,
             nominal_viscous_nm_s_rad: b0,
             inertia_bounds_kg_m2: inertia_bounds,
@@ -266,7 +274,8 @@ mod tests {
 
     #[test]
     fn estimator_table_is_strict_and_names_the_key() {
-        let text = format!("{}\n[estimator]\nlambda = 0.98\nmethod = \"kalman\"\n", crate::plant::model::REFERENCE_TOML);
+        let text =
+            format!("{}\n[estimator]\nlambda = 0.98\nmethod = \"kalman\"\n", crate::plant::model::REFERENCE_TOML);
         let m = PlantModel::parse(&text, "p.toml").expect("model");
         let s = EstimatorSettings::from_model(&m, "p.toml").expect("valid");
         assert_eq!((s.lambda, s.method), (0.98, Method::Kalman));
