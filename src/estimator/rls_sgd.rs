@@ -354,10 +354,12 @@ mod tests {
         assert!(condition(nan, 100.0, 10.0).iter().all(|v| v.is_finite()));
     }
 
-    /// A noise-free plant with a constant load: the corrected descent finds it; the step is normalised.
+    /// A noise-free plant with a constant load and J, B held (tiny RLS covariance): the corrected, normalised
+    /// descent finds the load within a few hundred samples.
     #[test]
     fn corrected_sgd_converges_on_a_constant_load() {
-        let mut est = RlsSgd::new(resolved());
+        let s = EstimatorSettings { initial_covariance: 1e-12, ..EstimatorSettings::default() };
+        let mut est = RlsSgd::new(s.resolve(&PlantModel::reference()).expect("valid"));
         let (j, b, load, tau, dt) = (0.08, 0.04, 10.9, 14.0, 1e-3);
         let mut w = 30.0;
         for _ in 0..3000 {
