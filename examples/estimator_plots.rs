@@ -1,6 +1,6 @@
 //! Measures both estimators on the 60 s test-stand run and draws docs/estimator_speed.svg and docs/estimator_load.svg.
 //!
-//! `cargo run --example estimator_plots [-- --no-plots] [load=steps|ramp|trend] [key=value …]`: key=value pairs go into the
+//! `cargo run --example estimator_plots [-- --no-plots] [load=steps|ramp|trend] [seed=N] [key=value …]`: key=value pairs go into the
 //! `[estimator]` table (e.g. `eta=0.05`), for trying settings.
 
 use hydrolens::estimator::{self, Estimate, EstimatorSettings, Method};
@@ -28,8 +28,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let plots = !args.iter().any(|a| a == "--no-plots");
     let load = args.iter().find_map(|a| a.strip_prefix("load=")).unwrap_or("recorded").to_string();
-    let table: String =
-        args.iter().filter(|a| a.contains('=') && !a.starts_with("load=")).map(|a| format!("{a}\n")).collect();
+    let table: String = args
+        .iter()
+        .filter(|a| a.contains('=') && !a.starts_with("load=") && !a.starts_with("seed="))
+        .map(|a| format!("{a}\n"))
+        .collect();
     let mut truth = PlantModel::reference();
     truth.load = match load.as_str() {
         "recorded" => hydrolens::plant::LoadSpec::Recorded,
@@ -37,7 +40,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "trend" => hydrolens::plant::LoadSpec::Trend { start_nm: 1.0, rate_nm_per_s: 0.2, max_nm: 20.0 },
         _ => hydrolens::plant::LoadSpec::Steps { levels_nm: vec![3.0, 12.0, 6.0], period_s: 5.0 },
     };
-    let rec = simulate::test_stand(&truth, 60.0, 7, &mut |_| {}).map_err(|e| format!("{e:?}"))?;
+    let seed = args.iter().find_map(|a| a.strip_prefix("seed=")).and_then(|s| s.parse().ok()).unwrap_or(7);
+    let rec = simulate::test_stand(&truth, 60.0, seed, &mut |_| {}).map_err(|e| format!("{e:?}"))?;
     let t = rec.t_s().to_vec();
     let true_w = rec.column("true_omega_rad_s").ok_or("true_omega")?.to_vec();
     let true_l = rec.column("true_load_nm").ok_or("true_load")?.to_vec();
