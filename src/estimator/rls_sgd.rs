@@ -337,10 +337,6 @@ mod tests {
     use crate::estimator::EstimatorSettings;
     use crate::plant::PlantModel;
 
-    fn resolved() -> Resolved {
-        EstimatorSettings::default().resolve(&PlantModel::reference()).expect("defaults")
-    }
-
     #[test]
     fn condition_symmetrises_bounds_and_resets() {
         let p = Matrix3::new(2.0, 1.0, 0.0, 0.5, 2.0, 0.0, 0.0, 0.0, 1e9);
