@@ -80,7 +80,7 @@ impl Kalman {
         }
         let m = self.s.max_load_nm;
         self.x[1] = self.x[1].clamp(-m, m);
-        self.p = condition(self.p, self.max_trace, 1.0);
+        self.p = condition(self.p, self.max_trace, 1e-12, 1.0);
     }
 }
 

@@ -66,7 +66,7 @@ impl PaperLiteral {
         let p_phi = self.p * phi;
         let k = p_phi / (lam + phi.dot(&p_phi));
         self.theta += k * e;
-        self.p = condition((self.p - k * p_phi.transpose()) / lam, 1e200, self.s.initial_covariance);
+        self.p = condition((self.p - k * p_phi.transpose()) / lam, 1e200, 1e-30, self.s.initial_covariance);
         // Eq. (11) as printed: "+".
         let m = self.s.max_load_nm;
         self.load_hat_nm = (self.load_hat_nm + self.s.eta * dt_over_j * e).clamp(-m, m);

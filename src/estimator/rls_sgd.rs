@@ -18,6 +18,9 @@ use nalgebra::{Matrix3, Vector3};
 use super::settings::Resolved;
 use super::{Checked, Estimate, Estimator, Measurement, finite_or};
 
+/// Smallest diagonal of the RLS covariance (normalised parameters): far below what 40 ms blocks can teach.
+const RLS_FLOOR: f64 = 1e-10;
+
 /// The RLS on block increments. Parameters are normalised: `θ = [J₀/J, (B/J)·J₀/B_ref, (T_L/J)·J₀/L_ref]`.
 #[derive(Debug, Clone)]
 pub(crate) struct BlockRls {
@@ -98,14 +101,14 @@ impl BlockRls {
                 p[(2, i)] = 0.0;
             }
             p[(2, 2)] = 1.0;
-            self.p = condition(p, self.s.max_covariance_trace, self.s.initial_covariance);
+            self.p = condition(p, self.s.max_covariance_trace, RLS_FLOOR, self.s.initial_covariance);
             self.theta = self.project(theta);
             return;
         }
         let gain = p_phi / denom;
         let theta = self.theta + gain * residual;
         let p = p - gain * p_phi.transpose();
-        self.p = condition(p, self.s.max_covariance_trace, self.s.initial_covariance);
+        self.p = condition(p, self.s.max_covariance_trace, RLS_FLOOR, self.s.initial_covariance);
         self.theta = self.project(theta);
     }
 
@@ -123,11 +126,12 @@ impl BlockRls {
     }
 }
 
-/// Keeps a covariance usable: symmetric, trace at most `max_trace`, positive definite (reset to `reset·I` when it
-/// is not, or is not finite).
+/// Keeps a covariance usable: symmetric, trace at most `max_trace`, diagonal at least `floor`, positive definite
+/// (reset to `reset·I` when it is not, or is not finite).
 pub(crate) fn condition<const N: usize>(
     p: nalgebra::SMatrix<f64, N, N>,
     max_trace: f64,
+    floor: f64,
     reset: f64,
 ) -> nalgebra::SMatrix<f64, N, N> {
     let fresh = || nalgebra::SMatrix::<f64, N, N>::identity() * reset.min(max_trace / N as f64);
@@ -140,7 +144,6 @@ pub(crate) fn condition<const N: usize>(
         p *= max_trace / tr;
     }
     // A floor well below any information the data can give keeps P strictly positive definite.
-    let floor = max_trace * 1e-12;
     for i in 0..N {
         if p[(i, i)] < floor {
             p[(i, i)] = floor;
@@ -340,14 +343,14 @@ mod tests {
     #[test]
     fn condition_symmetrises_bounds_and_resets() {
         let p = Matrix3::new(2.0, 1.0, 0.0, 0.5, 2.0, 0.0, 0.0, 0.0, 1e9);
-        let q = condition(p, 100.0, 10.0);
+        let q = condition(p, 100.0, 1e-10, 10.0);
         assert_eq!(q, q.transpose());
         assert!(q.trace() <= 100.0 + 1e-9);
         assert!(q.cholesky().is_some());
         let bad = Matrix3::new(1.0, 5.0, 0.0, 5.0, 1.0, 0.0, 0.0, 0.0, 1.0);
-        assert!(condition(bad, 100.0, 10.0).cholesky().is_some());
+        assert!(condition(bad, 100.0, 1e-10, 10.0).cholesky().is_some());
         let nan = Matrix3::from_element(f64::NAN);
-        assert!(condition(nan, 100.0, 10.0).iter().all(|v| v.is_finite()));
+        assert!(condition(nan, 100.0, 1e-10, 10.0).iter().all(|v| v.is_finite()));
     }
 
     /// A noise-free plant with a constant load and J, B held (tiny RLS covariance): the corrected, normalised

@@ -108,23 +108,30 @@ fn constant_operation(seconds: f64, load_nm: f64) -> Vec<Measurement> {
 #[test]
 fn constant_operation_keeps_the_covariance_bounded_and_finite() {
     let r = EstimatorSettings::default().resolve(&PlantModel::reference()).expect("defaults");
-    let (mut rls, mut kf, mut paper) = (RlsSgd::new(r), Kalman::new(r), PaperLiteral::new(r));
-    for m in constant_operation(60.0, 8.0) {
-        for e in [rls.update(&m), kf.update(&m), paper.update(&m)] {
-            assert!(
-                [e.omega_hat_rad_s, e.load_hat_nm, e.inertia_hat_kg_m2, e.viscous_hat_nm_s_rad]
-                    .iter()
-                    .all(|v| v.is_finite())
-            );
+    // The simulated plant at one operating point (noisy), and the same operating point as exact, constant samples.
+    let exact = vec![Measurement { dt_s: 1e-3, omega_rad_s: 50.0, drive_torque_nm: 10.0 }; 60_000];
+    for (what, ms) in [("simulated", constant_operation(60.0, 8.0)), ("exact", exact)] {
+        let (mut rls, mut kf, mut paper) = (RlsSgd::new(r), Kalman::new(r), PaperLiteral::new(r));
+        let paper_start = paper.covariance().trace();
+        let mut wound = paper_start;
+        for m in &ms {
+            wound = wound.max(paper.covariance().trace());
+            for e in [rls.update(m), kf.update(m), paper.update(m)] {
+                assert!(finite(&e), "{what}: {e:?}");
+            }
+        }
+        let p = rls.covariance();
+        assert!(p.iter().all(|v| v.is_finite()) && p.trace() <= r.max_covariance_trace * (1.0 + 1e-9), "{what}: {p}");
+        assert!(p.cholesky().is_some(), "{what}: {p}");
+        let q = kf.covariance();
+        assert!(q.iter().all(|v| v.is_finite()) && q.cholesky().is_some(), "{what}: {q}");
+        eprintln!("{what}: paper-literal trace(P) {paper_start:.3e} → max {wound:.3e}; rls-sgd {:.3e}", p.trace());
+        if what == "exact" {
+            // The paper's RLS, for contrast, winds up without excitation (PHYSICS.md §2: 13 → 1e86 in 20 s).
+            // Here it grows until P is numerically singular (the finiteness guard then resets it).
+            assert!(wound > 1e8 * paper_start, "{what}: {wound}");
         }
     }
-    let p = rls.covariance();
-    assert!(p.iter().all(|v| v.is_finite()) && p.trace() <= r.max_covariance_trace * (1.0 + 1e-9), "{p}");
-    assert!(p.cholesky().is_some(), "{p}");
-    let q = kf.covariance();
-    assert!(q.iter().all(|v| v.is_finite()) && q.cholesky().is_some(), "{q}");
-    // The paper's RLS, for contrast, winds up without excitation (PHYSICS.md §2: 13 → 1e86 in 20 s).
-    assert!(paper.covariance().trace() > 1e6 * r.max_covariance_trace, "{}", paper.covariance());
 }
 
 #[test]
