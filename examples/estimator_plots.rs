@@ -1,6 +1,6 @@
 //! Measures both estimators on the 60 s test-stand run and draws docs/estimator_speed.svg and docs/estimator_load.svg.
 //!
-//! `cargo run --example estimator_plots [-- --no-plots] [load=steps|ramp|trend] [seed=N] [key=value …]`: key=value pairs go into the
+//! `cargo run --example estimator_plots [-- --no-plots] [load=steps|ramp|trend] [seed=N] [j=1.3 b=0.7] [key=value …]`: key=value pairs go into the
 //! `[estimator]` table (e.g. `eta=0.05`), for trying settings.
 
 use hydrolens::estimator::{self, Estimate, EstimatorSettings, Method};
@@ -30,7 +30,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let load = args.iter().find_map(|a| a.strip_prefix("load=")).unwrap_or("recorded").to_string();
     let table: String = args
         .iter()
-        .filter(|a| a.contains('=') && !a.starts_with("load=") && !a.starts_with("seed="))
+        .filter(|a| {
+            a.contains('=')
+                && !a.starts_with("load=")
+                && !a.starts_with("seed=")
+                && !a.starts_with("j=")
+                && !a.starts_with("b=")
+        })
         .map(|a| format!("{a}\n"))
         .collect();
     let mut truth = PlantModel::reference();
@@ -40,6 +46,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         "trend" => hydrolens::plant::LoadSpec::Trend { start_nm: 1.0, rate_nm_per_s: 0.2, max_nm: 20.0 },
         _ => hydrolens::plant::LoadSpec::Steps { levels_nm: vec![3.0, 12.0, 6.0], period_s: 5.0 },
     };
+    let factor = |key: &str, default: f64| {
+        args.iter().find_map(|a| a.strip_prefix(key)).and_then(|s| s.parse().ok()).unwrap_or(default)
+    };
+    let (j_factor, b_factor) = (factor("j=", 1.3), factor("b=", 0.7));
     let seed = args.iter().find_map(|a| a.strip_prefix("seed=")).and_then(|s| s.parse().ok()).unwrap_or(7);
     let rec = simulate::test_stand(&truth, 60.0, seed, &mut |_| {}).map_err(|e| format!("{e:?}"))?;
     let t = rec.t_s().to_vec();
@@ -52,8 +62,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for (method, wrong) in [(Method::RlsSgd, true), (Method::Kalman, false), (Method::Kalman, true)] {
         let mut model = PlantModel::reference();
         if wrong {
-            model.motor.inertia_kg_m2 *= 1.3;
-            model.motor.viscous_nm_s_rad *= 0.7;
+            model.motor.inertia_kg_m2 *= j_factor;
+            model.motor.viscous_nm_s_rad *= b_factor;
         }
         let mut tbl = extra.clone();
         tbl.insert("method".into(), toml::Value::String(method.name().into()));
@@ -65,7 +75,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let last = e.last().copied().ok_or("empty")?;
         println!(
             "{:24} omega_rmse={:.3} rad/s ({:.3} sigma)  load_rmse={:.3} N·m  J_end={:.4} ({:+.1} %)  B_end={:.4} ({:+.1} %)",
-            format!("{method}{}", if wrong { " (J +30 %, B -30 %)" } else { "" }),
+            format!("{method}{}", if wrong { format!(" (J ×{j_factor}, B ×{b_factor})") } else { String::new() }),
             rmse(&w, &true_w, &t),
             rmse(&w, &true_w, &t) / 0.8,
             rmse(&l, &true_l, &t),
