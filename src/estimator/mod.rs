@@ -2,6 +2,20 @@
 //! (PHYSICS.md §2). Fed Δt and samples; never reads a clock. Implementations: RLS+SGD (the seed paper, corrected)
 //! and a Kalman filter.
 
+mod kalman;
+mod paper;
+pub mod replay;
+mod rls_sgd;
+pub mod settings;
+
+pub use kalman::Kalman;
+pub use paper::PaperLiteral;
+pub use replay::{ReplayError, drive_torques, replay};
+pub use rls_sgd::RlsSgd;
+pub use settings::{EstimatorSettings, Method, Resolved};
+
+use crate::plant::PlantModel;
+
 /// One measured sample as the estimators take it. A non-finite field means "missing": the estimator must skip it
 /// and keep its state.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -29,4 +43,85 @@ pub trait Estimator: Send {
     fn update(&mut self, m: &Measurement) -> Estimate;
     /// The latest estimate.
     fn estimate(&self) -> Estimate;
+}
+
+/// The estimator `settings.method` names, for a model; the settings key at fault when they do not fit the model.
+pub fn try_build(settings: &EstimatorSettings, model: &PlantModel) -> Result<Box<dyn Estimator>, (String, String)> {
+    let r = settings.resolve(model)?;
+    Ok(match settings.method {
+        Method::RlsSgd => Box::new(RlsSgd::new(r)),
+        Method::Kalman => Box::new(Kalman::new(r)),
+        Method::PaperLiteral => Box::new(PaperLiteral::new(r)),
+    })
+}
+
+/// The estimator `settings.method` names, for a model. Settings that do not fit the model (see
+/// [`EstimatorSettings::resolve`]) fall back to the defaults, so this never fails; check them first with
+/// [`EstimatorSettings::from_model`] or [`try_build`] to report the bad key.
+pub fn build(settings: &EstimatorSettings, model: &PlantModel) -> Box<dyn Estimator> {
+    try_build(settings, model).unwrap_or_else(|_| {
+        let fallback = EstimatorSettings { method: settings.method, ..EstimatorSettings::default() };
+        let r = fallback.resolve(model).unwrap_or_else(|_| safe_resolved(model));
+        match settings.method {
+            Method::RlsSgd => Box::new(RlsSgd::new(r)),
+            Method::Kalman => Box::new(Kalman::new(r)),
+            Method::PaperLiteral => Box::new(PaperLiteral::new(r)),
+        }
+    })
+}
+
+/// Defaults for a model whose own numbers the defaults cannot resolve (cannot happen for a validated model).
+fn safe_resolved(model: &PlantModel) -> Resolved {
+    let j = if model.motor.inertia_kg_m2.is_finite() && model.motor.inertia_kg_m2 > 0.0 {
+        model.motor.inertia_kg_m2
+    } else {
+        1.0
+    };
+    let mut m = model.clone();
+    m.motor.inertia_kg_m2 = j;
+    m.motor.viscous_nm_s_rad = 0.0;
+    m.motor.displacement_cm3 = None;
+    match EstimatorSettings::default().resolve(&m) {
+        Ok(r) => r,
+        Err(e) => unreachable!("defaults resolve for a positive inertia: {e:?}"),
+    }
+}
+
+/// Speeds and torques beyond these are not measurements but garbage; they are treated as missing.
+const MAX_ABS_SPEED_RAD_S: f64 = 1e5;
+const MAX_ABS_TORQUE_NM: f64 = 1e7;
+
+/// The usable parts of a sample: each `None` is missing, non-finite or absurd.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Checked {
+    /// Time step, when it is positive and at most `max_gap_s`.
+    pub dt_s: Option<f64>,
+    /// True when the step is a gap: longer than `max_gap_s`, or not a number.
+    pub gap: bool,
+    pub omega_rad_s: Option<f64>,
+    pub torque_nm: Option<f64>,
+}
+
+impl Checked {
+    pub fn new(m: &Measurement, max_gap_s: f64) -> Checked {
+        let ok_dt = m.dt_s.is_finite() && m.dt_s > 0.0 && m.dt_s <= max_gap_s;
+        let finite_in = |v: f64, max: f64| (v.is_finite() && v.abs() <= max).then_some(v);
+        Checked {
+            dt_s: ok_dt.then_some(m.dt_s),
+            gap: !ok_dt,
+            omega_rad_s: finite_in(m.omega_rad_s, MAX_ABS_SPEED_RAD_S),
+            torque_nm: finite_in(m.drive_torque_nm, MAX_ABS_TORQUE_NM),
+        }
+    }
+}
+
+/// Replaces any non-finite field (which a correct estimator never produces) by a fallback.
+pub(crate) fn finite_or(e: Estimate, fallback: Estimate) -> Estimate {
+    let pick = |v: f64, f: f64| if v.is_finite() { v } else { f };
+    Estimate {
+        omega_hat_rad_s: pick(e.omega_hat_rad_s, fallback.omega_hat_rad_s),
+        load_hat_nm: pick(e.load_hat_nm, fallback.load_hat_nm),
+        inertia_hat_kg_m2: pick(e.inertia_hat_kg_m2, fallback.inertia_hat_kg_m2),
+        viscous_hat_nm_s_rad: pick(e.viscous_hat_nm_s_rad, fallback.viscous_hat_nm_s_rad),
+    }
 }

@@ -1,0 +1,133 @@
+//! The reference estimator the paper names: a Kalman filter on [ω, T_L] with a random-walk load and known J, B.
+//!
+//! `ω(k+1) = (1 − Δt·B/J)·ω(k) − Δt/J·T_L(k) + Δt/J·τ(k)`, `T_L(k+1) = T_L(k) + w`, measured `ω + v`.
+//! Process noise: the drive torque's measurement noise through Δt/J on ω, `load_rate²·Δt` on T_L; R = σ_ω².
+//! Joseph-form update, symmetrised and checked positive definite after every step.
+
+use nalgebra::{Matrix2, RowVector2, Vector2};
+
+use super::rls_sgd::condition;
+use super::settings::Resolved;
+use super::{Checked, Estimate, Estimator, Measurement, finite_or};
+
+/// The Kalman filter (method `kalman`).
+#[derive(Debug, Clone)]
+pub struct Kalman {
+    s: Resolved,
+    started: bool,
+    x: Vector2<f64>,
+    p: Matrix2<f64>,
+    torque_nm: Option<f64>,
+    /// Upper bound of trace(P): far above anything the filter reaches, so only garbage input meets it.
+    max_trace: f64,
+}
+
+impl Kalman {
+    pub fn new(s: Resolved) -> Kalman {
+        let max_trace = 1e6 * (s.speed_noise_rad_s.powi(2) + s.initial_load_sigma_nm.powi(2));
+        Kalman {
+            s,
+            started: false,
+            x: Vector2::new(0.0, s.initial_load_nm),
+            p: Self::initial_p(&s),
+            torque_nm: None,
+            max_trace,
+        }
+    }
+
+    fn initial_p(s: &Resolved) -> Matrix2<f64> {
+        Matrix2::new(s.speed_noise_rad_s.powi(2), 0.0, 0.0, s.initial_load_sigma_nm.powi(2))
+    }
+
+    /// The state covariance, for tests and diagnostics.
+    pub fn covariance(&self) -> Matrix2<f64> {
+        self.p
+    }
+
+    fn restart(&mut self, omega: f64) {
+        self.x[0] = omega;
+        self.p[(0, 0)] = self.s.speed_noise_rad_s.powi(2);
+        self.p[(0, 1)] = 0.0;
+        self.p[(1, 0)] = 0.0;
+        self.started = true;
+    }
+
+    fn step(&mut self, c: Checked) {
+        let (Some(dt), Some(tau), true) = (c.dt_s, self.torque_nm, self.started) else {
+            match c.omega_rad_s {
+                Some(w) => self.restart(w),
+                None if c.gap => self.started = false,
+                None => {}
+            }
+            return;
+        };
+        let j = self.s.initial_inertia_kg_m2;
+        let b = self.s.initial_viscous_nm_s_rad;
+        let f = Matrix2::new(1.0 - dt * b / j, -dt / j, 0.0, 1.0);
+        let q =
+            Matrix2::new((dt / j * self.s.torque_noise_nm).powi(2), 0.0, 0.0, self.s.load_rate_nm_per_s.powi(2) * dt);
+        self.x = f * self.x + Vector2::new(dt / j * tau, 0.0);
+        self.p = f * self.p * f.transpose() + q;
+        if let Some(w) = c.omega_rad_s {
+            let r = self.s.speed_noise_rad_s.powi(2);
+            let h = RowVector2::new(1.0, 0.0);
+            let innovation = w - self.x[0];
+            let s = self.p[(0, 0)] + r;
+            let k = self.p.column(0) / s;
+            self.x += k * innovation;
+            let a = Matrix2::identity() - k * h;
+            self.p = a * self.p * a.transpose() + k * r * k.transpose();
+        }
+        let m = self.s.max_load_nm;
+        self.x[1] = self.x[1].clamp(-m, m);
+        self.p = condition(self.p, self.max_trace, 1e-12, 1.0);
+    }
+}
+
+impl Estimator for Kalman {
+    fn update(&mut self, m: &Measurement) -> Estimate {
+        let before = self.estimate();
+        let c = Checked::new(m, self.s.max_gap_s);
+        self.step(c);
+        if let Some(t) = c.torque_nm {
+            self.torque_nm = Some(t);
+        }
+        let after = self.estimate();
+        if after != finite_or(after, before) {
+            *self = Kalman::new(self.s);
+            return before;
+        }
+        after
+    }
+
+    fn estimate(&self) -> Estimate {
+        Estimate {
+            omega_hat_rad_s: self.x[0],
+            load_hat_nm: self.x[1],
+            inertia_hat_kg_m2: self.s.initial_inertia_kg_m2,
+            viscous_hat_nm_s_rad: self.s.initial_viscous_nm_s_rad,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimator::EstimatorSettings;
+    use crate::plant::PlantModel;
+
+    #[test]
+    fn finds_a_constant_load_on_a_clean_plant() {
+        let r = EstimatorSettings::default().resolve(&PlantModel::reference()).expect("defaults");
+        let mut est = Kalman::new(r);
+        let (j, b, load, tau, dt) = (0.08, 0.04, 10.9, 14.0, 1e-3);
+        let mut w = 30.0;
+        for _ in 0..3000 {
+            est.update(&Measurement { dt_s: dt, omega_rad_s: w, drive_torque_nm: tau });
+            w += dt / j * (tau - b * w - load);
+        }
+        let e = est.estimate();
+        assert!((e.load_hat_nm - load).abs() < 0.2, "{e:?}");
+        assert!(est.covariance().cholesky().is_some());
+    }
+}
