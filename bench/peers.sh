@@ -122,8 +122,8 @@ sindy=$(timeout 300 "$PY" bench/pysindy_fit.py "$REC" "$REPEATS")
 echo "$sindy" >&2
 while read -r line; do
   eq=$(sed -n 's/.*equation="\(.*\)"/\1/p' <<<"$line")
-  row "PySINDy fit, inputs $(field inputs "$line"): s (load $(field load_s "$line") s apart)" "" \
-    "$(field fit_s "$line") s: \`$eq\`" ""
+  row "PySINDy fit (STLSQ) of omega' on ω, $(field inputs "$line"), sign(ω), 1: s, median of $REPEATS" "—" \
+    "$(field fit_s "$line") s (+ $(field load_s "$line") s numpy.loadtxt): \`$eq\`" "—"
 done <<<"$sindy"
 if has_command analyze; then
   times=()
