@@ -6,7 +6,8 @@
 #   (c) analysis: `hydrolens analyze` vs PySINDy on the same recording
 #   (d) HTTP: wrk on /api/status of `hydrolens demo`
 # Environment: REQUESTS (Modbus requests per run, 5000), ROUNDS (alternating runs per client, 3),
-# REPEATS (timed runs of each offline tool, 3), DURATION_S (recording length, 60).
+# REPEATS (timed runs of each offline tool, 3), DURATION_S (recording length, 60),
+# HYDROLENS_BIN (the binary to measure, target/release/hydrolens). A failed run of ours counts as nan.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 REQUESTS=${REQUESTS:-5000}
@@ -15,7 +16,7 @@ REPEATS=${REPEATS:-3}
 DURATION_S=${DURATION_S:-60}
 WORK=bench/.work
 VENV=bench/.venv
-BIN=target/release/hydrolens
+BIN=${HYDROLENS_BIN:-target/release/hydrolens}
 mkdir -p "$WORK"
 RESULTS="$WORK/results.md"
 : >"$RESULTS"
@@ -39,7 +40,7 @@ wall_s() {
   t1=$(date +%s.%N)
   awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.3f", b - a }'
 }
-ratio() { awk -v a="$1" -v b="$2" 'BEGIN { if (b + 0 == 0) print "n/a"; else printf "%.1f×", a / b }'; }
+ratio() { awk -v a="$1" -v b="$2" 'BEGIN { if (a + 0 == 0 || b + 0 == 0) print "n/a"; else printf "%.1f×", a / b }'; }
 free_port() { "$VENV/bin/python" -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
 has_command() { timeout 10 "$BIN" "$1" --help >/dev/null 2>&1; }
 
@@ -90,7 +91,7 @@ for q in p50 p99; do
   rust=$(grep 'rust-tokio-modbus simulator=external' "$WORK/modbus.txt" | while read -r l; do field ${q}_us "$l"; done | median)
   py=$(grep 'python-pymodbus' "$WORK/modbus.txt" | while read -r l; do field ${q}_us "$l"; done | median)
   row "Modbus read of 6 input registers, $q (µs), median of $ROUNDS alternating runs × $REQUESTS" \
-    "$rust (tokio-modbus)" "$py (pymodbus)" "$(ratio "$py" "$rust") faster"
+    "$rust (tokio-modbus)" "$py (pymodbus)" "$(ratio "$py" "$rust") (peer ÷ ours)"
 done
 inproc=$(grep 'simulator=in-process' "$WORK/modbus.txt" | tail -n1)
 row "Modbus read of 6, simulator in the same process (µs)" \
@@ -104,12 +105,12 @@ pad_rps=$(field rows_per_s "$pad")
 if has_command estimate; then
   times=()
   for _ in $(seq "$REPEATS"); do
-    times+=("$(wall_s "$BIN" estimate "$REC" --model config/plant.toml --out "$WORK/est.csv")")
+    times+=("$(wall_s "$BIN" estimate "$REC" --model config/plant.toml --out "$WORK/est.csv" || echo nan)")
   done
-  est_s=$(printf '%s\n' "${times[@]}" | median)
-  ours_rps=$(awk -v n="$ROWS" -v s="$est_s" 'BEGIN { printf "%.0f", n / s }')
+  est_s=$(printf '%s\n' "${times[@]}" | grep -v nan | median)
+  ours_rps=$(awk -v n="$ROWS" -v s="$est_s" 'BEGIN { if (s + 0 > 0) printf "%.0f", n / s; else print "failed" }')
   row "RLS on a ${DURATION_S} s recording, rows/s end to end incl. CSV (median of $REPEATS)" \
-    "$ours_rps (hydrolens estimate)" "$pad_rps (padasip FilterRLS, numpy.loadtxt)" "$(ratio "$ours_rps" "$pad_rps") faster"
+    "$ours_rps (hydrolens estimate)" "$pad_rps (padasip FilterRLS, numpy.loadtxt)" "$(ratio "$ours_rps" "$pad_rps") (ours ÷ peer)"
 else
   row "RLS on a ${DURATION_S} s recording, rows/s end to end incl. CSV (median of $REPEATS)" \
     "not available yet (no \`estimate\`)" "$pad_rps (padasip FilterRLS, numpy.loadtxt)" "—"
@@ -128,11 +129,11 @@ done <<<"$sindy"
 if has_command analyze; then
   times=()
   for _ in $(seq "$REPEATS"); do
-    times+=("$(wall_s "$BIN" analyze "$REC" --model config/plant.toml --json "$WORK/analysis.json")")
+    times+=("$(wall_s "$BIN" analyze "$REC" --model config/plant.toml --json "$WORK/analysis.json" || echo nan)")
   done
-  an_s=$(printf '%s\n' "${times[@]}" | median)
+  an_s=$(printf '%s\n' "${times[@]}" | grep -v nan | median)
   found=$("$PY" -c 'import json,sys; d=json.load(open(sys.argv[1])); print(", ".join(f["effect"] for f in d.get("findings", [])) or "no findings")' "$WORK/analysis.json" 2>/dev/null || echo "?")
-  row "analyze a ${DURATION_S} s recording: s incl. CSV (median of $REPEATS)" "$an_s s: $found" "see the PySINDy rows" ""
+  row "analyze a ${DURATION_S} s recording: s incl. CSV (median of $REPEATS)" "$an_s s: $found" "see the PySINDy rows" "—"
 else
   row "analyze a ${DURATION_S} s recording" "not available yet (no \`analyze\`)" "see the PySINDy rows" "—"
 fi
@@ -143,7 +144,9 @@ if has_command demo; then
     say "installing wrk"
     (apt-get install -y -qq wrk >/dev/null 2>&1 || (apt-get update -qq && apt-get install -y -qq wrk >/dev/null 2>&1)) || true
   fi
-  if command -v wrk >/dev/null 2>&1; then
+  if curl -s -o /dev/null --max-time 2 http://127.0.0.1:8080/ 2>/dev/null; then
+    row "HTTP GET /api/status" "not measured: something else already serves 127.0.0.1:8080" "—" "—"
+  elif command -v wrk >/dev/null 2>&1; then
     "$BIN" demo >"$WORK/demo.log" 2>&1 &
     PIDS+=($!)
     for _ in $(seq 100); do
@@ -154,8 +157,10 @@ if has_command demo; then
     echo "$out" >&2
     rps=$(sed -n 's/^Requests\/sec:[[:space:]]*\([0-9.]*\).*/\1/p' <<<"$out")
     p99=$(sed -n 's/^[[:space:]]*99%[[:space:]]*\([^[:space:]]*\).*/\1/p' <<<"$out")
-    row "HTTP GET /api/status, wrk -t2 -c32 -d10s (demo running)" "${rps:-?} req/s, p99 ${p99:-?}" "—" "—"
+    bad=$(sed -n 's/^[[:space:]]*Non-2xx or 3xx responses:[[:space:]]*\([0-9]*\).*/, \1 of them not 2xx/p' <<<"$out")
+    row "HTTP GET /api/status, wrk -t2 -c32 -d10s (demo running)" "${rps:-?} req/s, p99 ${p99:-?}${bad}" "—" "—"
     kill "${PIDS[-1]}" 2>/dev/null || true
+    wait "${PIDS[-1]}" 2>/dev/null || true
   else
     row "HTTP GET /api/status" "not measured: wrk could not be installed" "—" "—"
   fi
