@@ -43,7 +43,7 @@ pub fn parse<R: Read>(reader: R, origin: &str) -> Result<Recording, RecordingErr
     if headers.is_empty() || (headers.len() == 1 && headers[0].is_empty()) {
         return Err(file_err("the file is empty: expected a header row starting with `t_s`".into()));
     }
-    let names: Vec<String> = headers.iter().map(str::to_string).collect();
+    let names: Vec<String> = headers.iter().map(|h| h.trim().to_string()).collect();
     let Some(t_index) = names.iter().position(|n| n == "t_s") else {
         return Err(RecordingError::Line {
             path: origin.into(),
@@ -68,10 +68,10 @@ pub fn parse<R: Read>(reader: R, origin: &str) -> Result<Recording, RecordingErr
     // t_s first, the rest in file order
     let order: Vec<usize> = std::iter::once(t_index).chain((0..names.len()).filter(|&i| i != t_index)).collect();
     let mut columns: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
-    let mut record = csv::StringRecord::new();
+    let mut record = csv::ByteRecord::new();
     let mut last_t = f64::NEG_INFINITY;
     loop {
-        match csv.read_record(&mut record) {
+        match csv.read_byte_record(&mut record) {
             Ok(false) => break,
             Ok(true) => {}
             Err(e) => {
@@ -88,15 +88,15 @@ pub fn parse<R: Read>(reader: R, origin: &str) -> Result<Recording, RecordingErr
             });
         }
         for (slot, &i) in order.iter().enumerate() {
-            let cell = &record[i];
+            let cell = record[i].trim_ascii();
             let value = if cell.is_empty() {
                 f64::NAN
             } else {
-                cell.parse::<f64>().map_err(|_| RecordingError::Cell {
+                parse_number(cell).ok_or_else(|| RecordingError::Cell {
                     path: origin.into(),
                     line,
                     column: names[i].clone(),
-                    message: format!("expected a number, got {cell:?}"),
+                    message: format!("expected a number, got {:?}", String::from_utf8_lossy(cell)),
                 })?
             };
             columns[slot].push(value);
@@ -127,6 +127,11 @@ pub fn parse<R: Read>(reader: R, origin: &str) -> Result<Recording, RecordingErr
     Ok(Recording::from_columns(origin, ordered_names, columns))
 }
 
+/// A decimal number from a cell's bytes.
+fn parse_number(cell: &[u8]) -> Option<f64> {
+    std::str::from_utf8(cell).ok()?.parse::<f64>().ok()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -137,7 +142,7 @@ mod tests {
 
     #[test]
     fn reads_columns_and_missing_values() {
-        let r = parse_str("omega_rad_s,t_s,foo\n1.5,0.0,\n,0.001,3\n").expect("valid");
+        let r = parse_str("omega_rad_s, t_s ,foo\n 1.5 ,0.0,\n,0.001,3\n").expect("valid");
         assert_eq!(r.names()[0], "t_s");
         assert_eq!(r.t_s(), &[0.0, 0.001]);
         let w = r.column("omega_rad_s").expect("column");

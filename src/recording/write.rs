@@ -9,9 +9,11 @@ use super::Recording;
 
 /// A value as the CSV holds it: shortest round-trip decimal, empty for a missing (non-finite) value.
 pub fn format_value(out: &mut String, v: f64) {
-    use std::fmt::Write as _;
     if v.is_finite() {
-        let _ = write!(out, "{v}");
+        let mut buf = ryu::Buffer::new();
+        let text = buf.format_finite(v);
+        // "3.0" → "3": shorter files, and the same numbers as before
+        out.push_str(text.strip_suffix(".0").unwrap_or(text));
     }
 }
 
