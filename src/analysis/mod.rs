@@ -572,3 +572,60 @@ fn ambiguities(named: &[&str], ties: &[(&str, &str)], m: &PlantModel, s: &Series
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plant::effects::{DeadTime, StribeckFriction};
+
+    fn noiseless(mut m: PlantModel) -> PlantModel {
+        m.sensors.pressure_noise_bar = 0.0;
+        m.sensors.speed_noise_rad_s = 0.0;
+        m.sensors.load_noise_nm = 0.0;
+        m
+    }
+
+    /// The analysis's free run (1 ms RK4, dead time split inside the sample) reproduces the simulator (0.2 ms).
+    #[test]
+    fn free_run_matches_the_simulator_on_noiseless_data() {
+        let mut m = noiseless(PlantModel::reference());
+        m.effects.dead_time = Some(DeadTime { ms: 12.4 });
+        m.effects.stribeck_friction = Some(StribeckFriction { breakaway_nm: 1.0, speed_rad_s: 2.0 });
+        let rec = crate::plant::simulate::test_stand(&m, 30.0, 1, &mut |_| {}).expect("simulable");
+        let s = Series::extract(&rec, &m, 0.3).expect("signals");
+        let p = predict::predict(&m, &s, s.len()).expect("prediction");
+        let e = predict::errors(&p, &s, 0, s.len());
+        assert!(e.omega_nrmse < 2e-3, "{e:?}");
+        assert!(e.dp_nrmse.is_some_and(|v| v < 2e-3), "{e:?}");
+    }
+
+    #[test]
+    fn missing_speed_and_missing_model_sections_are_named() {
+        let rec = Recording::from_columns(
+            "r.csv",
+            vec!["t_s".into(), "torque_nm".into()],
+            vec![(0..300).map(|k| k as f64 * 1e-3).collect(), vec![1.0; 300]],
+        );
+        let m = PlantModel::reference();
+        let err = analyze(&rec, &m, &Options::default(), &mut |_| {}).expect_err("no speed");
+        assert!(err.0.contains("omega_rad_s") && err.0.contains("theta_rad"), "{}", err.0);
+        let rec = Recording::from_columns(
+            "r.csv",
+            vec!["t_s".into(), "p_in_bar".into(), "p_out_bar".into(), "f_set_hz".into(), "omega_rad_s".into()],
+            vec![
+                (0..300).map(|k| k as f64 * 1e-3).collect(),
+                vec![1.0; 300],
+                vec![1.0; 300],
+                vec![1.0; 300],
+                vec![1.0; 300],
+            ],
+        );
+        let torque_only = PlantModel::parse(
+            "[motor]\ninertia_kg_m2 = 1.0\nviscous_nm_s_rad = 1.0\n[load]\nkind = \"none\"\n",
+            "m.toml",
+        )
+        .expect("valid");
+        let err = analyze(&rec, &torque_only, &Options::default(), &mut |_| {}).expect_err("no hydraulics");
+        assert!(err.0.contains("[drive]"), "{}", err.0);
+    }
+}

@@ -1,3 +1,4 @@
 //! The one integration-test binary (faster to build on two cores): each module tests one room through real parts.
 
+mod analysis;
 mod support;
