@@ -156,6 +156,9 @@ fn clean_runs_name_nothing() {
     }
 }
 
+/// Effect id, key parameter, its true value, and how to switch the effect on.
+type Case = (&'static str, &'static str, f64, Box<dyn Fn(&mut PlantModel)>);
+
 /// A wider sweep of seeds and magnitudes (minutes in the dev profile): `cargo test --test it -- --ignored sweep`.
 #[test]
 #[ignore]
@@ -163,7 +166,7 @@ fn sweep_of_seeds_and_magnitudes() {
     let mut failures = Vec::new();
     for seed in 100..104u64 {
         for scale in [0.8, 1.0, 1.5] {
-            let cases: Vec<(&str, &str, f64, Box<dyn Fn(&mut PlantModel)>)> = vec![
+            let cases: Vec<Case> = vec![
                 (
                     "coulomb_friction",
                     "torque_nm",
