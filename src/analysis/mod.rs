@@ -234,8 +234,10 @@ pub fn analyze(
                     (sc, db)
                 });
             tried.push((id, scored));
-            let done = (round - 1) as f64 + (i + 1) as f64 / remaining.len() as f64;
-            progress(0.05 + 0.9 * (done / total_rounds as f64).min(1.0) * 0.5_f64.max(1.0 / round as f64));
+            // round r fills the r-th half of what is left: monotonic without knowing how many rounds there will be
+            let (start, end) = (1.0 - 0.5f64.powi(round as i32 - 1), 1.0 - 0.5f64.powi(round as i32));
+            let within = (i + 1) as f64 / remaining.len() as f64;
+            progress(0.05 + 0.9 * (start + (end - start) * within));
         }
         let before = current.validation.score(family);
         let scored: Vec<(&'static str, &Scored, f64)> =

@@ -32,6 +32,9 @@ impl Family {
 pub const MEASURED_SPEED_CUTOFF_HZ: f64 = 10.0;
 /// Cut-off for a speed differentiated from position, as in the EMPS benchmark's IDIM-LS script.
 pub const POSITION_CUTOFF_HZ: f64 = 100.0;
+/// The IDIM-LS script then decimates every signal of the torque balance by 10 (MATLAB `decimate`: a low-pass at
+/// 0.8 of the new Nyquist frequency, 40 Hz at 1 kHz). The same parallel low-pass is applied here.
+pub const DECIMATION: f64 = 10.0;
 
 /// A recording turned into the signals the analysis needs; every vector has one value per row.
 #[derive(Debug, Clone)]
@@ -111,7 +114,17 @@ impl Series {
                 "recording {src}: no speed: expected a column `omega_rad_s` or `theta_rad` with values"
             )));
         };
-        let alpha_f = derivative(&omega_f, &t_s);
+        let mut alpha_f = derivative(&omega_f, &t_s);
+        let mut omega_f = omega_f;
+        // the parallel decimation filter of IDIM-LS, for position-derived speed: every regressor and the torque
+        let cutoff_hz = if speed_source == "theta_rad" {
+            let parallel = 0.8 * sample_hz / (2.0 * DECIMATION);
+            omega_f = filtfilt_butter4(&omega_f, parallel, sample_hz);
+            alpha_f = filtfilt_butter4(&alpha_f, parallel, sample_hz);
+            parallel
+        } else {
+            cutoff_hz
+        };
 
         let load_nm = match (col("load_nm"), &model.load) {
             (Some(l), _) => l,

@@ -65,6 +65,7 @@ fn concealed_stribeck_friction() {
             seed,
         );
         assert_found(&a, "stribeck_friction", "breakaway_nm", ts);
+        assert!(a.findings[0].evidence.where_it_shows.contains("low speed"), "{:#?}", a.findings[0].evidence);
     }
 }
 
@@ -90,6 +91,10 @@ fn concealed_dead_time() {
     for (seed, ms) in [(19, 25.0), (20, 40.0)] {
         let a = concealed(|m| m.effects.dead_time = Some(DeadTime { ms }), seed);
         assert_found(&a, "dead_time", "ms", ms);
+        // located: most mismatch windows follow setpoint steps
+        let after = a.mismatches.iter().filter(|m| m.condition.contains("after setpoint steps")).count();
+        assert!(2 * after > a.mismatches.len(), "{:#?}", a.mismatches);
+        assert!(a.findings[0].evidence.where_it_shows.contains("after setpoint steps"));
     }
 }
 
@@ -260,6 +265,12 @@ fn emps_real_data_gives_the_published_friction_model() {
         v["findings"].as_array().expect("findings").iter().filter_map(|f| f["effect"].as_str()).collect();
     assert!(effects.contains(&"coulomb_friction") && effects.contains(&"torque_offset"), "{effects:?}");
     assert_eq!(v["baseline"]["validation"]["dp_nrmse"], serde_json::Value::Null);
+    for key in
+        ["recording", "samples", "validation_from_s", "baseline", "mismatches", "findings", "ambiguities", "improved"]
+    {
+        assert!(!v[key].is_null(), "contract key {key} missing");
+    }
+    assert_eq!(v["samples"], 24841);
     let p = &v["improved"]["parameters"];
     let get = |k: &str| p[k].as_f64().unwrap_or(f64::NAN);
     for (key, published) in
