@@ -9,9 +9,11 @@
 //! - [`recording`]: the contract's CSV, read strictly and written streaming with rotation.
 //! - [`modbus`]: the register map (pure), the client, and the plant simulator server.
 //! - [`estimator`]: PURE RLS+SGD and Kalman estimators; fed Δt and samples.
+//! - [`analysis`]: PURE mismatch analysis (fit, free-run residuals, effect search) + its HTML report at the edge.
 //!
 //! `main.rs` wires the commands and is the only place `anyhow` lives.
 
+pub mod analysis;
 pub mod error;
 pub mod estimator;
 pub mod modbus;

@@ -54,6 +54,23 @@ enum Command {
         #[command(flatten)]
         flags: EstimateFlags,
     },
+    /// Find where the model and a recording disagree, name the missing physics, fit it, show the gain.
+    Analyze {
+        /// The recording CSV.
+        recording: PathBuf,
+        /// The nominal plant model.
+        #[arg(long)]
+        model: PathBuf,
+        /// Where to write the analysis JSON.
+        #[arg(long)]
+        json: PathBuf,
+        /// A self-contained HTML report with SVG plots.
+        #[arg(long)]
+        report: Option<PathBuf>,
+        /// The improved model, as a plant TOML that `sim` and `simulate` accept.
+        #[arg(long)]
+        model_out: Option<PathBuf>,
+    },
 }
 
 /// Estimator settings on the command line; each overrides the model file's `[estimator]` table.
@@ -102,6 +119,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Sim { model, listen, seed } => sim(&model, &listen, seed),
         Command::Simulate { model, duration, seed, out } => simulate(&model, duration, seed, &out),
         Command::Estimate { recording, model, out, flags } => estimate(&recording, &model, &out, &flags),
+        Command::Analyze { recording, model, json, report, model_out } => {
+            analyze(&recording, &model, &json, report.as_deref(), model_out.as_deref())
+        }
     }
 }
 
@@ -224,5 +244,36 @@ fn estimate(rec_path: &Path, model_path: &Path, out: &Path, flags: &EstimateFlag
     }
     w.flush().with_context(|| format!("writing {}", out.display()))?;
     eprintln!("estimate ({}): {} rows written to {}", settings.method, estimates.len(), out.display());
+    Ok(())
+}
+
+fn analyze(
+    rec_path: &Path,
+    model_path: &Path,
+    json: &Path,
+    report: Option<&Path>,
+    model_out: Option<&Path>,
+) -> anyhow::Result<()> {
+    use hydrolens::analysis;
+    let model = load_model(model_path)?;
+    let rec = recording::load(rec_path)?;
+    let result = analysis::analyze(&rec, &model, &analysis::Options::default(), &mut progress("analyze"))?;
+    let text = serde_json::to_string_pretty(&result).context("serialising the analysis")?;
+    std::fs::write(json, text + "\n").with_context(|| format!("writing {}", json.display()))?;
+    if let Some(path) = model_out {
+        let header = format!("# Fitted by `hydrolens analyze {}` from {}\n", rec_path.display(), model_path.display());
+        std::fs::write(path, header + &result.improved_model.to_toml())
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    if let Some(path) = report {
+        std::fs::write(path, analysis::report::html(&result)).with_context(|| format!("writing {}", path.display()))?;
+    }
+    let named: Vec<&str> = result.findings.iter().map(|f| f.effect.as_str()).collect();
+    eprintln!(
+        "analyze: {} samples; validation from {:.1} s; named: {}",
+        result.samples,
+        result.validation_from_s,
+        if named.is_empty() { "nothing".to_string() } else { named.join(", ") }
+    );
     Ok(())
 }

@@ -1,0 +1,143 @@
+//! Locating where the free-run residual is large, and the operating conditions those windows share.
+
+use serde::Serialize;
+
+use super::series::{Series, percentile};
+
+/// A stretch of the recording where the model misses, and what was going on there.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Mismatch {
+    pub t_start_s: f64,
+    pub t_end_s: f64,
+    /// `omega`, `dp` or `torque`.
+    pub signal: String,
+    /// The operating conditions the window shares, e.g. "low speed, after setpoint steps".
+    pub condition: String,
+    /// RMS of the residual in the window, in the signal's unit (rad/s, bar, N·m).
+    pub rms: f64,
+}
+
+/// Length of the windows the residual is cut into (s).
+pub const WINDOW_S: f64 = 0.5;
+/// A window is a mismatch when its residual RMS exceeds this multiple of the median window's.
+pub const THRESHOLD_X_MEDIAN: f64 = 2.0;
+/// At most this many mismatches are listed (the largest).
+pub const MAX_MISMATCHES: usize = 40;
+
+/// Per-row operating conditions, computed once.
+pub struct Conditions {
+    low_speed: Vec<bool>,
+    reversal: Vec<bool>,
+    high_dp: Vec<bool>,
+    after_step: Vec<bool>,
+    accelerating: Vec<bool>,
+}
+
+impl Conditions {
+    pub fn new(s: &Series) -> Conditions {
+        let n = s.len();
+        let scale = s.speed_scale();
+        let low_speed = s.omega_f.iter().map(|w| w.abs() < 0.1 * scale).collect();
+        // rows within 0.2 s of a sign change of the speed (beyond the smooth-sign band)
+        let mut reversal = vec![false; n];
+        let reach = (0.2 * s.sample_hz) as usize;
+        let mut last_sign = 0.0;
+        for k in 0..n {
+            let w = s.omega_f[k];
+            if w.abs() > 0.02 * scale {
+                let sign = w.signum();
+                if last_sign != 0.0 && sign != last_sign {
+                    for r in reversal.iter_mut().take((k + reach).min(n)).skip(k.saturating_sub(reach)) {
+                        *r = true;
+                    }
+                }
+                last_sign = sign;
+            }
+        }
+        let load: Vec<f64> = match &s.dp_bar {
+            Some(dp) => dp.clone(),
+            None => s.drive_torque_f.iter().map(|t| t.abs()).collect(),
+        };
+        let hi = percentile(&load, 0.8);
+        let high_dp = load.iter().map(|v| *v > hi).collect();
+        let mut after_step = vec![false; n];
+        let driver: Vec<f64> = match &s.setpoint_hz {
+            Some(u) => u.clone(),
+            None => s.drive_torque_f.clone(),
+        };
+        let jump = match &s.setpoint_hz {
+            Some(_) => 0.5,
+            None => 0.2 * (percentile(&driver, 0.95) - percentile(&driver, 0.05)).abs(),
+        };
+        let hold = s.sample_hz as usize;
+        let mut k = 1;
+        while k < n {
+            let look = (k + (0.02 * s.sample_hz) as usize).min(n - 1);
+            if (driver[look] - driver[k - 1]).abs() > jump && jump > 0.0 {
+                for r in after_step.iter_mut().take((k + hold).min(n)).skip(k) {
+                    *r = true;
+                }
+                k += hold;
+            } else {
+                k += 1;
+            }
+        }
+        let acc_hi = percentile(&s.alpha_f.iter().map(|a| a.abs()).collect::<Vec<_>>(), 0.9);
+        let accelerating = s.alpha_f.iter().map(|a| a.abs() > acc_hi).collect();
+        Conditions { low_speed, reversal, high_dp, after_step, accelerating }
+    }
+
+    /// The names of the conditions true for at least 30 % of rows `a..b`.
+    pub fn describe(&self, s: &Series, a: usize, b: usize) -> String {
+        let frac = |v: &[bool]| v[a..b].iter().filter(|x| **x).count() as f64 / (b - a).max(1) as f64;
+        let high_name = if s.dp_bar.is_some() { "high ΔP" } else { "high torque" };
+        let step_name = if s.setpoint_hz.is_some() { "after setpoint steps" } else { "after torque steps" };
+        let named = [
+            (frac(&self.reversal), "speed reversals"),
+            (frac(&self.low_speed), "low speed"),
+            (frac(&self.after_step), step_name),
+            (frac(&self.accelerating), "fast acceleration"),
+            (frac(&self.high_dp), high_name),
+        ];
+        let hits: Vec<&str> = named.iter().filter(|(f, _)| *f >= 0.3).map(|(_, n)| *n).collect();
+        if hits.is_empty() { "steady running".to_string() } else { hits.join(", ") }
+    }
+}
+
+/// The windows where `residual` (measured − model) is unusually large.
+pub fn locate(s: &Series, cond: &Conditions, signal: &str, residual: &[f64]) -> Vec<Mismatch> {
+    let w = ((WINDOW_S * s.sample_hz) as usize).max(10);
+    let n = residual.len();
+    let rms: Vec<(usize, usize, f64)> = (0..n / w)
+        .map(|i| {
+            let (a, b) = (i * w, ((i + 1) * w).min(n));
+            let ms = residual[a..b].iter().map(|r| r * r).sum::<f64>() / (b - a) as f64;
+            (a, b, ms.sqrt())
+        })
+        .collect();
+    let median = percentile(&rms.iter().map(|r| r.2).collect::<Vec<_>>(), 0.5);
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < rms.len() {
+        if rms[i].2 > THRESHOLD_X_MEDIAN * median {
+            let a = rms[i].0;
+            let mut j = i;
+            while j + 1 < rms.len() && rms[j + 1].2 > THRESHOLD_X_MEDIAN * median {
+                j += 1;
+            }
+            let b = rms[j].1;
+            let ms = residual[a..b].iter().map(|r| r * r).sum::<f64>() / (b - a) as f64;
+            out.push(Mismatch {
+                t_start_s: s.t_s[a],
+                t_end_s: s.t_s[b - 1],
+                signal: signal.to_string(),
+                condition: cond.describe(s, a, b),
+                rms: ms.sqrt(),
+            });
+            i = j + 1;
+        } else {
+            i += 1;
+        }
+    }
+    out
+}

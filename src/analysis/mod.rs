@@ -1,0 +1,633 @@
+//! PURE analysis: where a nominal model and a recording disagree, which catalogue effect was left out, its fit, and
+//! the proof (validation error on data never used for fitting). `report` renders the result at the edge.
+//!
+//! Pipeline (PHYSICS.md §3): extract the signals ([`series`]) → fit J, B ([`search::fit_mechanics`]) → free-run the
+//! baseline ([`predict`]) → locate mismatch windows ([`mismatch`]) → greedy forward selection over the catalogue,
+//! each candidate fitted on the fitting segment and kept only when it lowers the validation error by a clear margin
+//! and BIC agrees → ambiguities → the improved model.
+
+pub mod mismatch;
+pub mod predict;
+pub mod report;
+pub mod search;
+pub mod series;
+pub mod signal;
+
+use std::collections::BTreeMap;
+
+use serde::Serialize;
+
+use crate::BadInput;
+use crate::plant::PlantModel;
+use crate::recording::Recording;
+use crate::units::cm3_per_rev_to_m3_per_rad;
+
+pub use mismatch::Mismatch;
+pub use predict::Errors;
+pub use series::{Family, Series};
+
+use search::{MechTerms, Scored};
+
+/// Settings of an analysis; the defaults are the documented method.
+#[derive(Debug, Clone, Copy)]
+pub struct Options {
+    /// Fraction of the recording, at its end, kept for validation (never used for fitting).
+    pub validation_fraction: f64,
+    /// The free-run parameter search uses at most this much of the fitting segment (s); the final fit is confirmed
+    /// on the whole recording.
+    pub search_window_s: f64,
+    /// An effect is kept only if the validation error (root of the mean squared NRMSE) drops by at least this
+    /// fraction…
+    pub min_relative_drop: f64,
+    /// …and BIC on the fitting segment improves by at least this much.
+    pub min_delta_bic: f64,
+    /// Two candidates whose validation gains are within this fraction of each other are reported as ambiguous.
+    pub tie_fraction: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            validation_fraction: 0.3,
+            search_window_s: 60.0,
+            min_relative_drop: 0.10,
+            min_delta_bic: 10.0,
+            tie_fraction: 0.9,
+        }
+    }
+}
+
+/// The analysis JSON of CONTRACT.md, plus what the report draws.
+#[derive(Debug, Clone, Serialize)]
+pub struct Analysis {
+    pub recording: String,
+    pub samples: usize,
+    pub validation_from_s: f64,
+    /// `hydraulic` (free run from setpoint and load) or `torque` (driven by a measured torque).
+    pub family: &'static str,
+    /// Where the speed came from: `omega_rad_s`, or `theta_rad` differentiated after a zero-phase low-pass.
+    pub speed_source: &'static str,
+    pub baseline: Summary,
+    pub mismatches: Vec<Mismatch>,
+    pub findings: Vec<Finding>,
+    pub ambiguities: Vec<Ambiguity>,
+    pub improved: Summary,
+    /// Every candidate tried, round by round: what the selection saw.
+    pub candidates: Vec<CandidateScore>,
+    #[serde(skip)]
+    pub improved_model: PlantModel,
+    #[serde(skip)]
+    pub traces: Traces,
+}
+
+/// A model's parameters and its validation errors.
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    pub parameters: BTreeMap<String, f64>,
+    pub validation: Errors,
+    /// The same errors over the whole recording (fitting and validation segments), to compare with published
+    /// figures computed that way.
+    pub whole_recording: Errors,
+}
+
+/// One named effect.
+#[derive(Debug, Clone, Serialize)]
+pub struct Finding {
+    pub effect: String,
+    pub parameters: BTreeMap<String, f64>,
+    pub explanation: String,
+    pub evidence: Evidence,
+}
+
+/// Why a finding was kept.
+#[derive(Debug, Clone, Serialize)]
+pub struct Evidence {
+    /// BIC(without) − BIC(with) on the fitting segment; positive favours the effect.
+    pub delta_bic: f64,
+    /// Validation score (mean squared NRMSE) before and after adding the effect.
+    pub validation_score_before: f64,
+    pub validation_score_after: f64,
+    /// 1 − after/before of the validation error (root of the score).
+    pub relative_drop: f64,
+    /// Correlation, on the validation segment, between the residual before the effect and what the effect changes
+    /// in the prediction: near 1 means the effect has the shape of what was missing.
+    pub residual_correlation: f64,
+    /// The conditions of the mismatch windows the effect removes most of.
+    pub where_it_shows: String,
+}
+
+/// Effects this recording cannot tell apart.
+#[derive(Debug, Clone, Serialize)]
+pub struct Ambiguity {
+    pub effects: Vec<String>,
+    pub explanation: String,
+}
+
+/// A candidate's score in a selection round.
+#[derive(Debug, Clone, Serialize)]
+pub struct CandidateScore {
+    pub round: usize,
+    pub effect: String,
+    pub validation_score: Option<f64>,
+    pub delta_bic: Option<f64>,
+    pub kept: bool,
+}
+
+/// Signals for the report: the recording, the baseline and the improved model.
+#[derive(Debug, Clone, Default)]
+pub struct Traces {
+    pub t_s: Vec<f64>,
+    pub split: usize,
+    pub omega_meas: Vec<f64>,
+    pub omega_baseline: Vec<f64>,
+    pub omega_improved: Vec<f64>,
+    /// ΔP (bar) or, for a torque-driven recording, torque (N·m): measured, baseline, improved.
+    pub effort_name: &'static str,
+    pub effort_meas: Vec<f64>,
+    pub effort_baseline: Vec<f64>,
+    pub effort_improved: Vec<f64>,
+    /// Low-passed speed, the x axis of the residual maps.
+    pub omega_f: Vec<f64>,
+}
+
+/// The parameters of a model the analysis fits, under their contract names.
+pub fn parameters(m: &PlantModel) -> BTreeMap<String, f64> {
+    let mut p = BTreeMap::new();
+    p.insert("inertia_kg_m2".to_string(), m.motor.inertia_kg_m2);
+    p.insert("viscous_nm_s_rad".to_string(), m.motor.viscous_nm_s_rad);
+    for id in m.effects.active_ids() {
+        for (k, v) in effect_parameters(m, id) {
+            p.insert(format!("{id}.{k}"), v);
+        }
+    }
+    p
+}
+
+/// One effect's parameters under the catalogue's names.
+pub fn effect_parameters(m: &PlantModel, id: &str) -> BTreeMap<String, f64> {
+    let e = &m.effects;
+    let pairs: Vec<(&str, f64)> = match id {
+        "coulomb_friction" => e.coulomb_friction.map(|x| vec![("torque_nm", x.torque_nm)]),
+        "stribeck_friction" => {
+            e.stribeck_friction.map(|x| vec![("breakaway_nm", x.breakaway_nm), ("speed_rad_s", x.speed_rad_s)])
+        }
+        "torque_offset" => e.torque_offset.map(|x| vec![("torque_nm", x.torque_nm)]),
+        "internal_leakage" => e.internal_leakage.map(|x| vec![("l_min_per_bar", x.l_min_per_bar)]),
+        "dead_time" => e.dead_time.map(|x| vec![("ms", x.ms)]),
+        "entrained_air" => e.entrained_air.map(|x| vec![("bulk_modulus_bar", x.bulk_modulus_bar)]),
+        "motor_slip" => e.motor_slip.map(|x| vec![("rpm_per_nm", x.rpm_per_nm)]),
+        _ => None,
+    }
+    .unwrap_or_default();
+    pairs.into_iter().map(|(k, v)| (k.to_string(), v)).collect()
+}
+
+/// Analyses a recording against a nominal model. `progress` gets the fraction done (0…1).
+pub fn analyze(
+    rec: &Recording,
+    nominal: &PlantModel,
+    opts: &Options,
+    progress: &mut dyn FnMut(f64),
+) -> Result<Analysis, BadInput> {
+    progress(0.0);
+    let s = Series::extract(rec, nominal, opts.validation_fraction)?;
+    let family = s.family;
+    // The nominal model's effects are part of the nominal model: the search adds to them.
+    let mut start = nominal.clone();
+    let nominal_terms = MechTerms {
+        coulomb: start.effects.coulomb_friction.is_some(),
+        offset: start.effects.torque_offset.is_some(),
+        stribeck: start.effects.stribeck_friction.is_some(),
+    };
+    start.load = crate::plant::LoadSpec::Recorded;
+    let base_model = search::fit_mechanics(&start, &s, nominal_terms).ok_or_else(|| {
+        BadInput(format!(
+            "recording {}: inertia and viscous friction cannot be fitted: the speed hardly changes on the fitting \
+             segment (it needs accelerations and several speeds)",
+            rec.source
+        ))
+    })?;
+    let baseline = Scored::evaluate(base_model, nominal_terms, &s)?;
+    progress(0.05);
+
+    let search_end = s.split.min((opts.search_window_s * s.sample_hz) as usize).max(100);
+    let n_bic = s.split as f64 / 10.0;
+    let mut current = baseline.clone();
+    let mut remaining: Vec<&'static str> =
+        search::applicable(family).into_iter().filter(|id| !nominal.effects.active_ids().contains(id)).collect();
+    let mut kept: Vec<(&'static str, Scored, Scored, f64)> = Vec::new(); // (id, before, after, ΔBIC)
+    let mut candidates = Vec::new();
+    let mut ties: Vec<(&'static str, &'static str)> = Vec::new();
+    let total_rounds = remaining.len().max(1);
+    for round in 1..=total_rounds {
+        let mut tried: Vec<(&'static str, Option<(Scored, f64)>)> = Vec::new();
+        for (i, &id) in remaining.iter().enumerate() {
+            let scored = search::candidate(id, &current, &s, search_end)
+                .and_then(|(m, terms)| Scored::evaluate(m, terms, &s).ok())
+                .map(|sc| {
+                    let db = search::delta_bic(
+                        current.fit.score(family),
+                        sc.fit.score(family),
+                        search::parameter_count(id),
+                        n_bic,
+                    );
+                    (sc, db)
+                });
+            tried.push((id, scored));
+            // round r fills the r-th half of what is left: monotonic without knowing how many rounds there will be
+            let (start, end) = (1.0 - 0.5f64.powi(round as i32 - 1), 1.0 - 0.5f64.powi(round as i32));
+            let within = (i + 1) as f64 / remaining.len() as f64;
+            progress(0.05 + 0.9 * (start + (end - start) * within));
+        }
+        let before = current.validation.score(family);
+        let scored: Vec<(&'static str, &Scored, f64)> =
+            tried.iter().filter_map(|(id, sc)| sc.as_ref().map(|(sc, db)| (*id, sc, *db))).collect();
+        let lowest = scored.iter().map(|c| c.1.validation.score(family)).fold(f64::INFINITY, f64::min);
+        // Among candidates indistinguishable in score (within 0.5 %), the first in catalogue order, so that exactly
+        // equivalent effects (leakage and slip) are named the same way every time.
+        let best = scored.iter().copied().find(|c| c.1.validation.score(family) <= lowest * 1.005);
+        let accept = best.filter(|(_, sc, db)| {
+            let after = sc.validation.score(family);
+            1.0 - (after / before).sqrt() >= opts.min_relative_drop && *db >= opts.min_delta_bic
+        });
+        for (id, sc) in &tried {
+            candidates.push(CandidateScore {
+                round,
+                effect: id.to_string(),
+                validation_score: sc.as_ref().map(|x| x.0.validation.score(family)),
+                delta_bic: sc.as_ref().map(|x| x.1),
+                kept: accept.is_some_and(|a| a.0 == *id),
+            });
+        }
+        let Some((id, sc, db)) = accept else { break };
+        let gain = before - sc.validation.score(family);
+        for (other, osc) in &tried {
+            if let Some((o, _)) = osc
+                && *other != id
+                && before - o.validation.score(family) >= opts.tie_fraction * gain
+            {
+                ties.push((id, other));
+            }
+        }
+        kept.push((id, current.clone(), sc.clone(), db));
+        current = sc.clone();
+        remaining.retain(|r| *r != id);
+        if remaining.is_empty() {
+            break;
+        }
+    }
+    progress(0.95);
+
+    let conditions = mismatch::Conditions::new(&s);
+    let residuals = residual_signals(&baseline, &s);
+    let mut mismatches: Vec<Mismatch> =
+        residuals.iter().flat_map(|(name, r)| mismatch::locate(&s, &conditions, name, r)).collect();
+    mismatches.sort_by(|a, b| b.rms.total_cmp(&a.rms));
+    mismatches.truncate(mismatch::MAX_MISMATCHES);
+    mismatches.sort_by(|a, b| a.t_start_s.total_cmp(&b.t_start_s));
+
+    let findings: Vec<Finding> =
+        kept.iter().map(|(id, before, after, db)| finding(id, before, after, *db, &s, &conditions)).collect();
+    let named: Vec<&str> = kept.iter().map(|k| k.0).collect();
+    let ambiguities = ambiguities(&named, &ties, &current.model, &s);
+
+    let traces = traces(&baseline, &current, &s);
+    progress(1.0);
+    Ok(Analysis {
+        recording: rec.source.clone(),
+        samples: s.len(),
+        validation_from_s: s.t_s[s.split],
+        family: family.name(),
+        speed_source: s.speed_source,
+        baseline: summary(&baseline, &s),
+        mismatches,
+        findings,
+        ambiguities,
+        improved: summary(&current, &s),
+        candidates,
+        improved_model: with_nominal_load(current.model, nominal),
+        traces,
+    })
+}
+
+fn summary(sc: &Scored, s: &Series) -> Summary {
+    Summary {
+        parameters: parameters(&sc.model),
+        validation: sc.validation,
+        whole_recording: predict::errors(&sc.prediction, s, 0, s.len()),
+    }
+}
+
+/// The fitted model keeps the nominal model's `[load]` so that `sim`/`simulate` run it as the user set it up.
+fn with_nominal_load(mut m: PlantModel, nominal: &PlantModel) -> PlantModel {
+    m.load = nominal.load.clone();
+    m
+}
+
+/// Measured − model for each judged signal of the family, over the whole recording.
+fn residual_signals(sc: &Scored, s: &Series) -> Vec<(&'static str, Vec<f64>)> {
+    let mut out = Vec::new();
+    match s.family {
+        Family::Hydraulic => {
+            out.push(("omega", s.omega_rad_s.iter().zip(&sc.prediction.omega_rad_s).map(|(m, p)| m - p).collect()));
+            if let (Some(meas), Some(sim)) = (&s.dp_bar, &sc.prediction.dp_bar) {
+                out.push(("dp", meas.iter().zip(sim).map(|(m, p)| m - p).collect()));
+            }
+        }
+        Family::Torque => {
+            if let Some(tau) = &sc.prediction.torque_nm {
+                out.push(("torque", s.drive_torque_f.iter().zip(tau).map(|(m, p)| m - p).collect()));
+            }
+        }
+    }
+    out
+}
+
+fn effort(sc: &Scored, s: &Series) -> Vec<f64> {
+    match s.family {
+        Family::Hydraulic => sc.prediction.dp_bar.clone().unwrap_or_default(),
+        Family::Torque => sc.prediction.torque_nm.clone().unwrap_or_default(),
+    }
+}
+
+fn traces(base: &Scored, improved: &Scored, s: &Series) -> Traces {
+    let (effort_name, effort_meas) = match &s.dp_bar {
+        Some(dp) => ("ΔP (bar)", dp.clone()),
+        None => ("torque (N·m)", s.drive_torque_f.clone()),
+    };
+    Traces {
+        t_s: s.t_s.clone(),
+        split: s.split,
+        omega_meas: s.omega_rad_s.clone(),
+        omega_baseline: base.prediction.omega_rad_s.clone(),
+        omega_improved: improved.prediction.omega_rad_s.clone(),
+        effort_name,
+        effort_meas,
+        effort_baseline: effort(base, s),
+        effort_improved: effort(improved, s),
+        omega_f: s.omega_f.clone(),
+    }
+}
+
+fn correlation(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len()) as f64;
+    if n < 2.0 {
+        return 0.0;
+    }
+    let ma = a.iter().sum::<f64>() / n;
+    let mb = b.iter().sum::<f64>() / n;
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        sab += (x - ma) * (y - mb);
+        saa += (x - ma).powi(2);
+        sbb += (y - mb).powi(2);
+    }
+    if saa > 0.0 && sbb > 0.0 { sab / (saa * sbb).sqrt() } else { 0.0 }
+}
+
+fn finding(
+    id: &str,
+    before: &Scored,
+    after: &Scored,
+    delta_bic: f64,
+    s: &Series,
+    cond: &mismatch::Conditions,
+) -> Finding {
+    let family = s.family;
+    let (b, a) = (before.validation.score(family), after.validation.score(family));
+    // the judged signal where the effect changed the prediction most, on the validation segment
+    let rb = residual_signals(before, s);
+    let ra = residual_signals(after, s);
+    let v = s.split;
+    let mut corr = 0.0;
+    let mut where_it_shows = String::new();
+    let mut best_gain = f64::NEG_INFINITY;
+    for ((name, r0), (_, r1)) in rb.iter().zip(&ra) {
+        let change: Vec<f64> = r0[v..].iter().zip(&r1[v..]).map(|(x, y)| x - y).collect();
+        let gain = r0[v..].iter().map(|x| x * x).sum::<f64>() - r1[v..].iter().map(|x| x * x).sum::<f64>();
+        let norm = s_norm(&r0[v..]);
+        if norm > 0.0 && gain / norm > best_gain {
+            best_gain = gain / norm;
+            corr = correlation(&r0[v..], &change);
+            // the windows where the effect removed the most residual
+            let w = ((mismatch::WINDOW_S * s.sample_hz) as usize).max(10);
+            let mut gains: Vec<(f64, usize)> = (0..r0.len() / w)
+                .map(|i| {
+                    let (p, q) = (i * w, (i + 1) * w);
+                    let g = r0[p..q].iter().map(|x| x * x).sum::<f64>() - r1[p..q].iter().map(|x| x * x).sum::<f64>();
+                    (g, p)
+                })
+                .collect();
+            gains.sort_by(|x, y| y.0.total_cmp(&x.0));
+            let top: Vec<usize> = gains.iter().take(5).map(|g| g.1).collect();
+            let mut counts: BTreeMap<String, usize> = BTreeMap::new();
+            for p in top {
+                *counts.entry(cond.describe(s, p, p + w)).or_default() += 1;
+            }
+            let most = counts.into_iter().max_by_key(|c| c.1).map(|c| c.0).unwrap_or_default();
+            where_it_shows = format!("{name}: {most}");
+        }
+    }
+    let parameters = effect_parameters(&after.model, id);
+    let explanation = explain(id, &after.model, s, b, a);
+    Finding {
+        effect: id.to_string(),
+        parameters,
+        explanation,
+        evidence: Evidence {
+            delta_bic,
+            validation_score_before: b,
+            validation_score_after: a,
+            relative_drop: 1.0 - (a / b).sqrt(),
+            residual_correlation: corr,
+            where_it_shows,
+        },
+    }
+}
+
+fn s_norm(x: &[f64]) -> f64 {
+    x.iter().map(|v| v * v).sum()
+}
+
+/// Plain-language physics and evidence for a finding.
+fn explain(id: &str, m: &PlantModel, s: &Series, before: f64, after: f64) -> String {
+    let e = &m.effects;
+    let gain = format!(
+        "validation error {:.3} → {:.3} (root mean squared NRMSE) on data never used for fitting",
+        before.sqrt(),
+        after.sqrt()
+    );
+    let effort = if s.family == Family::Hydraulic { "ΔP" } else { "drive torque" };
+    match id {
+        "coulomb_friction" => format!(
+            "dry friction of {:.3} N·m opposes the motion whatever the speed: the model needed that much more {effort} \
+             in the direction of motion, changing sign with the speed; {gain}",
+            e.coulomb_friction.map_or(0.0, |c| c.torque_nm)
+        ),
+        "stribeck_friction" => {
+            let (ts, ws) = e.stribeck_friction.map_or((0.0, 0.0), |x| (x.breakaway_nm, x.speed_rad_s));
+            format!(
+                "extra friction at low speed (breakaway {ts:.3} N·m, fading above about {ws:.2} rad/s): the {effort} \
+                 residual is largest when starting and stopping; {gain}"
+            )
+        }
+        "torque_offset" => format!(
+            "a constant torque of {:.3} N·m acts on the shaft (an unmodelled constant load, or an offset of the \
+             pressure/torque measurement): the {effort} residual is a bias at all speeds; {gain}",
+            e.torque_offset.map_or(0.0, |c| c.torque_nm)
+        ),
+        "internal_leakage" => format!(
+            "the pump/motor leak {:.4} L/min per bar more than the model says: the speed falls short in proportion to \
+             ΔP at steady flow; {gain}",
+            e.internal_leakage.map_or(0.0, |c| c.l_min_per_bar)
+        ),
+        "dead_time" => format!(
+            "the drive answers the setpoint {:.1} ms later than the model: speed and pressure lag after every setpoint \
+             change; {gain}",
+            e.dead_time.map_or(0.0, |c| c.ms)
+        ),
+        "entrained_air" => format!(
+            "the oil is softer than the model's: effective bulk modulus {:.0} bar (air in the oil), so pressure builds \
+             more slowly and rings at a lower frequency after steps; {gain}",
+            e.entrained_air.map_or(0.0, |c| c.bulk_modulus_bar)
+        ),
+        "motor_slip" => format!(
+            "the induction motor slips {:.3} rpm per N·m of pump torque: pump speed, hence flow and motor speed, fall \
+             with load; {gain}",
+            e.motor_slip.map_or(0.0, |c| c.rpm_per_nm)
+        ),
+        _ => gain,
+    }
+}
+
+/// Leakage that removes the same flow as a motor slip of `rpm_per_nm` (they enter the flow balance identically:
+/// C = D_p² k_s), in L/min per bar.
+pub fn slip_as_leakage(m: &PlantModel, rpm_per_nm: f64) -> Option<f64> {
+    let d_p = cm3_per_rev_to_m3_per_rad(m.pump.as_ref()?.displacement_cm3);
+    let k_s = crate::units::rpm_to_rad_s(rpm_per_nm);
+    Some(d_p * d_p * k_s / crate::units::l_min_per_bar_to_si(1.0))
+}
+
+fn ambiguities(named: &[&str], ties: &[(&str, &str)], m: &PlantModel, s: &Series) -> Vec<Ambiguity> {
+    let mut out: Vec<Ambiguity> = Vec::new();
+    let mut push = |a: &str, b: &str, text: String| {
+        let mut effects = vec![a.to_string(), b.to_string()];
+        effects.sort();
+        if !out.iter().any(|x| x.effects == effects) {
+            out.push(Ambiguity { effects, explanation: text });
+        }
+    };
+    let has = |id: &str| named.contains(&id);
+    // Leakage and slip remove flow in proportion to ΔP in exactly the same way; no signal here separates them.
+    if has("internal_leakage") || has("motor_slip") {
+        let per_rpm = slip_as_leakage(m, 1.0).unwrap_or(f64::NAN);
+        let text = match (m.effects.internal_leakage, m.effects.motor_slip) {
+            (Some(l), None) => format!(
+                "leakage and motor slip both take flow in proportion to ΔP (C = D_p²·k_s); without a pump-speed \
+                 measurement they are the same: {:.4} L/min/bar of leakage equals a slip of {:.3} rpm/N·m",
+                l.l_min_per_bar,
+                l.l_min_per_bar / per_rpm
+            ),
+            (None, Some(k)) => format!(
+                "leakage and motor slip both take flow in proportion to ΔP (C = D_p²·k_s); without a pump-speed \
+                 measurement they are the same: a slip of {:.3} rpm/N·m equals {:.4} L/min/bar of leakage",
+                k.rpm_per_nm,
+                k.rpm_per_nm * per_rpm
+            ),
+            _ => "leakage and motor slip both take flow in proportion to ΔP (C = D_p²·k_s); only their sum is \
+                  determined without a pump-speed measurement"
+                .to_string(),
+        };
+        push("internal_leakage", "motor_slip", text);
+    }
+    // Dry friction and a constant bias differ only where the speed changes sign.
+    if has("coulomb_friction") != has("torque_offset") {
+        let rows: Vec<usize> = (0..s.split).collect();
+        let sgn: Vec<f64> = rows.iter().map(|&k| s.sign(s.omega_f[k])).collect();
+        let cos = signal::cosine(&sgn, &vec![1.0; sgn.len()]).abs();
+        if cos > 0.95 {
+            let back = sgn.iter().filter(|v| **v < -0.5).count() as f64 / sgn.len() as f64;
+            let fwd = sgn.iter().filter(|v| **v > 0.5).count() as f64 / sgn.len() as f64;
+            push(
+                "coulomb_friction",
+                "torque_offset",
+                format!(
+                    "the speed hardly reverses ({:.1} % of the fitting data forward, {:.1} % backward): dry friction \
+                     and a constant load bias look the same except near standstill, so the choice rests on few samples",
+                    100.0 * fwd,
+                    100.0 * back
+                ),
+            );
+        }
+    }
+    for (a, b) in ties {
+        if !(has(a) && has(b)) {
+            push(
+                a,
+                b,
+                format!(
+                    "{a} and {b} improve the validation error almost equally on this recording; {a} was kept as the \
+                     slightly better one, but the data barely distinguish them"
+                ),
+            );
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plant::effects::{DeadTime, StribeckFriction};
+
+    fn noiseless(mut m: PlantModel) -> PlantModel {
+        m.sensors.pressure_noise_bar = 0.0;
+        m.sensors.speed_noise_rad_s = 0.0;
+        m.sensors.load_noise_nm = 0.0;
+        m
+    }
+
+    /// The analysis's free run (1 ms RK4, dead time split inside the sample) reproduces the simulator (0.2 ms).
+    #[test]
+    fn free_run_matches_the_simulator_on_noiseless_data() {
+        let mut m = noiseless(PlantModel::reference());
+        m.effects.dead_time = Some(DeadTime { ms: 12.4 });
+        m.effects.stribeck_friction = Some(StribeckFriction { breakaway_nm: 1.0, speed_rad_s: 2.0 });
+        let rec = crate::plant::simulate::test_stand(&m, 30.0, 1, &mut |_| {}).expect("simulable");
+        let s = Series::extract(&rec, &m, 0.3).expect("signals");
+        let p = predict::predict(&m, &s, s.len()).expect("prediction");
+        let e = predict::errors(&p, &s, 0, s.len());
+        assert!(e.omega_nrmse < 2e-3, "{e:?}");
+        assert!(e.dp_nrmse.is_some_and(|v| v < 2e-3), "{e:?}");
+    }
+
+    #[test]
+    fn missing_speed_and_missing_model_sections_are_named() {
+        let rec = Recording::from_columns(
+            "r.csv",
+            vec!["t_s".into(), "torque_nm".into()],
+            vec![(0..300).map(|k| k as f64 * 1e-3).collect(), vec![1.0; 300]],
+        );
+        let m = PlantModel::reference();
+        let err = analyze(&rec, &m, &Options::default(), &mut |_| {}).expect_err("no speed");
+        assert!(err.0.contains("omega_rad_s") && err.0.contains("theta_rad"), "{}", err.0);
+        let rec = Recording::from_columns(
+            "r.csv",
+            vec!["t_s".into(), "p_in_bar".into(), "p_out_bar".into(), "f_set_hz".into(), "omega_rad_s".into()],
+            vec![
+                (0..300).map(|k| k as f64 * 1e-3).collect(),
+                vec![1.0; 300],
+                vec![1.0; 300],
+                vec![1.0; 300],
+                vec![1.0; 300],
+            ],
+        );
+        let torque_only = PlantModel::parse(
+            "[motor]\ninertia_kg_m2 = 1.0\nviscous_nm_s_rad = 1.0\n[load]\nkind = \"none\"\n",
+            "m.toml",
+        )
+        .expect("valid");
+        let err = analyze(&rec, &torque_only, &Options::default(), &mut |_| {}).expect_err("no hydraulics");
+        assert!(err.0.contains("[drive]"), "{}", err.0);
+    }
+}

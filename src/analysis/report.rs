@@ -1,0 +1,273 @@
+//! The analysis report: a self-contained HTML page with SVG plots drawn here (plotters), no scripts, no links.
+
+use std::fmt::Write as _;
+
+use plotters::prelude::*;
+
+use super::Analysis;
+use super::series::percentile;
+
+const WIDTH: u32 = 900;
+const HEIGHT: u32 = 320;
+/// Points per plotted line at most (the recording is decimated for drawing only).
+const MAX_POINTS: usize = 2500;
+
+type Line<'a> = (&'a str, RGBColor, Vec<(f64, f64)>);
+
+/// One SVG chart of lines; an empty string when there is nothing finite to draw.
+fn chart(title: &str, x_label: &str, y_label: &str, lines: &[Line<'_>], points: bool) -> String {
+    let all: Vec<(f64, f64)> =
+        lines.iter().flat_map(|l| l.2.iter().copied()).filter(|p| p.0.is_finite() && p.1.is_finite()).collect();
+    if all.is_empty() {
+        return String::new();
+    }
+    let (mut x0, mut x1) = all.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |a, p| (a.0.min(p.0), a.1.max(p.0)));
+    let (mut y0, mut y1) = all.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |a, p| (a.0.min(p.1), a.1.max(p.1)));
+    if x1 <= x0 {
+        x1 = x0 + 1.0;
+        x0 -= 1.0;
+    }
+    let pad = 0.05 * (y1 - y0).max(1e-9);
+    y0 -= pad;
+    y1 += pad;
+    let mut svg = String::new();
+    let drawn = (|| -> Result<(), Box<dyn std::error::Error + '_>> {
+        let root = SVGBackend::with_string(&mut svg, (WIDTH, HEIGHT)).into_drawing_area();
+        root.fill(&WHITE)?;
+        let mut c = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 16))
+            .margin(10)
+            .x_label_area_size(35)
+            .y_label_area_size(60)
+            .build_cartesian_2d(x0..x1, y0..y1)?;
+        c.configure_mesh().x_desc(x_label).y_desc(y_label).light_line_style(WHITE.mix(0.0)).draw()?;
+        for (name, color, data) in lines {
+            let color = *color;
+            let data: Vec<(f64, f64)> = data.iter().copied().filter(|p| p.0.is_finite() && p.1.is_finite()).collect();
+            if points {
+                c.draw_series(data.iter().map(|&p| Circle::new(p, 3, color.filled())))?
+                    .label(*name)
+                    .legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
+                c.draw_series(LineSeries::new(data, color.stroke_width(1)))?;
+            } else {
+                c.draw_series(LineSeries::new(data, color.stroke_width(1)))?
+                    .label(*name)
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
+            }
+        }
+        c.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw()?;
+        root.present()?;
+        Ok(())
+    })();
+    match drawn {
+        Ok(()) => svg,
+        Err(e) => format!("<p>(plot “{}” could not be drawn: {})</p>", escape(title), escape(&e.to_string())),
+    }
+}
+
+/// Rows `a..b` of `y` against time, decimated for drawing.
+fn decimated(t: &[f64], y: &[f64], a: usize, b: usize) -> Vec<(f64, f64)> {
+    let b = b.min(t.len()).min(y.len());
+    let step = ((b.saturating_sub(a)) / MAX_POINTS).max(1);
+    (a..b).step_by(step).map(|k| (t[k], y[k])).collect()
+}
+
+/// Mean of `r` in bins of `x` (20 bins between the 1st and 99th percentile); bins with few samples are left out.
+fn binned(x: &[f64], r: &[f64]) -> Vec<(f64, f64)> {
+    let (lo, hi) = (percentile(x, 0.01), percentile(x, 0.99));
+    if hi.is_nan() || lo.is_nan() || hi <= lo {
+        return Vec::new();
+    }
+    let bins = 20;
+    let mut sum = vec![0.0; bins];
+    let mut count = vec![0usize; bins];
+    for (&xv, &rv) in x.iter().zip(r) {
+        if xv.is_finite() && rv.is_finite() && xv >= lo && xv <= hi {
+            let i = (((xv - lo) / (hi - lo)) * bins as f64).floor().min(bins as f64 - 1.0) as usize;
+            sum[i] += rv;
+            count[i] += 1;
+        }
+    }
+    let min_count = (x.len() / 2000).max(5);
+    (0..bins)
+        .filter(|&i| count[i] >= min_count)
+        .map(|i| (lo + (i as f64 + 0.5) * (hi - lo) / bins as f64, sum[i] / count[i] as f64))
+        .collect()
+}
+
+fn escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+}
+
+fn fmt_opt(v: Option<f64>) -> String {
+    v.map_or("—".to_string(), |v| format!("{v:.4}"))
+}
+
+/// The whole page.
+pub fn html(a: &Analysis) -> String {
+    let tr = &a.traces;
+    let (v, n) = (tr.split, tr.t_s.len());
+    let gray = RGBColor(150, 150, 150);
+    let red = RGBColor(214, 39, 40);
+    let blue = RGBColor(31, 119, 180);
+    let mut out = String::new();
+    let _ = write!(
+        out,
+        "<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>hydrolens analysis: {src}</title>\
+         <style>body{{font-family:sans-serif;max-width:960px;margin:1em auto;color:#222}}\
+         table{{border-collapse:collapse;margin:0.5em 0}}td,th{{border:1px solid #ccc;padding:3px 8px;\
+         text-align:left;font-size:90%}}th{{background:#f3f3f3}}.num{{text-align:right}}</style></head><body>\
+         <h1>Analysis of {src}</h1>\
+         <p>{samples} samples, {family} model family, speed from <code>{speed}</code>. Fitting on the first part, \
+         validation from {vf:.2} s (never used for fitting). Free-run simulation of the nominal model (fitted J, B) \
+         and of the improved model, driven only by the recording's inputs.</p>",
+        src = escape(&a.recording),
+        samples = a.samples,
+        family = a.family,
+        speed = a.speed_source,
+        vf = a.validation_from_s
+    );
+    let _ = write!(
+        out,
+        "<h2>Validation error</h2><table><tr><th></th><th>ω NRMSE</th><th>ΔP NRMSE</th><th>torque NRMSE</th>\
+         <th>torque relative error</th></tr>"
+    );
+    for (name, s) in [("nominal (fitted J, B)", &a.baseline), ("improved", &a.improved)] {
+        let e = &s.validation;
+        let _ = write!(
+            out,
+            "<tr><td>{name}</td><td class=num>{:.4}</td><td class=num>{}</td><td class=num>{}</td>\
+             <td class=num>{}</td></tr>",
+            e.omega_nrmse,
+            fmt_opt(e.dp_nrmse),
+            fmt_opt(e.torque_nrmse),
+            fmt_opt(e.torque_relative_error)
+        );
+    }
+    out.push_str("</table>");
+
+    out.push_str("<h2>Findings</h2>");
+    if a.findings.is_empty() {
+        out.push_str("<p>Nothing is missing: no catalogue effect lowers the validation error by a clear margin.</p>");
+    }
+    for f in &a.findings {
+        let params: Vec<String> = f.parameters.iter().map(|(k, v)| format!("{k} = {v:.4}")).collect();
+        let ev = &f.evidence;
+        let _ = write!(
+            out,
+            "<h3>{}</h3><p>{}</p><p><b>Parameters:</b> {}</p><table><tr><th>ΔBIC (fitting)</th>\
+             <th>validation score before → after</th><th>error drop</th><th>residual correlation</th>\
+             <th>where it shows</th></tr><tr><td class=num>{:.1}</td><td class=num>{:.5} → {:.5}</td>\
+             <td class=num>{:.1} %</td><td class=num>{:.2}</td><td>{}</td></tr></table>",
+            escape(&f.effect),
+            escape(&f.explanation),
+            escape(&params.join(", ")),
+            ev.delta_bic,
+            ev.validation_score_before,
+            ev.validation_score_after,
+            100.0 * ev.relative_drop,
+            ev.residual_correlation,
+            escape(&ev.where_it_shows)
+        );
+    }
+    if !a.ambiguities.is_empty() {
+        out.push_str("<h2>What this recording cannot tell apart</h2><ul>");
+        for amb in &a.ambiguities {
+            let _ = write!(out, "<li><b>{}</b>: {}</li>", escape(&amb.effects.join(" / ")), escape(&amb.explanation));
+        }
+        out.push_str("</ul>");
+    }
+
+    out.push_str("<h2>Measured, nominal and improved on the validation segment</h2>");
+    out.push_str(&chart(
+        "speed",
+        "t (s)",
+        "ω (rad/s)",
+        &[
+            ("measured", gray, decimated(&tr.t_s, &tr.omega_meas, v, n)),
+            ("nominal", red, decimated(&tr.t_s, &tr.omega_baseline, v, n)),
+            ("improved", blue, decimated(&tr.t_s, &tr.omega_improved, v, n)),
+        ],
+        false,
+    ));
+    out.push_str(&chart(
+        tr.effort_name,
+        "t (s)",
+        tr.effort_name,
+        &[
+            ("measured", gray, decimated(&tr.t_s, &tr.effort_meas, v, n)),
+            ("nominal", red, decimated(&tr.t_s, &tr.effort_baseline, v, n)),
+            ("improved", blue, decimated(&tr.t_s, &tr.effort_improved, v, n)),
+        ],
+        false,
+    ));
+
+    out.push_str(
+        "<h2>Residual maps (whole recording)</h2><p>Mean residual (measured − model) in bins of the \
+                  operating point: a systematic pattern is physics the model leaves out.</p>",
+    );
+    let res = |model: &[f64]| -> Vec<f64> { tr.effort_meas.iter().zip(model).map(|(m, p)| m - p).collect() };
+    let (rb, ri) = (res(&tr.effort_baseline), res(&tr.effort_improved));
+    let label = format!("{} residual", tr.effort_name);
+    out.push_str(&chart(
+        "residual against speed",
+        "ω (rad/s, low-passed)",
+        &label,
+        &[("nominal", red, binned(&tr.omega_f, &rb)), ("improved", blue, binned(&tr.omega_f, &ri))],
+        true,
+    ));
+    out.push_str(&chart(
+        &format!("residual against {}", tr.effort_name),
+        tr.effort_name,
+        &label,
+        &[("nominal", red, binned(&tr.effort_meas, &rb)), ("improved", blue, binned(&tr.effort_meas, &ri))],
+        true,
+    ));
+    let wres = |model: &[f64]| -> Vec<f64> { tr.omega_meas.iter().zip(model).map(|(m, p)| m - p).collect() };
+    out.push_str(&chart(
+        "speed residual against ΔP / torque",
+        tr.effort_name,
+        "ω residual (rad/s)",
+        &[
+            ("nominal", red, binned(&tr.effort_meas, &wres(&tr.omega_baseline))),
+            ("improved", blue, binned(&tr.effort_meas, &wres(&tr.omega_improved))),
+        ],
+        true,
+    ));
+
+    out.push_str("<h2>Where the nominal model misses</h2>");
+    if a.mismatches.is_empty() {
+        out.push_str("<p>No window stands out from the rest.</p>");
+    } else {
+        out.push_str("<table><tr><th>from (s)</th><th>to (s)</th><th>signal</th><th>conditions</th><th>RMS</th></tr>");
+        for m in &a.mismatches {
+            let _ = write!(
+                out,
+                "<tr><td class=num>{:.2}</td><td class=num>{:.2}</td><td>{}</td><td>{}</td><td class=num>{:.3}</td></tr>",
+                m.t_start_s,
+                m.t_end_s,
+                escape(&m.signal),
+                escape(&m.condition),
+                m.rms
+            );
+        }
+        out.push_str("</table>");
+    }
+    out.push_str(
+        "<h2>Every candidate tried</h2><table><tr><th>round</th><th>effect</th><th>validation score</th>\
+                  <th>ΔBIC</th><th>kept</th></tr>",
+    );
+    for c in &a.candidates {
+        let _ = write!(
+            out,
+            "<tr><td>{}</td><td>{}</td><td class=num>{}</td><td class=num>{}</td><td>{}</td></tr>",
+            c.round,
+            escape(&c.effect),
+            c.validation_score.map_or("not fittable".into(), |v| format!("{v:.5}")),
+            c.delta_bic.map_or("—".into(), |v| format!("{v:.1}")),
+            if c.kept { "yes" } else { "" }
+        );
+    }
+    out.push_str("</table></body></html>\n");
+    out
+}

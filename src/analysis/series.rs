@@ -1,0 +1,199 @@
+//! What the analysis reads from a recording: the model family, inputs, measured outputs, filtered regressors.
+
+use crate::BadInput;
+use crate::plant::dynamics::SIGN_SPEED_RAD_S;
+use crate::plant::{LoadSpec, PlantModel};
+use crate::recording::Recording;
+use crate::units::cm3_per_rev_to_m3_per_rad;
+
+use super::signal::{derivative, fill_gaps, filtfilt_butter4};
+
+/// Which simulation explains the recording: the pressure-driven hydraulic plant, or mechanics driven by a
+/// measured torque.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Family {
+    /// `f_set_hz`, `p_in_bar`, `p_out_bar`, speed and load: free-run of the whole plant from setpoint and load.
+    Hydraulic,
+    /// `torque_nm` and speed (or position): free-run of the mechanics from the drive torque.
+    Torque,
+}
+
+impl Family {
+    pub fn name(self) -> &'static str {
+        match self {
+            Family::Hydraulic => "hydraulic",
+            Family::Torque => "torque",
+        }
+    }
+}
+
+/// Cut-off of the zero-phase low-pass for a measured (tachogenerator) speed: keeps the hydraulic ringing (≈ 6 Hz for
+/// the reference plant), removes most of the sensor noise before differentiation.
+pub const MEASURED_SPEED_CUTOFF_HZ: f64 = 10.0;
+/// Cut-off for a speed differentiated from position, as in the EMPS benchmark's IDIM-LS script.
+pub const POSITION_CUTOFF_HZ: f64 = 100.0;
+/// The IDIM-LS script then decimates every signal of the torque balance by 10 (MATLAB `decimate`: a low-pass at
+/// 0.8 of the new Nyquist frequency, 40 Hz at 1 kHz). The same parallel low-pass is applied here.
+pub const DECIMATION: f64 = 10.0;
+
+/// A recording turned into the signals the analysis needs; every vector has one value per row.
+#[derive(Debug, Clone)]
+pub struct Series {
+    pub family: Family,
+    pub t_s: Vec<f64>,
+    pub sample_hz: f64,
+    /// First row of the validation segment (never used for fitting).
+    pub split: usize,
+    /// Speed as measured, or differentiated from position: what free-run speed is compared to (rad/s).
+    pub omega_rad_s: Vec<f64>,
+    /// Low-passed speed and its derivative: the regressors of the torque balance.
+    pub omega_f: Vec<f64>,
+    pub alpha_f: Vec<f64>,
+    /// Drive torque (N·m): `torque_nm`, or D_m·(p_in − p_out).
+    pub drive_torque_nm: Vec<f64>,
+    pub drive_torque_f: Vec<f64>,
+    /// Load torque (N·m): `load_nm`, or the model's `[load]` profile.
+    pub load_nm: Vec<f64>,
+    pub load_f: Vec<f64>,
+    /// Measured p_in − p_out (bar), for the hydraulic family.
+    pub dp_bar: Option<Vec<f64>>,
+    /// The frequency setpoint (Hz), for the hydraulic family.
+    pub setpoint_hz: Option<Vec<f64>>,
+    /// Initial drive frequency and inlet pressure for the free run.
+    pub f0_hz: f64,
+    pub p_in0_bar: f64,
+    pub cutoff_hz: f64,
+    /// Where the speed came from (`omega_rad_s` or `theta_rad`), for the report.
+    pub speed_source: &'static str,
+    /// Speed band of the smooth sign in friction terms (see [`Series::sign_speed`]).
+    pub sign_speed: f64,
+}
+
+impl Series {
+    /// Reads the signals, naming the missing column or model key when the recording or model cannot be analysed.
+    pub fn extract(rec: &Recording, model: &PlantModel, validation_fraction: f64) -> Result<Series, BadInput> {
+        let src = &rec.source;
+        let n = rec.len();
+        if n < 200 {
+            return Err(BadInput(format!("recording {src}: {n} rows; the analysis needs at least 200")));
+        }
+        let t_s = rec.t_s().to_vec();
+        let span = t_s[n - 1] - t_s[0];
+        let dt = span / (n - 1) as f64;
+        let sample_hz = 1.0 / dt;
+        let col = |name: &str| rec.present(name).map(fill_gaps);
+        let need = |name: &str, why: &str| BadInput(format!("recording {src}: column `{name}` is required {why}"));
+
+        let (family, drive_torque_nm, dp_bar, setpoint_hz, p_in0_bar, f0_hz) = if let Some(tq) = col("torque_nm") {
+            (Family::Torque, tq, None, None, 0.0, 0.0)
+        } else {
+            let why = "(a recording without `torque_nm` is analysed as the hydraulic plant)";
+            let p_in = col("p_in_bar").ok_or_else(|| need("p_in_bar", why))?;
+            let p_out = col("p_out_bar").ok_or_else(|| need("p_out_bar", why))?;
+            let f_set = col("f_set_hz").ok_or_else(|| need("f_set_hz", why))?;
+            let parts = model.hydraulic().map_err(|(key, msg)| {
+                BadInput(format!("model: `{key}` {msg} (the recording has pressures but no `torque_nm`)"))
+            })?;
+            let d_m = cm3_per_rev_to_m3_per_rad(parts.motor_displacement_cm3);
+            let dp: Vec<f64> = p_in.iter().zip(&p_out).map(|(a, b)| a - b).collect();
+            let torque = dp.iter().map(|d| d_m * d * 1e5).collect();
+            let f0 = col("f_drive_hz").map_or(f_set[0], |f| f[0]);
+            (Family::Hydraulic, torque, Some(dp), Some(f_set), p_in[0], f0)
+        };
+
+        let (omega_rad_s, omega_f, cutoff_hz, speed_source) = if let Some(w) = col("omega_rad_s") {
+            let cutoff = MEASURED_SPEED_CUTOFF_HZ.min(0.2 * sample_hz);
+            let wf = filtfilt_butter4(&w, cutoff, sample_hz);
+            (w, wf, cutoff, "omega_rad_s")
+        } else if let Some(theta) = col("theta_rad") {
+            let cutoff = POSITION_CUTOFF_HZ.min(0.2 * sample_hz);
+            let w = derivative(&filtfilt_butter4(&theta, cutoff, sample_hz), &t_s);
+            (w.clone(), w, cutoff, "theta_rad")
+        } else {
+            return Err(BadInput(format!(
+                "recording {src}: no speed: expected a column `omega_rad_s` or `theta_rad` with values"
+            )));
+        };
+        let mut alpha_f = derivative(&omega_f, &t_s);
+        let mut omega_f = omega_f;
+        // the parallel decimation filter of IDIM-LS, for position-derived speed: every regressor and the torque
+        let cutoff_hz = if speed_source == "theta_rad" {
+            let parallel = 0.8 * sample_hz / (2.0 * DECIMATION);
+            omega_f = filtfilt_butter4(&omega_f, parallel, sample_hz);
+            alpha_f = filtfilt_butter4(&alpha_f, parallel, sample_hz);
+            parallel
+        } else {
+            cutoff_hz
+        };
+
+        let load_nm = match (col("load_nm"), &model.load) {
+            (Some(l), _) => l,
+            (None, LoadSpec::Recorded) => {
+                return Err(need("load_nm", "because the model's [load] kind is \"recorded\""));
+            }
+            (None, spec) => t_s.iter().map(|&t| spec.torque_nm(t - t_s[0])).collect(),
+        };
+        let drive_torque_f = filtfilt_butter4(&drive_torque_nm, cutoff_hz, sample_hz);
+        let load_f = filtfilt_butter4(&load_nm, cutoff_hz, sample_hz);
+        let t_val = t_s[0] + (1.0 - validation_fraction) * span;
+        let split = t_s.iter().position(|&t| t >= t_val).unwrap_or(n - 1).clamp(100, n - 50);
+        Ok(Series {
+            family,
+            t_s,
+            sample_hz,
+            split,
+            omega_rad_s,
+            omega_f,
+            alpha_f,
+            drive_torque_nm,
+            drive_torque_f,
+            load_nm,
+            load_f,
+            dp_bar,
+            setpoint_hz,
+            f0_hz,
+            p_in0_bar,
+            cutoff_hz,
+            speed_source,
+            sign_speed: SIGN_SPEED_RAD_S,
+        }
+        .with_sign_speed())
+    }
+
+    /// The plant's smooth sign `tanh(ω/0.05)` is meant for a shaft turning at tens of rad/s. When the recording's
+    /// speeds are not large against that band (the EMPS axis moves at a few cm/s), dry friction would be smeared
+    /// over the whole operating range, so the band shrinks to 1 % of the speed scale: in effect `sgn(ω)`, as IDIM-LS
+    /// takes it. For the reference plant the band stays the plant's own.
+    fn with_sign_speed(mut self) -> Series {
+        self.sign_speed = SIGN_SPEED_RAD_S.min(0.01 * self.speed_scale());
+        self
+    }
+
+    /// `sgn(ω)` as the analysis takes it: `tanh(ω/sign_speed)`.
+    pub fn sign(&self, omega: f64) -> f64 {
+        (omega / self.sign_speed).tanh()
+    }
+
+    pub fn len(&self) -> usize {
+        self.t_s.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.t_s.is_empty()
+    }
+
+    /// A speed scale of the recording: the 95th percentile of |ω| (rad/s).
+    pub fn speed_scale(&self) -> f64 {
+        percentile(&self.omega_f.iter().map(|w| w.abs()).collect::<Vec<_>>(), 0.95).max(1e-6)
+    }
+}
+
+/// The `q` quantile (0…1) of the finite values; 0 for none.
+pub fn percentile(x: &[f64], q: f64) -> f64 {
+    let mut v: Vec<f64> = x.iter().copied().filter(|v| v.is_finite()).collect();
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize]
+}
