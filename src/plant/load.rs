@@ -83,10 +83,10 @@ impl LoadSpec {
                     return bad("duration_s", format!("must be ≥ 0, got {duration_s}"));
                 }
             }
-            LoadSpec::Trend { start_nm, rate_nm_per_s, max_nm } => {
-                if !all_finite(&[*start_nm, *rate_nm_per_s]) || max_nm.is_nan() {
-                    return bad("rate_nm_per_s", "start_nm, rate_nm_per_s and max_nm must be numbers".into());
-                }
+            LoadSpec::Trend { start_nm, rate_nm_per_s, max_nm }
+                if !all_finite(&[*start_nm, *rate_nm_per_s]) || max_nm.is_nan() =>
+            {
+                return bad("rate_nm_per_s", "start_nm, rate_nm_per_s and max_nm must be numbers".into());
             }
             LoadSpec::Constant { torque_nm } if !torque_nm.is_finite() => {
                 return bad("torque_nm", format!("must be finite, got {torque_nm}"));
