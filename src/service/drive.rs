@@ -191,11 +191,21 @@ impl DriveLoop {
         started: Instant,
     ) -> DriveLoop {
         let client = DriveClient::new(&settings.address, settings.unit_id, settings.timeout);
+        let label = DriveLabel { drive: settings.name.clone() };
+        // every series exists from the start, at 0, so that dashboards and alerts see it before the first event
+        for family in [&metrics.polls, &metrics.reconnects, &metrics.rejected_samples, &metrics.stale_samples] {
+            let _ = family.get_or_create(&label);
+        }
+        let _ = metrics.writes.get_or_create(&label);
+        let _ = metrics.overruns.get_or_create(&label);
+        for kind in ["connect", "timeout", "transport", "protocol", "exception", "encode"] {
+            let _ = metrics.errors.get_or_create(&ErrorLabels { drive: label.drive.clone(), kind: kind.into() });
+        }
         let mut law = SpeedLaw::new(settings.mode, settings.limits, settings.gains, settings.feed_forward);
         law.target_omega_rad_s = settings.target_omega_rad_s;
         law.fixed_hz = settings.fixed_hz;
         DriveLoop {
-            label: DriveLabel { drive: settings.name.clone() },
+            label,
             plan: read_plan(&settings.registers),
             timing: LoopTiming::new(settings.poll),
             client,
@@ -324,7 +334,7 @@ impl DriveLoop {
         });
         self.estimate = Some(est);
         let tripped = self.status.fault || self.status.comm_loss_trip;
-        if first {
+        if first && self.settings.mode.writes() {
             self.law.start_from(sample.f_drive_hz);
         }
         let setpoint = self.law.step(&Inputs {
