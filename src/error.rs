@@ -2,6 +2,7 @@
 
 use crate::plant::ModelError;
 use crate::recording::RecordingError;
+use crate::service::ConfigError;
 
 /// Bad input that has no richer error type of its own (a command-line value, say). The message names what and where.
 #[derive(Debug, thiserror::Error)]
@@ -20,6 +21,9 @@ pub fn is_bad_input(err: &(dyn std::error::Error + 'static)) -> bool {
         }
         if let Some(r) = e.downcast_ref::<RecordingError>() {
             return r.is_bad_input();
+        }
+        if let Some(c) = e.downcast_ref::<ConfigError>() {
+            return c.is_bad_input();
         }
         cur = e.source();
     }

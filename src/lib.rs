@@ -10,15 +10,21 @@
 //! - [`modbus`]: the register map (pure), the client, and the plant simulator server.
 //! - [`estimator`]: PURE RLS+SGD and Kalman estimators; fed Δt and samples.
 //! - [`analysis`]: PURE mismatch analysis (fit, free-run residuals, effect search) + its HTML report at the edge.
+//! - [`control`]: PURE control law (speed PI with load feed-forward, clamp, ramp limit, nothing on stale data).
+//! - [`service`]: the poll loops per drive (modbus → estimator → control → modbus), snapshots, history, recording.
+//! - [`http`]: the axum router over the service's shared state; never uses [`modbus`].
 //!
 //! `main.rs` wires the commands and is the only place `anyhow` lives.
 
 pub mod analysis;
+pub mod control;
 pub mod error;
 pub mod estimator;
+pub mod http;
 pub mod modbus;
 pub mod plant;
 pub mod recording;
+pub mod service;
 pub mod units;
 
 pub use error::{BadInput, is_bad_input};

@@ -8,7 +8,8 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use hydrolens::modbus::simulator::Simulator;
 use hydrolens::plant::PlantModel;
-use hydrolens::{BadInput, plant, recording};
+use hydrolens::service::Settings;
+use hydrolens::{BadInput, http, plant, recording, service};
 use tokio_util::sync::CancellationToken;
 
 #[derive(Parser)]
@@ -71,6 +72,31 @@ enum Command {
         #[arg(long)]
         model_out: Option<PathBuf>,
     },
+    /// The monitoring service against a real PLC / drive (or a simulator): poll, estimate, regulate, record, serve.
+    Serve {
+        #[arg(long, default_value = "config/hydrolens.toml")]
+        config: PathBuf,
+        /// Overrides `http.bind` of the config.
+        #[arg(long)]
+        http: Option<String>,
+    },
+    /// The main job: the plant simulator and the service (speed mode) in one process, with the dashboard.
+    Demo {
+        /// Where the dashboard and API listen.
+        #[arg(long, default_value = "127.0.0.1:8080")]
+        http: String,
+        /// Where the simulator serves Modbus TCP (port 0: any free port).
+        #[arg(long, default_value = "127.0.0.1:0")]
+        modbus: String,
+        /// Where recordings go.
+        #[arg(long, default_value = "recordings")]
+        recordings: PathBuf,
+        /// Speed target (rad/s).
+        #[arg(long, default_value_t = 40.0)]
+        target: f64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
 }
 
 /// Estimator settings on the command line; each overrides the model file's `[estimator]` table.
@@ -122,6 +148,8 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Analyze { recording, model, json, report, model_out } => {
             analyze(&recording, &model, &json, report.as_deref(), model_out.as_deref())
         }
+        Command::Serve { config, http } => serve(&config, http.as_deref()),
+        Command::Demo { http, modbus, recordings, target, seed } => demo(&http, &modbus, &recordings, target, seed),
     }
 }
 
@@ -276,4 +304,126 @@ fn analyze(
         if named.is_empty() { "nothing".to_string() } else { named.join(", ") }
     );
     Ok(())
+}
+
+fn parse_addr(flag: &str, value: &str) -> anyhow::Result<std::net::SocketAddr> {
+    Ok(value.parse().map_err(|e| BadInput(format!("{flag} {value:?}: not an address such as 127.0.0.1:8080 ({e})")))?)
+}
+
+fn serve(config: &Path, http_override: Option<&str>) -> anyhow::Result<()> {
+    let mut settings = service::config::load(config)?;
+    if let Some(h) = http_override {
+        settings.http.bind = parse_addr("--http", h)?;
+    }
+    runtime()?.block_on(async move {
+        let shutdown = shutdown_on_signal();
+        run_service(settings, shutdown, |url| eprintln!("hydrolens serve: dashboard on {url}")).await
+    })
+}
+
+/// Binds the HTTP listener, starts the poll loops and serves until `shutdown`; then waits for every loop to close
+/// its recording.
+async fn run_service(
+    settings: Settings,
+    shutdown: CancellationToken,
+    announce: impl FnOnce(&str),
+) -> anyhow::Result<()> {
+    let bind = settings.http.bind;
+    let listener = tokio::net::TcpListener::bind(bind).await.with_context(|| format!("binding http {bind}"))?;
+    let url = format!("http://{}", listener.local_addr()?);
+    let svc = service::start(&settings, shutdown.clone()).context("starting the service")?;
+    let state = http::AppState {
+        service: svc.state.clone(),
+        token: settings.http.token.as_deref().map(std::sync::Arc::from),
+        max_body_bytes: settings.http.max_body_bytes,
+        shutdown: shutdown.clone(),
+    };
+    announce(&url);
+    let served = http::serve(listener, state).await;
+    shutdown.cancel();
+    svc.wait().await;
+    served.context("http server")
+}
+
+/// A random token for the demo (std's randomly keyed hasher: no extra dependency).
+fn demo_token() -> String {
+    use std::hash::{BuildHasher, Hasher};
+    let mut out = String::new();
+    for _ in 0..2 {
+        let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+        h.write_u128(std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos()));
+        out.push_str(&format!("{:016x}", h.finish()));
+    }
+    out
+}
+
+/// The demo's service config: one drive in speed mode against the embedded simulator.
+fn demo_config(
+    modbus: std::net::SocketAddr,
+    http: std::net::SocketAddr,
+    recordings: &Path,
+    target: f64,
+    token: &str,
+) -> String {
+    format!(
+        r#"[http]
+bind = "{http}"
+token = "{token}"
+
+[recording]
+dir = {recordings:?}
+
+[[drives]]
+name = "pump1"
+address = "{modbus}"
+unit_id = 1
+# every plant sample (the simulator runs at 1 kHz): the rate the rls-sgd estimator is tuned for
+poll_ms = 1
+timeout_ms = 200
+
+[drives.control]
+mode = "speed"
+target_omega_rad_s = {target:?}
+min_hz = 0.0
+max_hz = 50.0
+ramp_hz_per_s = 20.0
+"#,
+        recordings = recordings.display().to_string(),
+    )
+}
+
+fn demo(http_addr: &str, modbus_addr: &str, recordings: &Path, target: f64, seed: u64) -> anyhow::Result<()> {
+    let http_addr = parse_addr("--http", http_addr)?;
+    let modbus_addr = parse_addr("--modbus", modbus_addr)?;
+    if !(target.is_finite() && (0.0..=75.0).contains(&target)) {
+        return Err(BadInput(format!("--target {target}: expected rad/s in 0 ..= 75")).into());
+    }
+    let simulator = Simulator::new(PlantModel::reference(), seed)
+        .map_err(|(key, msg)| anyhow::anyhow!("the reference plant: {key} {msg}"))?;
+    runtime()?.block_on(async move {
+        let shutdown = shutdown_on_signal();
+        let modbus_listener = tokio::net::TcpListener::bind(modbus_addr)
+            .await
+            .with_context(|| format!("binding modbus {modbus_addr}"))?;
+        let modbus_addr = modbus_listener.local_addr()?;
+        let sim = tokio::spawn(simulator.run(modbus_listener, shutdown.clone()));
+        let token = demo_token();
+        let text = demo_config(modbus_addr, http_addr, recordings, target, &token);
+        let settings = service::config::parse(&text, "demo config", None)?;
+        let result = run_service(settings, shutdown.clone(), |url| {
+            eprintln!(
+                "hydrolens demo: plant simulator on modbus tcp://{modbus_addr} (reference plant, brake-load steps)"
+            );
+            eprintln!("hydrolens demo: speed mode, target {target} rad/s, recordings in {}", recordings.display());
+            eprintln!("hydrolens demo: write token (for POST /api/drives/pump1/target): {token}");
+            println!("dashboard: {url}/");
+        })
+        .await;
+        shutdown.cancel();
+        match sim.await {
+            Ok(r) => r.context("simulator")?,
+            Err(e) => tracing::error!(error = %e, "simulator task"),
+        }
+        result
+    })
 }

@@ -1,5 +1,6 @@
 //! Modbus: the register map (pure encode/decode), the client with timeouts and reconnects, and the plant simulator.
 
+pub mod client;
 pub mod map;
 pub mod simulator;
 

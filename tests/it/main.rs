@@ -2,7 +2,10 @@
 
 mod analysis;
 mod estimator;
+mod faults;
+mod http;
 mod plant;
 mod proxy;
+mod service;
 mod simulator;
 mod support;

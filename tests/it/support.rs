@@ -29,3 +29,153 @@ pub fn rmse(a: &[f64], b: &[f64]) -> f64 {
         a.iter().zip(b).filter(|(x, y)| x.is_finite() && y.is_finite()).map(|(x, y)| (x - y).powi(2)).collect();
     (d.iter().sum::<f64>() / d.len() as f64).sqrt()
 }
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use hydrolens::http::{self, AppState};
+use hydrolens::modbus::simulator::{SimHandle, Simulator};
+use hydrolens::plant::{LoadSpec, PlantModel};
+use hydrolens::service::{self, Service, ServiceState};
+use tokio::task::JoinHandle;
+use tokio_util::sync::CancellationToken;
+
+/// The write token of every test stack.
+pub const TOKEN: &str = "test-token-7f3a";
+
+/// The reference plant under a constant load (the tests' plant).
+pub fn test_plant(load_nm: f64) -> PlantModel {
+    let mut m = PlantModel::reference();
+    m.load = LoadSpec::Constant { torque_nm: load_nm };
+    m
+}
+
+/// A simulator on 127.0.0.1:`port` (0: any), stopped by its own token.
+pub async fn start_sim(model: PlantModel, port: u16) -> (SimHandle, SocketAddr, CancellationToken, JoinHandle<()>) {
+    let sim = Simulator::new(model, 7).expect("a hydraulic model");
+    let handle = sim.handle();
+    let listener = tokio::net::TcpListener::bind(("127.0.0.1", port)).await.expect("bind modbus");
+    let addr = listener.local_addr().expect("addr");
+    let stop = CancellationToken::new();
+    let s = stop.clone();
+    let task = tokio::spawn(async move {
+        let _ = sim.run(listener, s).await;
+    });
+    (handle, addr, stop, task)
+}
+
+/// Simulator + service + HTTP, all on loopback port 0.
+pub struct Stack {
+    pub sim: SimHandle,
+    pub modbus_addr: SocketAddr,
+    pub url: String,
+    pub state: Arc<ServiceState>,
+    dir: tempfile::TempDir,
+    pub sim_stop: CancellationToken,
+    pub sim_task: Option<JoinHandle<()>>,
+    shutdown: CancellationToken,
+    service: Option<Service>,
+    http: Option<JoinHandle<std::io::Result<()>>>,
+}
+
+/// The config of the test drive `pump1`; `drive_extra` goes under `[[drives]]` (e.g. a `[drives.control]` table).
+pub fn config_text(modbus: SocketAddr, dir: &std::path::Path, poll_ms: u64, drive_extra: &str) -> String {
+    format!(
+        "[http]\nbind = \"127.0.0.1:0\"\ntoken = \"{TOKEN}\"\nmax_body_bytes = 1024\n\n[recording]\ndir = {dir:?}\n\n\
+         [[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = {poll_ms}\ntimeout_ms = 100\n{drive_extra}\n",
+        dir = dir.display().to_string()
+    )
+}
+
+/// Starts a service from config text and serves HTTP on 127.0.0.1:0.
+pub async fn start_service(text: &str) -> (Service, String, CancellationToken, JoinHandle<std::io::Result<()>>) {
+    let settings = service::config::parse(text, "test config", Some(&root())).expect("valid test config");
+    let shutdown = CancellationToken::new();
+    let svc = service::start(&settings, shutdown.clone()).expect("service starts");
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind http");
+    let url = format!("http://{}", listener.local_addr().expect("addr"));
+    let state = AppState {
+        service: svc.state.clone(),
+        token: settings.http.token.as_deref().map(Arc::from),
+        max_body_bytes: settings.http.max_body_bytes,
+        shutdown: shutdown.clone(),
+    };
+    let http = tokio::spawn(http::serve(listener, state));
+    (svc, url, shutdown, http)
+}
+
+impl Stack {
+    /// A stack on a plant with a constant load; `drive_extra` as in [`config_text`].
+    pub async fn start(load_nm: f64, poll_ms: u64, drive_extra: &str) -> Stack {
+        let (sim, modbus_addr, sim_stop, sim_task) = start_sim(test_plant(load_nm), 0).await;
+        let dir = tempfile::tempdir().expect("tmp");
+        let text = config_text(modbus_addr, dir.path(), poll_ms, drive_extra);
+        let (svc, url, shutdown, http) = start_service(&text).await;
+        Stack {
+            sim,
+            modbus_addr,
+            url,
+            state: svc.state.clone(),
+            dir,
+            sim_stop,
+            sim_task: Some(sim_task),
+            shutdown,
+            service: Some(svc),
+            http: Some(http),
+        }
+    }
+
+    /// Stops everything, waiting (bounded) for the loops to close their recordings; hands back the recording dir.
+    pub async fn stop(mut self) -> tempfile::TempDir {
+        self.shutdown.cancel();
+        self.sim_stop.cancel();
+        let bounded = Duration::from_secs(10);
+        if let Some(s) = self.service.take() {
+            tokio::time::timeout(bounded, s.wait()).await.expect("service stops");
+        }
+        if let Some(h) = self.http.take() {
+            let _ = tokio::time::timeout(bounded, h).await.expect("http stops");
+        }
+        if let Some(t) = self.sim_task.take() {
+            let _ = tokio::time::timeout(bounded, t).await.expect("simulator stops");
+        }
+        self.dir
+    }
+
+    /// The drive's snapshot as JSON from /api/status.
+    pub fn recording_dir(&self) -> &std::path::Path {
+        self.dir.path()
+    }
+
+    pub async fn status(&self) -> serde_json::Value {
+        let v: serde_json::Value =
+            reqwest::get(format!("{}/api/status", self.url)).await.expect("GET status").json().await.expect("json");
+        v["drives"][0].clone()
+    }
+
+    pub async fn metrics(&self) -> String {
+        reqwest::get(format!("{}/metrics", self.url)).await.expect("GET metrics").text().await.expect("text")
+    }
+}
+
+/// Polls `cond` every 20 ms until it holds or `limit` passes; returns the time it took.
+pub async fn wait_for<F, Fut>(limit: Duration, mut cond: F) -> Option<Duration>
+where
+    F: FnMut() -> Fut,
+    Fut: std::future::Future<Output = bool>,
+{
+    let start = tokio::time::Instant::now();
+    while start.elapsed() < limit {
+        if cond().await {
+            return Some(start.elapsed());
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    None
+}
+
+/// The value of a metric line that starts with `prefix` (name and labels), if present.
+pub fn metric(text: &str, prefix: &str) -> Option<f64> {
+    text.lines().find(|l| l.starts_with(prefix)).and_then(|l| l.rsplit(' ').next()).and_then(|v| v.parse().ok())
+}

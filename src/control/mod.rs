@@ -1,0 +1,301 @@
+//! PURE control law: the frequency setpoint for the drive from the estimates, the mode and Δt (no clock, no I/O).
+//!
+//! `speed` mode is a PI on the estimated speed ω̂ around a steady-state feed-forward that inverts the plant: the
+//! motor needs `D_m·ω` of flow plus the leakage `C_L·Δp`, where `Δp = (B·ω + T̂_L)/D_m` holds the estimated load;
+//! the pump gives `D_p·2π·f/pole_pairs`. So `f_ff = pole_pairs/(2π·D_p)·(D_m·ω* + C_L·(B·ω* + T̂_L)/D_m)`, and the
+//! PI only removes what the model misses. The output is clamped to `[min_hz, max_hz]` and ramp limited; the integral
+//! stops growing while the output is held by a limit (anti-windup). On stale data there is no output at all: the
+//! caller writes nothing and the drive's own watchdog takes over.
+
+use std::f64::consts::PI;
+
+use serde::{Deserialize, Serialize};
+
+/// What the service does with the drive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Mode {
+    /// Reads only; never writes a register.
+    #[default]
+    Monitor,
+    /// Writes a fixed frequency.
+    Manual,
+    /// Regulates the estimated speed to a target.
+    Speed,
+}
+
+impl Mode {
+    /// True if the mode writes to the drive.
+    pub fn writes(self) -> bool {
+        self != Mode::Monitor
+    }
+}
+
+/// Limits and gains, already validated (min ≤ max, all finite, ramp > 0).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Limits {
+    pub min_hz: f64,
+    pub max_hz: f64,
+    pub ramp_hz_per_s: f64,
+}
+
+/// PI gains on the speed error.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gains {
+    /// Hz per rad/s of speed error.
+    pub kp_hz_per_rad_s: f64,
+    /// Hz per rad of integrated speed error.
+    pub ki_hz_per_rad: f64,
+}
+
+/// The plant constants the feed-forward inverts (SI).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FeedForward {
+    pub pole_pairs: f64,
+    /// D_p (m³/rad).
+    pub pump_m3_rad: f64,
+    /// D_m (m³/rad).
+    pub motor_m3_rad: f64,
+    /// C_L (m³/(s·Pa)).
+    pub leakage_si: f64,
+    /// B (N·m·s/rad).
+    pub viscous_nm_s_rad: f64,
+}
+
+impl FeedForward {
+    /// The drive frequency (Hz) that holds `omega_rad_s` against `load_nm` in steady state.
+    pub fn hz(&self, omega_rad_s: f64, load_nm: f64) -> f64 {
+        let dp_pa = (self.viscous_nm_s_rad * omega_rad_s + load_nm) / self.motor_m3_rad;
+        let flow = self.motor_m3_rad * omega_rad_s + self.leakage_si * dp_pa.max(0.0);
+        self.pole_pairs * flow / (2.0 * PI * self.pump_m3_rad)
+    }
+
+    /// The speed (rad/s) a frequency gives with no load: the inverse of [`FeedForward::hz`] at zero load.
+    pub fn omega_rad_s(&self, hz: f64) -> f64 {
+        let flow = hz * 2.0 * PI * self.pump_m3_rad / self.pole_pairs;
+        flow / (self.motor_m3_rad + self.leakage_si * self.viscous_nm_s_rad / self.motor_m3_rad)
+    }
+}
+
+/// What the law needs each cycle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Inputs {
+    pub dt_s: f64,
+    /// Fresh data this cycle; false means hold everything and write nothing.
+    pub fresh: bool,
+    /// The drive reports a fault or a comm-loss trip: command 0 Hz (within limits) until it is re-armed.
+    pub tripped: bool,
+    pub omega_hat_rad_s: f64,
+    pub load_hat_nm: f64,
+}
+
+/// The law's state between cycles.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpeedLaw {
+    pub mode: Mode,
+    pub limits: Limits,
+    pub gains: Gains,
+    pub feed_forward: FeedForward,
+    pub target_omega_rad_s: f64,
+    pub fixed_hz: f64,
+    integral_hz: f64,
+    /// The last setpoint sent; None before the first.
+    last_hz: Option<f64>,
+}
+
+impl SpeedLaw {
+    pub fn new(mode: Mode, limits: Limits, gains: Gains, feed_forward: FeedForward) -> SpeedLaw {
+        SpeedLaw {
+            mode,
+            limits,
+            gains,
+            feed_forward,
+            target_omega_rad_s: 0.0,
+            fixed_hz: 0.0,
+            integral_hz: 0.0,
+            last_hz: None,
+        }
+    }
+
+    /// The last setpoint sent.
+    pub fn last_hz(&self) -> Option<f64> {
+        self.last_hz
+    }
+
+    /// Starts the ramp from this frequency (e.g. what the drive runs at when the service starts).
+    pub fn start_from(&mut self, hz: f64) {
+        if hz.is_finite() {
+            self.last_hz = Some(hz.clamp(self.limits.min_hz, self.limits.max_hz));
+        }
+    }
+
+    /// The setpoint for this cycle, or None when nothing may be written (monitor mode or stale data).
+    pub fn step(&mut self, x: &Inputs) -> Option<f64> {
+        if !self.mode.writes() || !x.fresh {
+            return None;
+        }
+        let dt = if x.dt_s.is_finite() && x.dt_s > 0.0 { x.dt_s.min(1.0) } else { 0.0 };
+        let Limits { min_hz, max_hz, ramp_hz_per_s } = self.limits;
+        let wanted = if x.tripped {
+            self.integral_hz = 0.0;
+            0.0
+        } else {
+            match self.mode {
+                Mode::Monitor => return None,
+                Mode::Manual => self.fixed_hz,
+                Mode::Speed => self.speed_hz(x, dt),
+            }
+        };
+        let wanted = if wanted.is_finite() { wanted.clamp(min_hz, max_hz) } else { self.last_hz.unwrap_or(min_hz) };
+        let out = match self.last_hz {
+            // the first setpoint also starts from the bottom of the range, never jumps
+            None => min_hz + (wanted - min_hz).clamp(0.0, ramp_hz_per_s * dt),
+            Some(last) => last + (wanted - last).clamp(-ramp_hz_per_s * dt, ramp_hz_per_s * dt),
+        };
+        let out = out.clamp(min_hz, max_hz);
+        self.last_hz = Some(out);
+        Some(out)
+    }
+
+    fn speed_hz(&mut self, x: &Inputs, dt: f64) -> f64 {
+        let (omega, load) = (x.omega_hat_rad_s, x.load_hat_nm);
+        let load = if load.is_finite() { load } else { 0.0 };
+        if !omega.is_finite() {
+            return self.last_hz.unwrap_or(self.limits.min_hz);
+        }
+        let target = self.target_omega_rad_s;
+        let error = target - omega;
+        let ff = self.feed_forward.hz(target, load);
+        let unclamped = ff + self.gains.kp_hz_per_rad_s * error + self.integral_hz;
+        // anti-windup: integrate only while the output is not held by a limit in the direction of the error
+        let (lo, hi) = (self.limits.min_hz, self.limits.max_hz);
+        let ramp_held = self.last_hz.is_some_and(|last| (unclamped - last).abs() > self.limits.ramp_hz_per_s * dt);
+        let pushing_past = (unclamped >= hi && error > 0.0) || (unclamped <= lo && error < 0.0);
+        if !pushing_past && !ramp_held {
+            self.integral_hz += self.gains.ki_hz_per_rad * error * dt;
+            // the integral never needs to exceed the whole range
+            let span = hi - lo;
+            self.integral_hz = self.integral_hz.clamp(-span, span);
+        }
+        ff + self.gains.kp_hz_per_rad_s * error + self.integral_hz
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn reference_ff() -> FeedForward {
+        FeedForward {
+            pole_pairs: 2.0,
+            pump_m3_rad: 16e-6 / (2.0 * PI),
+            motor_m3_rad: 32e-6 / (2.0 * PI),
+            leakage_si: 0.02e-3 / 60.0 / 1e5,
+            viscous_nm_s_rad: 0.04,
+        }
+    }
+
+    fn law(mode: Mode) -> SpeedLaw {
+        SpeedLaw::new(
+            mode,
+            Limits { min_hz: 0.0, max_hz: 50.0, ramp_hz_per_s: 20.0 },
+            Gains { kp_hz_per_rad_s: 0.2, ki_hz_per_rad: 0.6 },
+            reference_ff(),
+        )
+    }
+
+    fn fresh(omega: f64, load: f64) -> Inputs {
+        Inputs { dt_s: 0.01, fresh: true, tripped: false, omega_hat_rad_s: omega, load_hat_nm: load }
+    }
+
+    #[test]
+    fn feed_forward_inverts_the_steady_plant() {
+        let ff = reference_ff();
+        // no load: 40 rad/s needs D_m/D_p·pp/(2π)·40 ≈ 25.46 Hz, plus the leakage at Δp = B·ω/D_m
+        let hz = ff.hz(40.0, 0.0);
+        assert!((hz - 25.6).abs() < 0.05, "{hz}");
+        // the load raises Δp, and the leakage with it
+        assert!(ff.hz(40.0, 15.0) > hz + 1.0);
+        assert!((ff.omega_rad_s(ff.hz(40.0, 0.0)) - 40.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn monitor_and_stale_never_write() {
+        let mut m = law(Mode::Monitor);
+        assert_eq!(m.step(&fresh(0.0, 0.0)), None);
+        let mut s = law(Mode::Speed);
+        s.target_omega_rad_s = 40.0;
+        assert_eq!(s.step(&Inputs { fresh: false, ..fresh(0.0, 0.0) }), None);
+        assert_eq!(s.last_hz(), None, "a stale cycle changes nothing");
+    }
+
+    #[test]
+    fn manual_ramps_to_the_fixed_frequency() {
+        let mut m = law(Mode::Manual);
+        m.fixed_hz = 10.0;
+        let mut hz = 0.0;
+        for _ in 0..40 {
+            hz = m.step(&fresh(0.0, 0.0)).expect("writes");
+        }
+        assert!((hz - 8.0).abs() < 1e-9, "20 Hz/s over 0.4 s: {hz}");
+        for _ in 0..100 {
+            hz = m.step(&fresh(0.0, 0.0)).expect("writes");
+        }
+        assert_eq!(hz, 10.0);
+    }
+
+    #[test]
+    fn tripped_drive_is_commanded_down_and_the_integral_cleared() {
+        let mut s = law(Mode::Speed);
+        s.target_omega_rad_s = 40.0;
+        s.start_from(30.0);
+        let hz = s.step(&Inputs { tripped: true, ..fresh(0.0, 0.0) }).expect("writes");
+        assert!((hz - 29.8).abs() < 1e-9, "ramps down: {hz}");
+    }
+
+    #[test]
+    fn regulates_a_first_order_plant_to_the_target_with_a_load() {
+        // ω follows the no-load speed of the frequency, minus the load's droop through leakage
+        let ff = reference_ff();
+        let mut s = law(Mode::Speed);
+        s.target_omega_rad_s = 40.0;
+        let (mut omega, load) = (0.0, 12.0);
+        for _ in 0..1000 {
+            let hz = s.step(&fresh(omega, load)).expect("writes");
+            let steady = ff.omega_rad_s(hz) - 0.1 * load; // a droop the feed-forward does not know
+            omega += (steady - omega) * 0.01 / 0.15;
+        }
+        assert!((omega - 40.0).abs() < 0.05, "{omega}");
+    }
+
+    proptest! {
+        #[test]
+        fn output_within_limits_and_ramp(
+            min in 0.0f64..20.0, span in 0.0f64..60.0, ramp in 0.1f64..100.0,
+            kp in 0.0f64..5.0, ki in 0.0f64..5.0, target in -100.0f64..400.0,
+            steps in proptest::collection::vec(
+                (1e-4f64..0.5, -1e3f64..1e3, -200.0f64..200.0, any::<bool>(), any::<bool>()), 1..60),
+        ) {
+            let limits = Limits { min_hz: min, max_hz: min + span, ramp_hz_per_s: ramp };
+            let gains = Gains { kp_hz_per_rad_s: kp, ki_hz_per_rad: ki };
+            let mut s = SpeedLaw::new(Mode::Speed, limits, gains, reference_ff());
+            s.target_omega_rad_s = target;
+            let mut last: Option<f64> = None;
+            for (dt, omega, load, fresh, tripped) in steps {
+                let x = Inputs { dt_s: dt, fresh, tripped, omega_hat_rad_s: omega, load_hat_nm: load };
+                match s.step(&x) {
+                    None => prop_assert!(!fresh),
+                    Some(hz) => {
+                        prop_assert!(fresh);
+                        prop_assert!(hz.is_finite());
+                        prop_assert!(hz >= limits.min_hz - 1e-9 && hz <= limits.max_hz + 1e-9, "{hz}");
+                        let from = last.unwrap_or(limits.min_hz);
+                        prop_assert!((hz - from).abs() <= ramp * dt.min(1.0) + 1e-9, "{from} → {hz}");
+                        last = Some(hz);
+                    }
+                }
+            }
+        }
+    }
+}

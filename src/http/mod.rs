@@ -1,0 +1,403 @@
+//! The HTTP face of the service (CONTRACT.md "HTTP"): JSON API, server-sent events, Prometheus metrics, recordings
+//! and the embedded dashboard. Built by [`router`] from the shared state; never talks Modbus.
+
+use std::convert::Infallible;
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::body::Bytes;
+use axum::extract::rejection::{BytesRejection, QueryRejection};
+use axum::extract::{DefaultBodyLimit, Path, Query, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use futures::{Stream, StreamExt};
+use serde::{Deserialize, Serialize};
+use subtle::ConstantTimeEq;
+use tokio_util::sync::CancellationToken;
+
+use crate::control::Mode;
+use crate::service::state::{DriveSnapshot, ServiceState};
+
+/// What the handlers share.
+#[derive(Clone)]
+pub struct AppState {
+    pub service: Arc<ServiceState>,
+    /// The Bearer token of the write routes; None disables them.
+    pub token: Option<Arc<str>>,
+    pub max_body_bytes: usize,
+    /// Ends the event streams so that a graceful shutdown does not wait on them.
+    pub shutdown: CancellationToken,
+}
+
+/// An error answer: a status and a JSON body `{"error": "..."}`. 5xx are logged once, here.
+#[derive(Debug)]
+pub struct ApiError {
+    pub status: StatusCode,
+    pub message: String,
+}
+
+impl ApiError {
+    pub fn new(status: StatusCode, message: impl Into<String>) -> ApiError {
+        ApiError { status, message: message.into() }
+    }
+    fn not_found(message: impl Into<String>) -> ApiError {
+        ApiError::new(StatusCode::NOT_FOUND, message)
+    }
+    fn bad_request(message: impl Into<String>) -> ApiError {
+        ApiError::new(StatusCode::BAD_REQUEST, message)
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        if self.status.is_server_error() {
+            tracing::error!(status = %self.status, error = %self.message, "request failed");
+        }
+        let mut resp = (self.status, Json(serde_json::json!({ "error": self.message }))).into_response();
+        if self.status == StatusCode::UNAUTHORIZED {
+            resp.headers_mut().insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
+        }
+        resp
+    }
+}
+
+impl From<BytesRejection> for ApiError {
+    fn from(r: BytesRejection) -> ApiError {
+        let status = if r.status() == StatusCode::PAYLOAD_TOO_LARGE { r.status() } else { StatusCode::BAD_REQUEST };
+        ApiError::new(status, r.body_text())
+    }
+}
+
+impl From<QueryRejection> for ApiError {
+    fn from(r: QueryRejection) -> ApiError {
+        ApiError::bad_request(r.body_text())
+    }
+}
+
+/// The embedded dashboard: the binary is self-contained (demo, docker).
+const STATIC_FILES: [(&str, &str, &str); 5] = [
+    ("index.html", "text/html; charset=utf-8", include_str!("../../static/index.html")),
+    ("app.js", "text/javascript; charset=utf-8", include_str!("../../static/app.js")),
+    ("style.css", "text/css; charset=utf-8", include_str!("../../static/style.css")),
+    (
+        "vendor/uPlot.iife.min.js",
+        "text/javascript; charset=utf-8",
+        include_str!("../../static/vendor/uPlot.iife.min.js"),
+    ),
+    ("vendor/uPlot.min.css", "text/css; charset=utf-8", include_str!("../../static/vendor/uPlot.min.css")),
+];
+
+/// The service's routes.
+pub fn router(state: AppState) -> Router {
+    let limit = state.max_body_bytes;
+    Router::new()
+        .route("/", get(|| static_file("index.html")))
+        .route("/app.js", get(|| static_file("app.js")))
+        .route("/style.css", get(|| static_file("style.css")))
+        .route("/vendor/{file}", get(|Path(f): Path<String>| static_file_owned(format!("vendor/{f}"))))
+        .route("/api/status", get(status))
+        .route("/api/history", get(history))
+        .route("/api/events", get(events))
+        .route("/api/drives/{name}/target", post(set_target))
+        .route("/api/drives/{name}/reset", post(reset))
+        .route("/api/recordings", get(recordings))
+        .route("/api/recordings/{file}", get(recording_file))
+        .route("/metrics", get(metrics))
+        .route("/healthz", get(|| async { Json(serde_json::json!({ "status": "ok" })) }))
+        .route("/readyz", get(readyz))
+        .fallback(|| async { ApiError::not_found("no such route") })
+        .layer(DefaultBodyLimit::max(limit))
+        .with_state(state)
+}
+
+/// Serves the router on an already-bound listener until `state.shutdown` fires.
+pub async fn serve(listener: tokio::net::TcpListener, state: AppState) -> std::io::Result<()> {
+    let shutdown = state.shutdown.clone();
+    axum::serve(listener, router(state)).with_graceful_shutdown(async move { shutdown.cancelled().await }).await
+}
+
+async fn static_file(path: &'static str) -> Response {
+    static_file_owned(path.to_string()).await
+}
+
+async fn static_file_owned(path: String) -> Response {
+    match STATIC_FILES.iter().find(|(p, _, _)| *p == path) {
+        Some((_, mime, body)) => {
+            ([(header::CONTENT_TYPE, *mime), (header::CACHE_CONTROL, "no-cache")], *body).into_response()
+        }
+        None => ApiError::not_found(format!("no static file {path:?}")).into_response(),
+    }
+}
+
+/// `/api/status` and each SSE event.
+#[derive(Debug, Serialize)]
+pub struct StatusBody {
+    pub ready: bool,
+    pub uptime_s: f64,
+    /// True when the write routes accept a token.
+    pub writes_enabled: bool,
+    pub drives: Vec<DriveSnapshot>,
+}
+
+fn status_body(state: &AppState) -> StatusBody {
+    StatusBody {
+        ready: state.service.ready(),
+        uptime_s: state.service.started.elapsed().as_secs_f64(),
+        writes_enabled: state.token.is_some(),
+        drives: state.service.snapshots(),
+    }
+}
+
+async fn status(State(s): State<AppState>) -> Json<StatusBody> {
+    Json(status_body(&s))
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct HistoryQuery {
+    drive: String,
+    #[serde(default = "sixty")]
+    seconds: f64,
+    #[serde(default = "two_thousand")]
+    max_points: usize,
+}
+
+fn sixty() -> f64 {
+    60.0
+}
+fn two_thousand() -> usize {
+    2000
+}
+
+/// Recent points as columns named like the recording's.
+#[derive(Debug, Serialize, Default)]
+struct HistoryBody {
+    drive: String,
+    t_s: Vec<f64>,
+    f_set_hz: Vec<Option<f64>>,
+    f_drive_hz: Vec<f64>,
+    p_in_bar: Vec<f64>,
+    p_out_bar: Vec<f64>,
+    omega_rad_s: Vec<f64>,
+    omega_hat_rad_s: Vec<f64>,
+    load_hat_nm: Vec<f64>,
+    inertia_hat_kg_m2: Vec<f64>,
+    viscous_hat_nm_s_rad: Vec<f64>,
+    status_word: Vec<u16>,
+}
+
+async fn history(
+    State(s): State<AppState>,
+    q: Result<Query<HistoryQuery>, QueryRejection>,
+) -> Result<Json<HistoryBody>, ApiError> {
+    let Query(q) = q?;
+    if !(q.seconds.is_finite() && q.seconds > 0.0) {
+        return Err(ApiError::bad_request(format!("seconds must be > 0, got {}", q.seconds)));
+    }
+    if !(1..=100_000).contains(&q.max_points) {
+        return Err(ApiError::bad_request(format!("max_points must be 1 ..= 100000, got {}", q.max_points)));
+    }
+    let drive = s.service.drive(&q.drive).ok_or_else(|| ApiError::not_found(format!("no drive {:?}", q.drive)))?;
+    let mut b = HistoryBody { drive: q.drive.clone(), ..HistoryBody::default() };
+    for p in drive.history(q.seconds, q.max_points) {
+        b.t_s.push(p.t_s);
+        b.f_set_hz.push(p.f_set_hz.is_finite().then_some(p.f_set_hz));
+        b.f_drive_hz.push(p.f_drive_hz);
+        b.p_in_bar.push(p.p_in_bar);
+        b.p_out_bar.push(p.p_out_bar);
+        b.omega_rad_s.push(p.omega_rad_s);
+        b.omega_hat_rad_s.push(p.omega_hat_rad_s);
+        b.load_hat_nm.push(p.load_hat_nm);
+        b.inertia_hat_kg_m2.push(p.inertia_hat_kg_m2);
+        b.viscous_hat_nm_s_rad.push(p.viscous_hat_nm_s_rad);
+        b.status_word.push(p.status_word);
+    }
+    Ok(Json(b))
+}
+
+/// The SSE period: about 10 Hz.
+const EVENT_PERIOD: Duration = Duration::from_millis(100);
+
+async fn events(State(s): State<AppState>) -> Sse<impl Stream<Item = Result<Event, Infallible>>> {
+    let stop = s.shutdown.clone();
+    let mut tick = tokio::time::interval(EVENT_PERIOD);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let stream = futures::stream::unfold((s, tick), |(s, mut tick)| async move {
+        tick.tick().await;
+        let event = match serde_json::to_string(&status_body(&s)) {
+            Ok(json) => Event::default().event("snapshot").data(json),
+            Err(e) => Event::default().event("error").data(e.to_string()),
+        };
+        Some((Ok(event), (s, tick)))
+    })
+    .take_until(async move { stop.cancelled().await });
+    Sse::new(stream).keep_alive(KeepAlive::default())
+}
+
+/// Checks `Authorization: Bearer <token>` in constant time.
+fn authorize(s: &AppState, headers: &HeaderMap) -> Result<(), ApiError> {
+    let Some(token) = &s.token else {
+        return Err(ApiError::new(StatusCode::FORBIDDEN, "write routes are disabled: no http.token in the config"));
+    };
+    let given = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "))
+        .map(str::trim);
+    match given {
+        Some(g) if bool::from(g.as_bytes().ct_eq(token.as_bytes())) => Ok(()),
+        Some(_) => Err(ApiError::new(StatusCode::UNAUTHORIZED, "wrong token")),
+        None => Err(ApiError::new(StatusCode::UNAUTHORIZED, "needs Authorization: Bearer <token>")),
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TargetBody {
+    target_omega_rad_s: f64,
+}
+
+async fn set_target(
+    State(s): State<AppState>,
+    Path(name): Path<String>,
+    headers: HeaderMap,
+    body: Result<Bytes, BytesRejection>,
+) -> Result<Json<serde_json::Value>, ApiError> {
+    authorize(&s, &headers)?;
+    let drive = s.service.drive(&name).ok_or_else(|| ApiError::not_found(format!("no drive {name:?}")))?;
+    let body = body?;
+    let t: TargetBody = serde_json::from_slice(&body)
+        .map_err(|e| ApiError::bad_request(format!("expected {{\"target_omega_rad_s\": number}}: {e}")))?;
+    match drive.mode {
+        Mode::Speed => {}
+        m => {
+            return Err(ApiError::new(
+                StatusCode::CONFLICT,
+                format!("drive {name:?} is in {m:?} mode: a speed target applies only in speed mode"),
+            ));
+        }
+    }
+    let max = drive.max_target_omega_rad_s;
+    if !(t.target_omega_rad_s.is_finite() && (0.0..=max).contains(&t.target_omega_rad_s)) {
+        return Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            format!("target_omega_rad_s must be 0 ..= {max:.1} (max_hz with no load), got {}", t.target_omega_rad_s),
+        ));
+    }
+    drive.set_target(t.target_omega_rad_s);
+    tracing::info!(drive = %name, target_omega_rad_s = t.target_omega_rad_s, "new speed target");
+    Ok(Json(serde_json::json!({ "drive": name, "target_omega_rad_s": t.target_omega_rad_s })))
+}
+
+async fn reset(
+    State(s): State<AppState>,
+    Path(name): Path<String>,
+    headers: HeaderMap,
+) -> Result<(StatusCode, Json<serde_json::Value>), ApiError> {
+    authorize(&s, &headers)?;
+    let drive = s.service.drive(&name).ok_or_else(|| ApiError::not_found(format!("no drive {name:?}")))?;
+    if drive.mode == Mode::Monitor {
+        return Err(ApiError::new(StatusCode::CONFLICT, format!("drive {name:?} is in monitor mode: it never writes")));
+    }
+    drive.request_reset();
+    tracing::info!(drive = %name, "fault reset requested");
+    Ok((StatusCode::ACCEPTED, Json(serde_json::json!({ "drive": name, "reset": "requested" }))))
+}
+
+#[derive(Debug, Serialize)]
+struct RecordingEntry {
+    name: String,
+    bytes: u64,
+    modified_unix_s: Option<u64>,
+}
+
+async fn recordings(State(s): State<AppState>) -> Result<Json<serde_json::Value>, ApiError> {
+    let Some(dir) = &s.service.recording_dir else {
+        return Ok(Json(serde_json::json!({ "enabled": false, "files": [] })));
+    };
+    let mut files = Vec::new();
+    let mut rd = match tokio::fs::read_dir(dir).await {
+        Ok(rd) => rd,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Ok(Json(serde_json::json!({ "enabled": true, "files": [] })));
+        }
+        Err(e) => return Err(ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("listing recordings: {e}"))),
+    };
+    while let Ok(Some(entry)) = rd.next_entry().await {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if !valid_file_name(&name) {
+            continue;
+        }
+        let Ok(meta) = entry.metadata().await else { continue };
+        let modified_unix_s =
+            meta.modified().ok().and_then(|m| m.duration_since(std::time::UNIX_EPOCH).ok()).map(|d| d.as_secs());
+        files.push(RecordingEntry { name, bytes: meta.len(), modified_unix_s });
+    }
+    files.sort_by(|a, b| a.name.cmp(&b.name));
+    Ok(Json(serde_json::json!({ "enabled": true, "files": files })))
+}
+
+/// A recording's file name: letters, digits, `-`, `_`, `.`, ending in `.csv`, never a path.
+fn valid_file_name(name: &str) -> bool {
+    name.len() <= 128
+        && name.ends_with(".csv")
+        && !name.starts_with('.')
+        && !name.contains("..")
+        && name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
+}
+
+async fn recording_file(State(s): State<AppState>, Path(file): Path<String>) -> Result<Response, ApiError> {
+    if !valid_file_name(&file) {
+        return Err(ApiError::bad_request(format!("{file:?} is not a recording name such as pump1-1700000000000.csv")));
+    }
+    let Some(dir) = &s.service.recording_dir else { return Err(ApiError::not_found("recording is off")) };
+    match tokio::fs::read(dir.join(&file)).await {
+        Ok(bytes) => Ok((
+            [
+                (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()),
+                (header::CONTENT_DISPOSITION, format!("attachment; filename=\"{file}\"")),
+            ],
+            bytes,
+        )
+            .into_response()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            Err(ApiError::not_found(format!("no recording {file:?}")))
+        }
+        Err(e) => Err(ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("reading {file}: {e}"))),
+    }
+}
+
+async fn metrics(State(s): State<AppState>) -> Response {
+    ([(header::CONTENT_TYPE, "application/openmetrics-text; version=1.0.0; charset=utf-8")], s.service.metrics_text())
+        .into_response()
+}
+
+async fn readyz(State(s): State<AppState>) -> Response {
+    let not_ready: Vec<String> = s.service.drives.iter().filter(|d| !d.ready()).map(|d| d.name.clone()).collect();
+    if not_ready.is_empty() {
+        Json(serde_json::json!({ "status": "ready" })).into_response()
+    } else {
+        (
+            StatusCode::SERVICE_UNAVAILABLE,
+            Json(serde_json::json!({ "status": "not ready", "stale_or_down": not_ready })),
+        )
+            .into_response()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn recording_names_are_never_paths() {
+        assert!(valid_file_name("pump1-1700000000000.csv"));
+        assert!(valid_file_name("pump1-1700000000000-1.csv"));
+        for bad in ["../etc/passwd", "a/b.csv", ".hidden.csv", "x..csv", "x.txt", "%2e%2e.csv", ""] {
+            assert!(!valid_file_name(bad), "{bad}");
+        }
+    }
+}

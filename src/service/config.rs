@@ -1,0 +1,563 @@
+//! The service config (`config/hydrolens.toml`): parsed raw and strictly (unknown keys are errors), then validated
+//! into typed settings that cannot be invalid. Every error names its key.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::Deserialize;
+
+use crate::control::{FeedForward, Gains, Limits, Mode};
+use crate::estimator::{EstimatorSettings, Method};
+use crate::modbus::map::{RegisterMap, RegisterSpec, Table, ValueType, WordOrder};
+use crate::plant::PlantModel;
+use crate::plant::dynamics::Coefficients;
+
+/// What can be wrong with a config. Everything but `Io` is bad input (exit 2).
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("config {path}: {message}")]
+    Syntax { path: String, message: String },
+    #[error("config {path}: key `{key}` {message}")]
+    Invalid { path: String, key: String, message: String },
+}
+
+impl ConfigError {
+    pub fn is_bad_input(&self) -> bool {
+        !matches!(self, ConfigError::Io { .. })
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawConfig {
+    #[serde(default)]
+    http: RawHttp,
+    #[serde(default)]
+    recording: RawRecording,
+    #[serde(default)]
+    drives: Vec<RawDrive>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawHttp {
+    bind: String,
+    token: String,
+    max_body_bytes: usize,
+    history_seconds: f64,
+}
+
+impl Default for RawHttp {
+    fn default() -> Self {
+        RawHttp { bind: "127.0.0.1:8080".into(), token: String::new(), max_body_bytes: 4096, history_seconds: 120.0 }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawRecording {
+    dir: String,
+    enabled: bool,
+    max_file_mb: f64,
+    rotate_hours: f64,
+}
+
+impl Default for RawRecording {
+    fn default() -> Self {
+        RawRecording { dir: "recordings".into(), enabled: true, max_file_mb: 64.0, rotate_hours: 1.0 }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawDrive {
+    name: String,
+    address: String,
+    #[serde(default = "one_u8")]
+    unit_id: u8,
+    #[serde(default = "ten")]
+    poll_ms: u64,
+    #[serde(default = "two_hundred")]
+    timeout_ms: u64,
+    /// No fresh sample for this long marks the drive stale (default: the larger of 5 polls and 50 ms).
+    stale_ms: Option<u64>,
+    /// Watchdog refresh period (default 100 ms, well inside the drive's comm timeout / 3).
+    #[serde(default = "hundred")]
+    watchdog_ms: u64,
+    #[serde(default)]
+    control: RawControl,
+    #[serde(default)]
+    estimator: RawEstimator,
+    #[serde(default)]
+    limits: RawLimits,
+    #[serde(default)]
+    registers: BTreeMap<String, RawRegister>,
+}
+
+fn one_u8() -> u8 {
+    1
+}
+fn ten() -> u64 {
+    10
+}
+fn two_hundred() -> u64 {
+    200
+}
+fn hundred() -> u64 {
+    100
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawControl {
+    mode: Mode,
+    target_omega_rad_s: f64,
+    fixed_hz: f64,
+    min_hz: f64,
+    max_hz: f64,
+    ramp_hz_per_s: f64,
+    kp: f64,
+    ki: f64,
+}
+
+impl Default for RawControl {
+    fn default() -> Self {
+        RawControl {
+            mode: Mode::Monitor,
+            target_omega_rad_s: 0.0,
+            fixed_hz: 0.0,
+            min_hz: 0.0,
+            max_hz: 50.0,
+            ramp_hz_per_s: 20.0,
+            kp: 0.2,
+            ki: 0.6,
+        }
+    }
+}
+
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+struct RawEstimator {
+    method: Option<String>,
+    model: Option<String>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawLimits {
+    min_pressure_bar: f64,
+    max_pressure_bar: f64,
+    max_speed_rad_s: f64,
+    max_frequency_hz: f64,
+}
+
+impl Default for RawLimits {
+    fn default() -> Self {
+        RawLimits { min_pressure_bar: -1.0, max_pressure_bar: 400.0, max_speed_rad_s: 1000.0, max_frequency_hz: 400.0 }
+    }
+}
+
+#[derive(Debug, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+struct RawRegister {
+    table: Option<Table>,
+    address: Option<u16>,
+    #[serde(rename = "type")]
+    kind: Option<ValueType>,
+    scale: Option<f64>,
+    offset: Option<f64>,
+    word_order: Option<WordOrder>,
+}
+
+/// The whole service, validated.
+#[derive(Debug, Clone)]
+pub struct Settings {
+    pub http: HttpSettings,
+    pub recording: RecordingSettings,
+    pub drives: Vec<DriveSettings>,
+}
+
+#[derive(Debug, Clone)]
+pub struct HttpSettings {
+    pub bind: std::net::SocketAddr,
+    /// Bearer token of the write routes; None disables them. Never logged.
+    pub token: Option<String>,
+    pub max_body_bytes: usize,
+    pub history: Duration,
+}
+
+#[derive(Debug, Clone)]
+pub struct RecordingSettings {
+    /// None: recording off.
+    pub dir: Option<PathBuf>,
+    pub max_file_bytes: u64,
+    pub rotate_after: Duration,
+}
+
+/// Plausible ranges of decoded values; anything outside (or non-finite) is rejected before the estimator.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ValidRanges {
+    pub min_pressure_bar: f64,
+    pub max_pressure_bar: f64,
+    pub max_speed_rad_s: f64,
+    pub max_frequency_hz: f64,
+}
+
+#[derive(Debug, Clone)]
+pub struct DriveSettings {
+    pub name: String,
+    pub address: String,
+    pub unit_id: u8,
+    pub poll: Duration,
+    pub timeout: Duration,
+    pub stale_after: Duration,
+    pub watchdog_every: Duration,
+    pub mode: Mode,
+    pub target_omega_rad_s: f64,
+    pub fixed_hz: f64,
+    pub limits: Limits,
+    pub gains: Gains,
+    pub feed_forward: FeedForward,
+    /// The estimator: `method` from `[drives.estimator]`, the rest from the model file's `[estimator]` table.
+    pub estimator: EstimatorSettings,
+    pub model: PlantModel,
+    pub ranges: ValidRanges,
+    pub registers: RegisterMap,
+}
+
+impl DriveSettings {
+    /// The speed the drive reaches at `max_hz` with no load: the largest target that makes sense.
+    pub fn max_target_omega_rad_s(&self) -> f64 {
+        self.feed_forward.omega_rad_s(self.limits.max_hz)
+    }
+}
+
+/// Reads and validates a config file. Relative model paths are tried from the working directory, then from the
+/// config file's directory.
+pub fn load(path: &Path) -> Result<Settings, ConfigError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io { path: path.into(), source })?;
+    parse(&text, &path.display().to_string(), path.parent())
+}
+
+/// Parses and validates config text; `origin` names it in errors, `base` resolves relative model paths.
+pub fn parse(text: &str, origin: &str, base: Option<&Path>) -> Result<Settings, ConfigError> {
+    let raw: RawConfig = toml::from_str(text)
+        .map_err(|e| ConfigError::Syntax { path: origin.to_string(), message: e.to_string().trim_end().to_string() })?;
+    validate(raw, base).map_err(|(key, message)| ConfigError::Invalid { path: origin.to_string(), key, message })
+}
+
+type Invalid = (String, String);
+
+fn finite(key: &str, v: f64) -> Result<f64, Invalid> {
+    if v.is_finite() { Ok(v) } else { Err((key.into(), format!("must be a finite number, got {v}"))) }
+}
+
+fn nonneg(key: &str, v: f64) -> Result<f64, Invalid> {
+    if v.is_finite() && v >= 0.0 { Ok(v) } else { Err((key.into(), format!("must be finite and ≥ 0, got {v}"))) }
+}
+
+fn positive(key: &str, v: f64) -> Result<f64, Invalid> {
+    if v.is_finite() && v > 0.0 { Ok(v) } else { Err((key.into(), format!("must be finite and > 0, got {v}"))) }
+}
+
+fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
+    let bind = raw.http.bind.parse().map_err(|e| {
+        ("http.bind".to_string(), format!("{:?} is not an address such as 127.0.0.1:8080 ({e})", raw.http.bind))
+    })?;
+    if raw.http.max_body_bytes == 0 || raw.http.max_body_bytes > 1 << 20 {
+        return Err(("http.max_body_bytes".into(), format!("must be 1 ..= 1048576, got {}", raw.http.max_body_bytes)));
+    }
+    let history_s = positive("http.history_seconds", raw.http.history_seconds)?;
+    if history_s > 3600.0 {
+        return Err(("http.history_seconds".into(), format!("must be ≤ 3600, got {history_s}")));
+    }
+    let token = (!raw.http.token.is_empty()).then_some(raw.http.token);
+    let http = HttpSettings {
+        bind,
+        token,
+        max_body_bytes: raw.http.max_body_bytes,
+        history: Duration::from_secs_f64(history_s),
+    };
+
+    let r = raw.recording;
+    let max_mb = positive("recording.max_file_mb", r.max_file_mb)?;
+    let hours = positive("recording.rotate_hours", r.rotate_hours)?;
+    if hours > 24.0 * 365.0 {
+        return Err(("recording.rotate_hours".into(), format!("must be ≤ 8760, got {hours}")));
+    }
+    if r.dir.is_empty() && r.enabled {
+        return Err(("recording.dir".into(), "must not be empty while recording is enabled".into()));
+    }
+    let recording = RecordingSettings {
+        dir: r.enabled.then(|| PathBuf::from(r.dir)),
+        max_file_bytes: (max_mb * 1024.0 * 1024.0) as u64,
+        rotate_after: Duration::from_secs_f64(hours * 3600.0),
+    };
+
+    if raw.drives.is_empty() {
+        return Err(("drives".into(), "needs at least one [[drives]] entry".into()));
+    }
+    let mut drives = Vec::with_capacity(raw.drives.len());
+    for (i, d) in raw.drives.into_iter().enumerate() {
+        let drive = validate_drive(d, i, base)?;
+        if drives.iter().any(|o: &DriveSettings| o.name == drive.name) {
+            return Err((format!("drives[{i}].name"), format!("{:?} is used by another drive", drive.name)));
+        }
+        drives.push(drive);
+    }
+    Ok(Settings { http, recording, drives })
+}
+
+fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSettings, Invalid> {
+    let key = |k: &str| format!("drives[{i}].{k}");
+    let name_ok = !d.name.is_empty()
+        && d.name.len() <= 64
+        && d.name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+    if !name_ok {
+        return Err((
+            key("name"),
+            format!("{:?}: use 1 to 64 letters, digits, `_` or `-` (it names files and URLs)", d.name),
+        ));
+    }
+    match d.address.rsplit_once(':') {
+        Some((host, port)) if !host.is_empty() && port.parse::<u16>().is_ok() => {}
+        _ => return Err((key("address"), format!("{:?} is not host:port such as 127.0.0.1:5020", d.address))),
+    }
+    if !(1..=60_000).contains(&d.poll_ms) {
+        return Err((key("poll_ms"), format!("must be 1 ..= 60000, got {}", d.poll_ms)));
+    }
+    if !(1..=60_000).contains(&d.timeout_ms) {
+        return Err((key("timeout_ms"), format!("must be 1 ..= 60000, got {}", d.timeout_ms)));
+    }
+    if !(1..=60_000).contains(&d.watchdog_ms) {
+        return Err((key("watchdog_ms"), format!("must be 1 ..= 60000, got {}", d.watchdog_ms)));
+    }
+    let stale_ms = d.stale_ms.unwrap_or((5 * d.poll_ms).max(50));
+    if stale_ms < d.poll_ms {
+        return Err((key("stale_ms"), format!("must be ≥ poll_ms ({}), got {stale_ms}", d.poll_ms)));
+    }
+
+    let c = d.control;
+    let min_hz = nonneg(&key("control.min_hz"), c.min_hz)?;
+    let max_hz = positive(&key("control.max_hz"), c.max_hz)?;
+    if min_hz > max_hz {
+        return Err((key("control.min_hz"), format!("{min_hz} is above control.max_hz = {max_hz}")));
+    }
+    let ramp = positive(&key("control.ramp_hz_per_s"), c.ramp_hz_per_s)?;
+    let kp = nonneg(&key("control.kp"), c.kp)?;
+    let ki = nonneg(&key("control.ki"), c.ki)?;
+    let fixed_hz = finite(&key("control.fixed_hz"), c.fixed_hz)?;
+    if c.mode == Mode::Manual && !(min_hz..=max_hz).contains(&fixed_hz) {
+        return Err((
+            key("control.fixed_hz"),
+            format!("{fixed_hz} is outside [min_hz, max_hz] = [{min_hz}, {max_hz}]"),
+        ));
+    }
+    let target = nonneg(&key("control.target_omega_rad_s"), c.target_omega_rad_s)?;
+
+    let method = match d.estimator.method.as_deref() {
+        None | Some("rls-sgd") => Method::RlsSgd,
+        Some("kalman") => Method::Kalman,
+        Some(other) => return Err((key("estimator.method"), format!("{other:?}: expected \"rls-sgd\" or \"kalman\""))),
+    };
+    let model = match d.estimator.model {
+        None => PlantModel::reference(),
+        Some(p) => {
+            let path = resolve(&p, base);
+            PlantModel::load(&path).map_err(|e| (key("estimator.model"), e.to_string()))?
+        }
+    };
+    if model.motor.displacement_cm3.is_none() {
+        return Err((key("estimator.model"), "the model needs motor.displacement_cm3 (torque from pressures)".into()));
+    }
+    let mut estimator =
+        EstimatorSettings::from_model(&model, "the model file").map_err(|e| (key("estimator.model"), e.to_string()))?;
+    estimator.method = method;
+    let coefficients =
+        Coefficients::from_model(&model).map_err(|(k, m)| (key("estimator.model"), format!("{k} {m}")))?;
+    let feed_forward = FeedForward {
+        pole_pairs: coefficients.pole_pairs,
+        pump_m3_rad: coefficients.pump_m3_rad,
+        motor_m3_rad: coefficients.motor_m3_rad,
+        leakage_si: coefficients.leakage_si,
+        viscous_nm_s_rad: coefficients.mechanics.viscous_nm_s_rad,
+    };
+
+    let l = d.limits;
+    let ranges = ValidRanges {
+        min_pressure_bar: finite(&key("limits.min_pressure_bar"), l.min_pressure_bar)?,
+        max_pressure_bar: finite(&key("limits.max_pressure_bar"), l.max_pressure_bar)?,
+        max_speed_rad_s: positive(&key("limits.max_speed_rad_s"), l.max_speed_rad_s)?,
+        max_frequency_hz: positive(&key("limits.max_frequency_hz"), l.max_frequency_hz)?,
+    };
+    if ranges.min_pressure_bar >= ranges.max_pressure_bar {
+        return Err((key("limits.min_pressure_bar"), "must be below limits.max_pressure_bar".into()));
+    }
+
+    let registers = apply_overrides(d.registers, &key("registers"))?;
+    let settings = DriveSettings {
+        name: d.name,
+        address: d.address,
+        unit_id: d.unit_id,
+        poll: Duration::from_millis(d.poll_ms),
+        timeout: Duration::from_millis(d.timeout_ms),
+        stale_after: Duration::from_millis(stale_ms),
+        watchdog_every: Duration::from_millis(d.watchdog_ms),
+        mode: c.mode,
+        target_omega_rad_s: target,
+        fixed_hz,
+        limits: Limits { min_hz, max_hz, ramp_hz_per_s: ramp },
+        gains: Gains { kp_hz_per_rad_s: kp, ki_hz_per_rad: ki },
+        feed_forward,
+        estimator,
+        model,
+        ranges,
+        registers,
+    };
+    if target > settings.max_target_omega_rad_s() * 1.5 {
+        return Err((
+            key("control.target_omega_rad_s"),
+            format!(
+                "{target} rad/s is far beyond what max_hz allows (≈ {:.1} rad/s)",
+                settings.max_target_omega_rad_s()
+            ),
+        ));
+    }
+    Ok(settings)
+}
+
+fn resolve(p: &str, base: Option<&Path>) -> PathBuf {
+    let path = PathBuf::from(p);
+    if path.is_absolute() || path.exists() {
+        return path;
+    }
+    match base.map(|b| b.join(&path)) {
+        Some(alt) if alt.exists() => alt,
+        _ => path,
+    }
+}
+
+/// Applies `[drives.registers.<entry>]` overrides to the default map, checking entry names and tables.
+fn apply_overrides(overrides: BTreeMap<String, RawRegister>, key: &str) -> Result<RegisterMap, Invalid> {
+    let mut map = RegisterMap::default();
+    let names: Vec<&str> = map.entries().iter().map(|(n, _)| *n).collect();
+    for (name, o) in overrides {
+        let slot: &mut RegisterSpec = match name.as_str() {
+            "inlet_pressure_bar" => &mut map.inlet_pressure_bar,
+            "outlet_pressure_bar" => &mut map.outlet_pressure_bar,
+            "shaft_speed_rpm" => &mut map.shaft_speed_rpm,
+            "drive_frequency_hz" => &mut map.drive_frequency_hz,
+            "status_word" => &mut map.status_word,
+            "sample_counter" => &mut map.sample_counter,
+            "frequency_setpoint_hz" => &mut map.frequency_setpoint_hz,
+            "control_word" => &mut map.control_word,
+            "watchdog" => &mut map.watchdog,
+            _ => {
+                return Err((
+                    format!("{key}.{name}"),
+                    format!("is not a register entry; expected one of {}", names.join(", ")),
+                ));
+            }
+        };
+        let k = |f: &str| format!("{key}.{name}.{f}");
+        if let Some(t) = o.table {
+            slot.table = t;
+        }
+        if let Some(a) = o.address {
+            slot.address = a;
+        }
+        if let Some(t) = o.kind {
+            slot.kind = t;
+        }
+        if let Some(s) = o.scale {
+            if !(s.is_finite() && s != 0.0) {
+                return Err((k("scale"), format!("must be finite and not 0, got {s}")));
+            }
+            slot.scale = s;
+        }
+        if let Some(off) = o.offset {
+            slot.offset = finite(&k("offset"), off)?;
+        }
+        if let Some(w) = o.word_order {
+            slot.word_order = w;
+        }
+    }
+    for (name, spec) in map.entries() {
+        let writable = matches!(name, "frequency_setpoint_hz" | "control_word" | "watchdog");
+        if writable && spec.table != Table::Holding {
+            return Err((format!("{key}.{name}.table"), "must be \"holding\": the service writes it".into()));
+        }
+        if u32::from(spec.address) + u32::from(spec.kind.words()) > 65536 {
+            return Err((format!("{key}.{name}.address"), "runs past register 65535".into()));
+        }
+    }
+    for table in [Table::Input, Table::Holding] {
+        if let Some((_, count)) = map.span(table)
+            && count > 125
+        {
+            return Err((key.to_string(), format!("the {table:?} registers span {count} words: one read takes ≤ 125")));
+        }
+    }
+    Ok(map)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MINIMAL: &str = r#"
+[[drives]]
+name = "pump1"
+address = "127.0.0.1:5020"
+"#;
+
+    fn err(text: &str) -> String {
+        match parse(text, "t.toml", None) {
+            Ok(_) => panic!("accepted: {text}"),
+            Err(e) => e.to_string(),
+        }
+    }
+
+    #[test]
+    fn minimal_config_gets_safe_defaults() {
+        let s = parse(MINIMAL, "t.toml", None).expect("valid");
+        assert_eq!(s.http.bind.to_string(), "127.0.0.1:8080");
+        assert_eq!(s.http.token, None, "no token: write routes off");
+        let d = &s.drives[0];
+        assert_eq!(d.mode, Mode::Monitor);
+        assert_eq!(d.poll, Duration::from_millis(10));
+        assert_eq!(d.registers, RegisterMap::default());
+    }
+
+    #[test]
+    fn errors_name_the_key() {
+        assert!(err("[http]\nbnd = \"x\"\n").contains("bnd"));
+        let e = err(&format!("{MINIMAL}[drives.control]\nmin_hz = 30.0\nmax_hz = 20.0\n"));
+        assert!(e.contains("drives[0].control.min_hz"), "{e}");
+        let e = err(&format!("{MINIMAL}poll_ms = \"fast\"\n"));
+        assert!(e.contains("poll_ms"), "{e}");
+        let e = err(&format!("{MINIMAL}[drives.registers.inlet_pressure]\naddress = 3\n"));
+        assert!(e.contains("drives[0].registers.inlet_pressure"), "{e}");
+        let e = err(&format!("{MINIMAL}[drives.registers.watchdog]\ntable = \"input\"\n"));
+        assert!(e.contains("watchdog.table"), "{e}");
+        let e = err(&format!("{MINIMAL}[drives.control]\nmode = \"turbo\"\n"));
+        assert!(e.contains("turbo"), "{e}");
+    }
+
+    #[test]
+    fn register_overrides_merge_over_the_default() {
+        let text = format!(
+            "{MINIMAL}[drives.registers.inlet_pressure_bar]\naddress = 10\ntype = \"f32\"\nscale = 1.0\nword_order = \"cdab\"\n"
+        );
+        let s = parse(&text, "t.toml", None).expect("valid");
+        let m = s.drives[0].registers;
+        assert_eq!(m.inlet_pressure_bar.address, 10);
+        assert_eq!(m.inlet_pressure_bar.kind, ValueType::F32);
+        assert_eq!(m.inlet_pressure_bar.word_order, WordOrder::Cdab);
+        assert_eq!(m.inlet_pressure_bar.table, Table::Input);
+        assert_eq!(m.span(Table::Input), Some((1, 11)));
+    }
+}

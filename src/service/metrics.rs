@@ -1,0 +1,107 @@
+//! The service's Prometheus metrics (prometheus-client): one registry, families labelled by drive.
+
+use std::sync::atomic::AtomicU64;
+
+use prometheus_client::encoding::EncodeLabelSet;
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::family::Family;
+use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::metrics::histogram::{Histogram, exponential_buckets};
+use prometheus_client::registry::Registry;
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct DriveLabel {
+    pub drive: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct ErrorLabels {
+    pub drive: String,
+    pub kind: String,
+}
+
+type GaugeF = Gauge<f64, AtomicU64>;
+type HistogramFamily = Family<DriveLabel, Histogram, fn() -> Histogram>;
+
+fn period_histogram() -> Histogram {
+    // 0.1 ms … ≈ 1.6 s
+    Histogram::new(exponential_buckets(1e-4, 2.0, 15))
+}
+
+/// Every metric family; cheap to clone (the families are shared).
+#[derive(Clone)]
+pub struct Metrics {
+    pub polls: Family<DriveLabel, Counter>,
+    pub errors: Family<ErrorLabels, Counter>,
+    pub reconnects: Family<DriveLabel, Counter>,
+    pub rejected_samples: Family<DriveLabel, Counter>,
+    pub stale_samples: Family<DriveLabel, Counter>,
+    pub writes: Family<DriveLabel, Counter>,
+    pub overruns: Family<DriveLabel, Counter>,
+    pub stale: Family<DriveLabel, Gauge>,
+    pub link_up: Family<DriveLabel, Gauge>,
+    pub loop_period: HistogramFamily,
+    pub jitter_p50: Family<DriveLabel, GaugeF>,
+    pub jitter_p99: Family<DriveLabel, GaugeF>,
+    pub omega: Family<DriveLabel, GaugeF>,
+    pub omega_hat: Family<DriveLabel, GaugeF>,
+    pub load_hat: Family<DriveLabel, GaugeF>,
+    pub setpoint: Family<DriveLabel, GaugeF>,
+    pub target: Family<DriveLabel, GaugeF>,
+}
+
+impl Metrics {
+    /// The families, registered in a new registry.
+    pub fn new() -> (Metrics, Registry) {
+        let m = Metrics {
+            polls: Family::default(),
+            errors: Family::default(),
+            reconnects: Family::default(),
+            rejected_samples: Family::default(),
+            stale_samples: Family::default(),
+            writes: Family::default(),
+            overruns: Family::default(),
+            stale: Family::default(),
+            link_up: Family::default(),
+            loop_period: Family::new_with_constructor(period_histogram as fn() -> Histogram),
+            jitter_p50: Family::default(),
+            jitter_p99: Family::default(),
+            omega: Family::default(),
+            omega_hat: Family::default(),
+            load_hat: Family::default(),
+            setpoint: Family::default(),
+            target: Family::default(),
+        };
+        let mut r = Registry::with_prefix("hydrolens");
+        r.register("polls", "Poll cycles run", m.polls.clone());
+        r.register("errors", "Failed Modbus calls, by kind", m.errors.clone());
+        r.register("reconnects", "Modbus connections re-opened after a failure", m.reconnects.clone());
+        r.register(
+            "rejected_samples",
+            "Samples out of range or not finite, never given to the estimator",
+            m.rejected_samples.clone(),
+        );
+        r.register("stale_samples", "Reads whose sample counter had not moved", m.stale_samples.clone());
+        r.register("writes", "Modbus write requests sent", m.writes.clone());
+        r.register("loop_overruns", "Poll cycles that took longer than the poll period", m.overruns.clone());
+        r.register("stale", "1 while the drive's data are stale", m.stale.clone());
+        r.register("link_up", "1 while the Modbus connection is open and answering", m.link_up.clone());
+        r.register("loop_period_seconds", "Time between poll cycle starts", m.loop_period.clone());
+        r.register(
+            "loop_jitter_p50_seconds",
+            "Median |period − poll period| over the last 1000 cycles",
+            m.jitter_p50.clone(),
+        );
+        r.register(
+            "loop_jitter_p99_seconds",
+            "99th percentile |period − poll period| over the last 1000 cycles",
+            m.jitter_p99.clone(),
+        );
+        r.register("omega_rad_s", "Measured shaft speed", m.omega.clone());
+        r.register("omega_hat_rad_s", "Estimated shaft speed", m.omega_hat.clone());
+        r.register("load_hat_nm", "Estimated load torque", m.load_hat.clone());
+        r.register("setpoint_hz", "Last frequency setpoint written", m.setpoint.clone());
+        r.register("target_omega_rad_s", "Speed target", m.target.clone());
+        (m, r)
+    }
+}

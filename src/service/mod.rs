@@ -1,0 +1,82 @@
+//! The monitoring service: one poll loop per drive (modbus → estimator → control → modbus), publishing snapshots,
+//! a history ring, metrics and recordings for the HTTP side.
+
+pub mod config;
+pub mod drive;
+pub mod estimators;
+pub mod metrics;
+pub mod recorder;
+pub mod state;
+pub mod timing;
+
+use std::sync::Arc;
+
+use tokio::task::JoinHandle;
+use tokio::time::Instant;
+use tokio_util::sync::CancellationToken;
+
+pub use config::{ConfigError, DriveSettings, Settings};
+pub use state::{DriveSnapshot, DriveState, Point, ServiceState};
+
+use drive::DriveLoop;
+use metrics::Metrics;
+use recorder::Recorder;
+use state::{DriveStatus, Link};
+use timing::TimingStats;
+
+/// The running poll loops.
+pub struct Service {
+    pub state: Arc<ServiceState>,
+    tasks: Vec<JoinHandle<()>>,
+}
+
+/// Starts one poll loop per drive; they stop when `shutdown` is cancelled. Needs a tokio runtime.
+pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Result<Service> {
+    let (metrics, registry) = Metrics::new();
+    let started = Instant::now();
+    let mut drives = Vec::with_capacity(settings.drives.len());
+    let mut loops = Vec::with_capacity(settings.drives.len());
+    for d in &settings.drives {
+        let history_len = (settings.http.history.as_secs_f64() / d.poll.as_secs_f64()).ceil() as usize;
+        let snapshot = DriveSnapshot {
+            name: d.name.clone(),
+            mode: d.mode,
+            address: d.address.clone(),
+            unit_id: d.unit_id,
+            target_omega_rad_s: d.target_omega_rad_s,
+            setpoint_hz: None,
+            tripped: false,
+            status: DriveStatus::default(),
+            link: Link::default(),
+            sample: None,
+            estimate: None,
+            timing: TimingStats::default(),
+        };
+        let state =
+            Arc::new(DriveState::new(snapshot, d.max_target_omega_rad_s(), d.stale_after, history_len.min(1 << 20)));
+        let recorder = match &settings.recording.dir {
+            Some(dir) => {
+                Some(Recorder::start(dir, &d.name, settings.recording.rotate_after, settings.recording.max_file_bytes)?)
+            }
+            None => None,
+        };
+        let estimator = estimators::build(&d.estimator, &d.model);
+        loops.push(DriveLoop::new(d.clone(), estimator, state.clone(), metrics.clone(), recorder, started));
+        drives.push(state);
+    }
+    let state =
+        Arc::new(ServiceState { drives, metrics, registry, recording_dir: settings.recording.dir.clone(), started });
+    let tasks = loops.into_iter().map(|l| tokio::spawn(l.run(shutdown.clone()))).collect();
+    Ok(Service { state, tasks })
+}
+
+impl Service {
+    /// Waits until every loop has stopped and closed its recording.
+    pub async fn wait(self) {
+        for t in self.tasks {
+            if let Err(e) = t.await {
+                tracing::error!(error = %e, "a poll loop ended abnormally");
+            }
+        }
+    }
+}

@@ -1,0 +1,342 @@
+//! What the poll loops publish and the HTTP side reads: per-drive snapshots, the history ring, the commands
+//! (target, reset) waiting for the loop, and the metrics registry.
+
+use std::collections::VecDeque;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Duration;
+
+use serde::Serialize;
+use tokio::time::Instant;
+
+use super::metrics::Metrics;
+use super::timing::TimingStats;
+use crate::control::Mode;
+use crate::estimator::Estimate;
+
+/// Locks a mutex whose data are plain values (a poisoned lock is taken over).
+pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// One fresh, validated sample with what the service made of it: a row of the recording and of the history.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Point {
+    /// Seconds since the service started.
+    pub t_s: f64,
+    /// Setpoint written in this cycle; NaN (null) when nothing was written.
+    pub f_set_hz: f64,
+    pub f_drive_hz: f64,
+    pub p_in_bar: f64,
+    pub p_out_bar: f64,
+    pub omega_rad_s: f64,
+    pub omega_hat_rad_s: f64,
+    pub load_hat_nm: f64,
+    pub inertia_hat_kg_m2: f64,
+    pub viscous_hat_nm_s_rad: f64,
+    pub status_word: u16,
+}
+
+/// The recording's columns, in [`Point::values`] order.
+pub const COLUMNS: [&str; 11] = [
+    "t_s",
+    "f_set_hz",
+    "f_drive_hz",
+    "p_in_bar",
+    "p_out_bar",
+    "omega_rad_s",
+    "omega_hat_rad_s",
+    "load_hat_nm",
+    "inertia_hat_kg_m2",
+    "viscous_hat_nm_s_rad",
+    "status_word",
+];
+
+impl Point {
+    pub fn values(&self) -> [f64; 11] {
+        [
+            self.t_s,
+            self.f_set_hz,
+            self.f_drive_hz,
+            self.p_in_bar,
+            self.p_out_bar,
+            self.omega_rad_s,
+            self.omega_hat_rad_s,
+            self.load_hat_nm,
+            self.inertia_hat_kg_m2,
+            self.viscous_hat_nm_s_rad,
+            f64::from(self.status_word),
+        ]
+    }
+}
+
+/// The drive's status word, bit by bit.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Default)]
+pub struct DriveStatus {
+    pub word: u16,
+    pub ready: bool,
+    pub running: bool,
+    pub fault: bool,
+    pub comm_loss_trip: bool,
+}
+
+/// Link health of one drive.
+#[derive(Debug, Clone, PartialEq, Serialize, Default)]
+pub struct Link {
+    pub connected: bool,
+    /// No fresh sample (moving sample counter, values in range) for longer than `stale_ms`.
+    pub stale: bool,
+    pub last_error: Option<String>,
+    pub polls: u64,
+    pub errors: u64,
+    pub reconnects: u64,
+    pub rejected_samples: u64,
+    pub writes: u64,
+    /// Milliseconds since the last fresh sample; None before the first.
+    pub sample_age_ms: Option<f64>,
+}
+
+/// Everything known about one drive now: what `/api/status` and the SSE stream show.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DriveSnapshot {
+    pub name: String,
+    pub mode: Mode,
+    pub address: String,
+    pub unit_id: u8,
+    pub target_omega_rad_s: f64,
+    /// The last setpoint written (Hz); None in monitor mode or before the first write.
+    pub setpoint_hz: Option<f64>,
+    pub tripped: bool,
+    pub status: DriveStatus,
+    pub link: Link,
+    pub sample: Option<Point>,
+    pub estimate: Option<Estimate>,
+    pub timing: TimingStats,
+}
+
+/// Requests from the HTTP side, taken by the loop at its next cycle.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Commands {
+    pub target_omega_rad_s: f64,
+    pub reset_requested: bool,
+}
+
+/// One drive's shared state.
+pub struct DriveState {
+    pub name: String,
+    pub mode: Mode,
+    /// The largest target accepted through the API (rad/s).
+    pub max_target_omega_rad_s: f64,
+    stale_after: Duration,
+    snapshot: Mutex<DriveSnapshot>,
+    /// When the last fresh sample arrived, for readiness at query time (a stuck loop still reads as stale).
+    last_fresh: Mutex<Option<Instant>>,
+    history: Mutex<VecDeque<Point>>,
+    history_len: usize,
+    commands: Mutex<Commands>,
+}
+
+impl DriveState {
+    pub fn new(
+        snapshot: DriveSnapshot,
+        max_target_omega_rad_s: f64,
+        stale_after: Duration,
+        history_len: usize,
+    ) -> DriveState {
+        DriveState {
+            name: snapshot.name.clone(),
+            mode: snapshot.mode,
+            max_target_omega_rad_s,
+            stale_after,
+            commands: Mutex::new(Commands { target_omega_rad_s: snapshot.target_omega_rad_s, reset_requested: false }),
+            snapshot: Mutex::new(snapshot),
+            last_fresh: Mutex::new(None),
+            history: Mutex::new(VecDeque::with_capacity(history_len.min(1 << 16))),
+            history_len: history_len.max(1),
+        }
+    }
+
+    pub fn snapshot(&self) -> DriveSnapshot {
+        let mut s = lock(&self.snapshot).clone();
+        let (stale, age) = self.freshness();
+        s.link.stale = stale;
+        s.link.sample_age_ms = age.map(|a| a.as_secs_f64() * 1e3);
+        s
+    }
+
+    /// Stale or not now, and the age of the last fresh sample.
+    fn freshness(&self) -> (bool, Option<Duration>) {
+        let age = lock(&self.last_fresh).map(|t| t.elapsed());
+        (age.is_none_or(|a| a > self.stale_after), age)
+    }
+
+    /// Ready: connected and fresh.
+    pub fn ready(&self) -> bool {
+        let connected = lock(&self.snapshot).link.connected;
+        connected && !self.freshness().0
+    }
+
+    pub fn publish(&self, snapshot: DriveSnapshot) {
+        *lock(&self.snapshot) = snapshot;
+    }
+
+    pub fn mark_fresh(&self, at: Instant) {
+        *lock(&self.last_fresh) = Some(at);
+    }
+
+    pub fn push_history(&self, p: Point) {
+        let mut h = lock(&self.history);
+        if h.len() >= self.history_len {
+            h.pop_front();
+        }
+        h.push_back(p);
+    }
+
+    /// The points of the last `seconds`, at most `max_points` of them (evenly thinned, the newest kept).
+    pub fn history(&self, seconds: f64, max_points: usize) -> Vec<Point> {
+        let h = lock(&self.history);
+        let Some(last) = h.back() else { return Vec::new() };
+        let from = last.t_s - seconds;
+        let start = h.partition_point(|p| p.t_s < from);
+        let n = h.len() - start;
+        let stride = n.div_ceil(max_points.max(1)).max(1);
+        // walk back from the newest so that it is always included
+        let mut out: Vec<Point> = (0..n).rev().step_by(stride).map(|i| h[start + i]).collect();
+        out.reverse();
+        out
+    }
+
+    /// Sets the speed target (already validated).
+    pub fn set_target(&self, omega_rad_s: f64) {
+        lock(&self.commands).target_omega_rad_s = omega_rad_s;
+        lock(&self.snapshot).target_omega_rad_s = omega_rad_s;
+    }
+
+    pub fn request_reset(&self) {
+        lock(&self.commands).reset_requested = true;
+    }
+
+    /// The current commands; a pending reset is taken (handed to the loop once).
+    pub fn take_commands(&self) -> Commands {
+        let mut c = lock(&self.commands);
+        let out = *c;
+        c.reset_requested = false;
+        out
+    }
+}
+
+/// The whole service's shared state.
+pub struct ServiceState {
+    pub drives: Vec<Arc<DriveState>>,
+    pub metrics: Metrics,
+    pub registry: prometheus_client::registry::Registry,
+    /// Where recordings are written; None when recording is off.
+    pub recording_dir: Option<PathBuf>,
+    pub started: Instant,
+}
+
+impl ServiceState {
+    pub fn drive(&self, name: &str) -> Option<&Arc<DriveState>> {
+        self.drives.iter().find(|d| d.name == name)
+    }
+
+    /// Ready when every drive is connected and fresh.
+    pub fn ready(&self) -> bool {
+        self.drives.iter().all(|d| d.ready())
+    }
+
+    pub fn snapshots(&self) -> Vec<DriveSnapshot> {
+        self.drives.iter().map(|d| d.snapshot()).collect()
+    }
+
+    /// The Prometheus text exposition.
+    pub fn metrics_text(&self) -> String {
+        let mut out = String::new();
+        if let Err(e) = prometheus_client::encoding::text::encode(&mut out, &self.registry) {
+            tracing::error!(error = %e, "encoding metrics");
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn point(t: f64) -> Point {
+        Point {
+            t_s: t,
+            f_set_hz: f64::NAN,
+            f_drive_hz: 0.0,
+            p_in_bar: 0.0,
+            p_out_bar: 0.0,
+            omega_rad_s: 0.0,
+            omega_hat_rad_s: 0.0,
+            load_hat_nm: 0.0,
+            inertia_hat_kg_m2: 0.0,
+            viscous_hat_nm_s_rad: 0.0,
+            status_word: 0,
+        }
+    }
+
+    fn state(history_len: usize) -> DriveState {
+        let snap = DriveSnapshot {
+            name: "d".into(),
+            mode: Mode::Monitor,
+            address: "x:1".into(),
+            unit_id: 1,
+            target_omega_rad_s: 0.0,
+            setpoint_hz: None,
+            tripped: false,
+            status: DriveStatus::default(),
+            link: Link::default(),
+            sample: None,
+            estimate: None,
+            timing: TimingStats::default(),
+        };
+        DriveState::new(snap, 100.0, Duration::from_millis(50), history_len)
+    }
+
+    #[test]
+    fn history_ring_keeps_the_newest_and_thins_evenly() {
+        let d = state(100);
+        for k in 0..250 {
+            d.push_history(point(k as f64 * 0.01));
+        }
+        let all = d.history(1e9, 10_000);
+        assert_eq!(all.len(), 100);
+        assert!((all[0].t_s - 1.5).abs() < 1e-9);
+        let last_half_s = d.history(0.505, 10_000);
+        assert_eq!(last_half_s.len(), 51);
+        let thin = d.history(1e9, 10);
+        assert_eq!(thin.len(), 10);
+        assert!((thin[9].t_s - 2.49).abs() < 1e-9, "the newest is kept");
+    }
+
+    #[test]
+    fn stale_until_fresh_and_again_after_the_limit() {
+        let d = state(10);
+        let mut s = d.snapshot();
+        assert!(s.link.stale);
+        s.link.connected = true;
+        d.publish(s);
+        assert!(!d.ready());
+        d.mark_fresh(Instant::now());
+        assert!(d.ready());
+        let earlier = Instant::now().checked_sub(Duration::from_millis(60)).expect("the clock runs");
+        d.mark_fresh(earlier);
+        assert!(!d.ready(), "no fresh sample for 60 ms > 50 ms");
+        assert!(d.snapshot().link.stale);
+    }
+
+    #[test]
+    fn a_reset_is_handed_over_once() {
+        let d = state(10);
+        d.request_reset();
+        d.set_target(12.0);
+        let c = d.take_commands();
+        assert!(c.reset_requested);
+        assert_eq!(c.target_omega_rad_s, 12.0);
+        assert!(!d.take_commands().reset_requested);
+    }
+}

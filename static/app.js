@@ -1,0 +1,175 @@
+// hydrolens dashboard: a card per drive and live charts, fed by /api/history once and /api/events (SSE) after.
+// Test hooks: each card carries data-link, data-mode, data-tripped; each chart box data-points (points plotted);
+// #events data-events counts the snapshots received.
+"use strict";
+
+const WINDOW_S = 60;
+const drives = new Map(); // name -> { card, charts, data, lastT }
+let eventCount = 0;
+
+function fmt(v, digits) {
+  return (v === null || v === undefined || !Number.isFinite(v)) ? "–" : v.toFixed(digits);
+}
+
+function linkState(d) {
+  if (!d.link.connected) return "down";
+  if (d.link.stale) return "stale";
+  if (d.tripped) return "tripped";
+  return "up";
+}
+
+function makeCard(d) {
+  const card = document.createElement("article");
+  card.className = "card";
+  card.dataset.drive = d.name;
+  card.innerHTML = `<h2><span class="name"></span><span class="badge link"></span><span class="badge mode"></span></h2>
+    <dl>
+      <dt>address</dt><dd class="address"></dd>
+      <dt>ω measured</dt><dd class="omega"></dd>
+      <dt>ω̂ estimated</dt><dd class="omega-hat"></dd>
+      <dt>target</dt><dd class="target"></dd>
+      <dt>T̂ load</dt><dd class="load"></dd>
+      <dt>setpoint</dt><dd class="setpoint"></dd>
+      <dt>p in / out</dt><dd class="pressures"></dd>
+      <dt>status</dt><dd class="status"></dd>
+      <dt>polls / errors / reconnects</dt><dd class="counts"></dd>
+      <dt>loop jitter p50 / p99</dt><dd class="jitter"></dd>
+    </dl>`;
+  card.querySelector(".name").textContent = d.name;
+  document.getElementById("cards").appendChild(card);
+  return card;
+}
+
+function chartSize() {
+  const w = Math.max(320, Math.min(560, (document.body.clientWidth - 80) / 3));
+  return { width: Math.floor(w), height: 220 };
+}
+
+function makeChart(parent, title, series) {
+  const box = document.createElement("div");
+  box.className = "chart";
+  box.dataset.points = "0";
+  parent.appendChild(box);
+  const opts = {
+    title, ...chartSize(),
+    scales: { x: { time: false } },
+    axes: [{ label: "t (s)" }, {}],
+    series: [{ label: "t_s" }, ...series.map(([label, stroke, dash]) => ({ label, stroke, width: 1.5, dash }))],
+  };
+  const data = [[], ...series.map(() => [])];
+  const plot = new uPlot(opts, data, box);
+  return { box, plot, data };
+}
+
+function makeDrive(d) {
+  const section = document.createElement("div");
+  section.className = "drive-charts";
+  section.innerHTML = `<h3></h3><div class="chart-row"></div>`;
+  section.querySelector("h3").textContent = d.name;
+  document.getElementById("charts").appendChild(section);
+  const row = section.querySelector(".chart-row");
+  const charts = {
+    pressure: makeChart(row, "pressures (bar)", [["p_in", "#c62828"], ["p_out", "#1565c0"]]),
+    speed: makeChart(row, "speed (rad/s)", [["ω measured", "#9e9e9e"], ["ω̂ estimated", "#1a7f37"], ["target", "#000", [6, 4]]]),
+    load: makeChart(row, "load (N·m) and setpoint (Hz)", [["T̂ load", "#6a1b9a"], ["f set", "#ef6c00"], ["f drive", "#0097a7"]]),
+  };
+  const entry = { card: makeCard(d), charts, lastT: -Infinity, target: d.target_omega_rad_s };
+  drives.set(d.name, entry);
+  fetch(`/api/history?drive=${encodeURIComponent(d.name)}&seconds=${WINDOW_S}&max_points=600`)
+    .then(r => r.ok ? r.json() : null)
+    .then(h => {
+      if (!h) return;
+      for (let i = 0; i < h.t_s.length; i++) {
+        push(entry, {
+          t_s: h.t_s[i], p_in_bar: h.p_in_bar[i], p_out_bar: h.p_out_bar[i], omega_rad_s: h.omega_rad_s[i],
+          omega_hat_rad_s: h.omega_hat_rad_s[i], load_hat_nm: h.load_hat_nm[i], f_set_hz: h.f_set_hz[i],
+          f_drive_hz: h.f_drive_hz[i],
+        }, entry.target, false);
+      }
+      redraw(entry);
+    })
+    .catch(() => {});
+  return entry;
+}
+
+function append(chart, t, values) {
+  chart.data[0].push(t);
+  values.forEach((v, i) => chart.data[i + 1].push(Number.isFinite(v) ? v : null));
+  while (chart.data[0].length > 0 && chart.data[0][0] < t - WINDOW_S) chart.data.forEach(col => col.shift());
+}
+
+function push(entry, p, target) {
+  if (!p || !(p.t_s > entry.lastT)) return;
+  entry.lastT = p.t_s;
+  const c = entry.charts;
+  append(c.pressure, p.t_s, [p.p_in_bar, p.p_out_bar]);
+  append(c.speed, p.t_s, [p.omega_rad_s, p.omega_hat_rad_s, target]);
+  append(c.load, p.t_s, [p.load_hat_nm, p.f_set_hz, p.f_drive_hz]);
+}
+
+function redraw(entry) {
+  for (const c of Object.values(entry.charts)) {
+    c.plot.setData(c.data);
+    c.box.dataset.points = String(c.data[0].length);
+  }
+}
+
+function updateCard(entry, d) {
+  const card = entry.card;
+  const q = sel => card.querySelector(sel);
+  const state = linkState(d);
+  card.dataset.link = state;
+  card.dataset.mode = d.mode;
+  card.dataset.tripped = String(d.tripped);
+  const link = q(".link");
+  link.textContent = state;
+  link.className = "badge link " + (state === "up" ? "ok" : state === "stale" ? "warn" : "bad");
+  q(".mode").textContent = d.mode;
+  q(".address").textContent = `${d.address} · unit ${d.unit_id}`;
+  const s = d.sample, e = d.estimate;
+  q(".omega").textContent = `${fmt(s && s.omega_rad_s, 2)} rad/s`;
+  q(".omega-hat").textContent = `${fmt(e && e.omega_hat_rad_s, 2)} rad/s`;
+  q(".target").textContent = d.mode === "speed" ? `${fmt(d.target_omega_rad_s, 2)} rad/s` : "–";
+  q(".load").textContent = `${fmt(e && e.load_hat_nm, 2)} N·m`;
+  q(".setpoint").textContent = `${fmt(d.setpoint_hz, 2)} Hz`;
+  q(".pressures").textContent = `${fmt(s && s.p_in_bar, 1)} / ${fmt(s && s.p_out_bar, 1)} bar`;
+  const st = d.status;
+  q(".status").textContent = [st.ready && "ready", st.running && "running", st.fault && "FAULT",
+    st.comm_loss_trip && "COMM-LOSS TRIP"].filter(Boolean).join(", ") || "–";
+  q(".counts").textContent = `${d.link.polls} / ${d.link.errors} / ${d.link.reconnects}`;
+  q(".jitter").textContent = `${fmt(d.timing.jitter_p50_ms, 2)} / ${fmt(d.timing.jitter_p99_ms, 2)} ms`;
+}
+
+function onSnapshot(status) {
+  eventCount += 1;
+  const ev = document.getElementById("events");
+  ev.dataset.events = String(eventCount);
+  ev.textContent = `${eventCount} updates`;
+  const ready = document.getElementById("ready");
+  ready.dataset.ready = String(status.ready);
+  ready.textContent = status.ready ? "ready" : "not ready";
+  ready.className = "badge " + (status.ready ? "ok" : "bad");
+  document.getElementById("uptime").textContent = `up ${status.uptime_s.toFixed(0)} s`;
+  for (const d of status.drives) {
+    const entry = drives.get(d.name) || makeDrive(d);
+    entry.target = d.target_omega_rad_s;
+    updateCard(entry, d);
+    push(entry, d.sample, d.mode === "speed" ? d.target_omega_rad_s : null);
+    redraw(entry);
+  }
+}
+
+function connect() {
+  const es = new EventSource("/api/events");
+  es.addEventListener("snapshot", m => {
+    try { onSnapshot(JSON.parse(m.data)); } catch (err) { console.error(err); }
+  });
+  es.onerror = () => {
+    const ready = document.getElementById("ready");
+    ready.textContent = "disconnected";
+    ready.className = "badge bad";
+    ready.dataset.ready = "false";
+  };
+}
+
+connect();

@@ -1,0 +1,136 @@
+//! Fault injection through the simulator's `Faults`: the service stays up, never writes on stale data, counts what
+//! went wrong, reconnects, and tells the truth on /readyz.
+
+use std::time::Duration;
+
+use hydrolens::modbus::simulator::Faults;
+use tokio_modbus::ExceptionCode;
+
+use crate::support::{self, Stack, metric, wait_for};
+
+const SPEED: &str = "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\n";
+
+async fn readyz(stack: &Stack) -> u16 {
+    reqwest::get(format!("{}/readyz", stack.url)).await.expect("GET readyz").status().as_u16()
+}
+
+async fn ready_within(stack: &Stack, limit: Duration) -> Option<Duration> {
+    wait_for(limit, || async { readyz(stack).await == 200 }).await
+}
+
+fn set(stack: &Stack, f: impl FnOnce(&mut Faults)) {
+    f(&mut stack.sim.lock().faults);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stalled_replies_time_out_drop_the_link_and_reconnect() {
+    let run = async {
+        let stack = Stack::start(5.0, 10, SPEED).await;
+        ready_within(&stack, Duration::from_secs(5)).await.expect("ready");
+        set(&stack, |f| f.reply_delay = Some(Duration::from_millis(400))); // > timeout_ms = 100
+        wait_for(Duration::from_secs(3), || async { readyz(&stack).await == 503 })
+            .await
+            .expect("not ready while stalled");
+        let writes_stalled = stack.sim.lock().writes;
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        // requests may still land while the replies are held; none may carry a new setpoint from stale data
+        let m = stack.metrics().await;
+        assert!(
+            metric(&m, "hydrolens_errors_total{drive=\"pump1\",kind=\"timeout\"}").expect("timeouts") >= 1.0,
+            "{m}"
+        );
+        assert_eq!(metric(&m, "hydrolens_stale{drive=\"pump1\"}"), Some(1.0));
+        set(&stack, |f| f.reply_delay = None);
+        let back = ready_within(&stack, Duration::from_secs(3)).await.expect("ready again");
+        let m = stack.metrics().await;
+        assert!(metric(&m, "hydrolens_reconnects_total{drive=\"pump1\"}").expect("reconnects") >= 1.0, "{m}");
+        eprintln!("stall: ready again {:.0} ms after the replies resumed", back.as_secs_f64() * 1e3);
+        assert!(stack.sim.lock().writes >= writes_stalled);
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(25), run).await.expect("bounded");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn frozen_counter_is_stale_and_nothing_is_written() {
+    let run = async {
+        let stack = Stack::start(5.0, 10, SPEED).await;
+        ready_within(&stack, Duration::from_secs(5)).await.expect("ready");
+        set(&stack, |f| f.freeze_counter = true);
+        tokio::time::sleep(Duration::from_millis(100)).await; // a write in flight lands
+        let before = stack.sim.lock().writes;
+        tokio::time::sleep(Duration::from_millis(600)).await;
+        assert_eq!(stack.sim.lock().writes, before, "no writes while the data are frozen");
+        assert_eq!(readyz(&stack).await, 503);
+        let s = stack.status().await;
+        assert_eq!(s["link"]["stale"], true);
+        assert_eq!(s["link"]["connected"], true);
+        set(&stack, |f| f.freeze_counter = false);
+        ready_within(&stack, Duration::from_secs(2)).await.expect("fresh again");
+        wait_for(Duration::from_secs(2), || async { stack.sim.lock().writes > before }).await.expect("writes resume");
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(20), run).await.expect("bounded");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn exceptions_and_out_of_range_values_are_counted_and_rejected() {
+    let run = async {
+        let stack = Stack::start(5.0, 10, SPEED).await;
+        ready_within(&stack, Duration::from_secs(5)).await.expect("ready");
+        set(&stack, |f| f.exception = Some(ExceptionCode::ServerDeviceBusy));
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let m = stack.metrics().await;
+        assert!(metric(&m, "hydrolens_errors_total{drive=\"pump1\",kind=\"exception\"}").expect("exceptions") >= 5.0);
+        assert_eq!(
+            metric(&m, "hydrolens_reconnects_total{drive=\"pump1\"}").unwrap_or(0.0),
+            0.0,
+            "an exception keeps the link"
+        );
+        set(&stack, |f| f.exception = None);
+        ready_within(&stack, Duration::from_secs(2)).await.expect("ready again");
+
+        let hat_before = stack.state.drives[0].snapshot().estimate.expect("estimate");
+        set(&stack, |f| f.inlet_pressure_override_bar = Some(600.0)); // beyond limits.max_pressure_bar = 400
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        let before = stack.sim.lock().writes;
+        tokio::time::sleep(Duration::from_millis(400)).await;
+        assert_eq!(stack.sim.lock().writes, before, "no writes from rejected data");
+        let s = stack.state.drives[0].snapshot();
+        assert!(s.link.rejected_samples >= 20, "{:?}", s.link);
+        let hat = s.estimate.expect("estimate");
+        assert!((hat.load_hat_nm - hat_before.load_hat_nm).abs() < 3.0, "rejected samples never reach the estimator");
+        assert_eq!(readyz(&stack).await, 503);
+        set(&stack, |f| f.inlet_pressure_override_bar = None);
+        ready_within(&stack, Duration::from_secs(2)).await.expect("ready again");
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(20), run).await.expect("bounded");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restarted_server_is_reconnected_within_a_second() {
+    let run = async {
+        let mut stack = Stack::start(5.0, 10, SPEED).await;
+        ready_within(&stack, Duration::from_secs(5)).await.expect("ready");
+        stack.sim_stop.cancel();
+        if let Some(t) = stack.sim_task.take() {
+            tokio::time::timeout(Duration::from_secs(5), t).await.expect("simulator stops").expect("joins");
+        }
+        wait_for(Duration::from_secs(3), || async { readyz(&stack).await == 503 }).await.expect("down");
+        assert_eq!(stack.status().await["link"]["connected"], false);
+        tokio::time::sleep(Duration::from_millis(1500)).await; // the back-off reaches its cap
+        let (sim, _, stop, task) = support::start_sim(support::test_plant(5.0), stack.modbus_addr.port()).await;
+        stack.sim = sim;
+        stack.sim_stop = stop;
+        stack.sim_task = Some(task);
+        let back = ready_within(&stack, Duration::from_secs(3)).await.expect("reconnected");
+        eprintln!("server restart: ready {:.0} ms after the server came back", back.as_secs_f64() * 1e3);
+        assert!(back < Duration::from_millis(1000) + Duration::from_millis(300), "{back:?}");
+        let m = stack.metrics().await;
+        assert!(metric(&m, "hydrolens_reconnects_total{drive=\"pump1\"}").expect("reconnects") >= 1.0);
+        assert!(metric(&m, "hydrolens_errors_total{drive=\"pump1\",kind=\"connect\"}").expect("connect errors") >= 1.0);
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(25), run).await.expect("bounded");
+}

@@ -1,0 +1,165 @@
+//! The HTTP API: bad input gets 4xx with a JSON body (tower `oneshot`, no socket), SSE and metrics over a socket.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::body::Body;
+use axum::http::{Request, StatusCode, header};
+use futures::StreamExt;
+use hydrolens::http::{AppState, router};
+use hydrolens::service;
+use tokio_util::sync::CancellationToken;
+use tower::ServiceExt;
+
+use crate::support::{self, Stack, TOKEN, wait_for};
+
+/// A service whose drive points at a closed port: the router works, the drive is down.
+fn make_app(token: Option<&str>, mode: &str) -> (axum::Router, CancellationToken, tempfile::TempDir) {
+    let dir = tempfile::tempdir().expect("tmp");
+    let text = support::config_text(
+        "127.0.0.1:9".parse().expect("addr"),
+        dir.path(),
+        50,
+        &format!("[drives.control]\nmode = \"{mode}\"\n"),
+    );
+    let settings = service::config::parse(&text, "t", None).expect("valid");
+    let shutdown = CancellationToken::new();
+    let svc = service::start(&settings, shutdown.clone()).expect("starts");
+    let state = AppState {
+        service: svc.state.clone(),
+        token: token.map(Arc::from),
+        max_body_bytes: 1024,
+        shutdown: shutdown.clone(),
+    };
+    (router(state), shutdown, dir)
+}
+
+async fn call(app: &axum::Router, req: Request<Body>) -> (StatusCode, serde_json::Value) {
+    let resp = app.clone().oneshot(req).await.expect("infallible");
+    let status = resp.status();
+    let bytes = axum::body::to_bytes(resp.into_body(), usize::MAX).await.expect("body");
+    let json = serde_json::from_slice(&bytes).unwrap_or(serde_json::Value::Null);
+    (status, json)
+}
+
+fn post(uri: &str, token: Option<&str>, body: impl Into<Body>) -> Request<Body> {
+    let mut b = Request::post(uri).header(header::CONTENT_TYPE, "application/json");
+    if let Some(t) = token {
+        b = b.header(header::AUTHORIZATION, format!("Bearer {t}"));
+    }
+    b.body(body.into()).expect("request")
+}
+
+fn get(uri: &str) -> Request<Body> {
+    Request::get(uri).body(Body::empty()).expect("request")
+}
+
+#[tokio::test]
+async fn bad_input_gets_4xx_with_a_json_error() {
+    let (app, stop, _dir) = make_app(Some(TOKEN), "speed");
+    let target = "/api/drives/pump1/target";
+    let ok_body = r#"{"target_omega_rad_s": 30.0}"#;
+    let cases: Vec<(Request<Body>, StatusCode)> = vec![
+        (post(target, None, ok_body), StatusCode::UNAUTHORIZED),
+        (post(target, Some("nope"), ok_body), StatusCode::UNAUTHORIZED),
+        (post(target, Some(TOKEN), "{not json"), StatusCode::BAD_REQUEST),
+        (post(target, Some(TOKEN), r#"{"target_omega_rad_s": "fast"}"#), StatusCode::BAD_REQUEST),
+        (post(target, Some(TOKEN), r#"{"target_omega_rad_s": 30, "extra": 1}"#), StatusCode::BAD_REQUEST),
+        (post(target, Some(TOKEN), r#"{"target_omega_rad_s": -1}"#), StatusCode::UNPROCESSABLE_ENTITY),
+        (post(target, Some(TOKEN), vec![b' '; 1 << 20]), StatusCode::PAYLOAD_TOO_LARGE),
+        (post("/api/drives/nope/target", Some(TOKEN), ok_body), StatusCode::NOT_FOUND),
+        (post("/api/drives/nope/reset", Some(TOKEN), ""), StatusCode::NOT_FOUND),
+        (get("/api/history?drive=nope"), StatusCode::NOT_FOUND),
+        (get("/api/history"), StatusCode::BAD_REQUEST),
+        (get("/api/history?drive=pump1&seconds=abc"), StatusCode::BAD_REQUEST),
+        (get("/api/history?drive=pump1&seconds=-3"), StatusCode::BAD_REQUEST),
+        (get("/api/recordings/..%2F..%2Fetc%2Fpasswd"), StatusCode::BAD_REQUEST),
+        (get("/api/recordings/none-1.csv"), StatusCode::NOT_FOUND),
+        (get("/no/such/route"), StatusCode::NOT_FOUND),
+        (get("/readyz"), StatusCode::SERVICE_UNAVAILABLE),
+    ];
+    for (req, want) in cases {
+        let what = format!("{} {}", req.method(), req.uri());
+        let (status, json) = call(&app, req).await;
+        assert_eq!(status, want, "{what}: {json}");
+        if what != "GET /readyz" {
+            assert!(json["error"].is_string(), "{what}: a JSON error body, got {json}");
+        }
+    }
+    let (status, json) = call(&app, post(target, Some(TOKEN), ok_body)).await;
+    assert_eq!(status, StatusCode::OK, "{json}");
+    let (status, _) = call(&app, post("/api/drives/pump1/reset", Some(TOKEN), "")).await;
+    assert_eq!(status, StatusCode::ACCEPTED);
+    let (status, json) = call(&app, get("/api/status")).await;
+    assert_eq!(status, StatusCode::OK);
+    assert_eq!(json["drives"][0]["target_omega_rad_s"], 30.0);
+    assert_eq!(json["ready"], false);
+    assert_eq!(call(&app, get("/healthz")).await.0, StatusCode::OK);
+    let page = app.clone().oneshot(get("/")).await.expect("infallible");
+    assert_eq!(page.status(), StatusCode::OK);
+    let html = axum::body::to_bytes(page.into_body(), usize::MAX).await.expect("body");
+    assert!(String::from_utf8_lossy(&html).contains("uPlot.iife.min.js"));
+    assert_eq!(app.clone().oneshot(get("/vendor/uPlot.iife.min.js")).await.expect("ok").status(), StatusCode::OK);
+    stop.cancel();
+}
+
+#[tokio::test]
+async fn write_routes_are_off_without_a_token_and_in_monitor_mode() {
+    let (app, stop, _dir) = make_app(None, "speed");
+    let (status, json) = call(&app, post("/api/drives/pump1/target", Some(""), r#"{"target_omega_rad_s": 1}"#)).await;
+    assert_eq!(status, StatusCode::FORBIDDEN, "{json}");
+    stop.cancel();
+    let (app, stop, _dir) = make_app(Some(TOKEN), "monitor");
+    let (status, _) = call(&app, post("/api/drives/pump1/target", Some(TOKEN), r#"{"target_omega_rad_s": 1}"#)).await;
+    assert_eq!(status, StatusCode::CONFLICT);
+    stop.cancel();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sse_delivers_snapshots_and_metrics_are_exposed() {
+    let run = async {
+        let stack = Stack::start(5.0, 10, "[drives.control]\nmode = \"manual\"\nfixed_hz = 10.0\n").await;
+        wait_for(Duration::from_secs(5), || async { stack.state.ready() }).await.expect("fresh data");
+        let resp = reqwest::get(format!("{}/api/events", stack.url)).await.expect("GET events");
+        assert_eq!(resp.status(), 200);
+        assert!(
+            resp.headers()[reqwest::header::CONTENT_TYPE].to_str().expect("ascii").starts_with("text/event-stream")
+        );
+        let mut body = resp.bytes_stream();
+        let (mut text, mut events, start) = (String::new(), 0, std::time::Instant::now());
+        while events < 5 && start.elapsed() < Duration::from_secs(5) {
+            let chunk = tokio::time::timeout(Duration::from_secs(2), body.next()).await.expect("an event within 2 s");
+            text.push_str(&String::from_utf8_lossy(&chunk.expect("stream open").expect("bytes")));
+            events = text.matches("event: snapshot").count();
+        }
+        assert!(events >= 5, "{text:.300}");
+        let data = text.lines().find_map(|l| l.strip_prefix("data: ")).expect("data line");
+        let snap: serde_json::Value = serde_json::from_str(data).expect("json");
+        assert_eq!(snap["drives"][0]["name"], "pump1");
+        assert_eq!(snap["drives"][0]["mode"], "manual");
+        let elapsed = start.elapsed().as_secs_f64();
+        assert!(elapsed < 1.5, "5 events at ≈10 Hz took {elapsed} s");
+        drop(body);
+
+        let m = stack.metrics().await;
+        for name in [
+            "hydrolens_polls_total{drive=\"pump1\"}",
+            "hydrolens_reconnects_total",
+            "hydrolens_stale{drive=\"pump1\"} 0",
+            "hydrolens_link_up{drive=\"pump1\"} 1",
+            "hydrolens_rejected_samples_total",
+            "hydrolens_loop_period_seconds_bucket",
+            "hydrolens_loop_jitter_p99_seconds{drive=\"pump1\"}",
+            "hydrolens_omega_rad_s{drive=\"pump1\"}",
+            "hydrolens_load_hat_nm{drive=\"pump1\"}",
+            "hydrolens_setpoint_hz{drive=\"pump1\"}",
+        ] {
+            assert!(m.contains(name), "metrics lack {name}:\n{m}");
+        }
+        assert!(support::metric(&m, "hydrolens_polls_total{drive=\"pump1\"}").expect("polls") > 10.0);
+        let ready = reqwest::get(format!("{}/readyz", stack.url)).await.expect("GET readyz");
+        assert_eq!(ready.status(), 200);
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(20), run).await.expect("bounded");
+}

@@ -1,0 +1,187 @@
+//! Simulator + service + HTTP in one process over loopback: regulation, retargeting, monitor mode, estimates,
+//! recordings, loop timing.
+
+use std::time::{Duration, Instant};
+
+use crate::support::{self, Stack, TOKEN, wait_for};
+
+const SPEED: &str =
+    "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 40.0\nmax_hz = 50.0\nramp_hz_per_s = 20.0\n";
+
+/// Seconds until the true speed stays within 5 % of `target` for a whole second (None: not within `limit`).
+async fn settle(stack: &Stack, target: f64, limit: Duration) -> Option<f64> {
+    let start = Instant::now();
+    let mut inside_since: Option<Instant> = None;
+    while start.elapsed() < limit {
+        let omega = stack.sim.lock().truth().omega_rad_s;
+        if (omega - target).abs() <= 0.05 * target {
+            let since = *inside_since.get_or_insert_with(Instant::now);
+            if since.elapsed() >= Duration::from_secs(1) {
+                return Some((since - start).as_secs_f64());
+            }
+        } else {
+            inside_since = None;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    None
+}
+
+async fn post_target(stack: &Stack, target: f64, token: Option<&str>) -> reqwest::StatusCode {
+    let mut req = reqwest::Client::new()
+        .post(format!("{}/api/drives/pump1/target", stack.url))
+        .json(&serde_json::json!({ "target_omega_rad_s": target }));
+    if let Some(t) = token {
+        req = req.bearer_auth(t);
+    }
+    req.send().await.expect("POST target").status()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn speed_mode_regulates_retargets_and_estimates_near_truth() {
+    let run = async {
+        // 1 kHz: the rate rls-sgd is tuned for (the simulator samples at 1 ms)
+        let stack = Stack::start(8.0, 1, SPEED).await;
+        let t1 = settle(&stack, 40.0, Duration::from_secs(10)).await.expect("within 5 % of 40 rad/s in 10 s");
+        // steady-state error and estimates over a second
+        let (mut err2, mut est_omega2, mut load_err, n) = (0.0, 0.0, 0.0, 50);
+        for _ in 0..n {
+            let truth = stack.sim.lock().truth();
+            let s = stack.state.drives[0].snapshot();
+            let e = s.estimate.expect("estimates");
+            err2 += (truth.omega_rad_s - 40.0).powi(2);
+            est_omega2 += (e.omega_hat_rad_s - truth.omega_rad_s).powi(2);
+            load_err += (e.load_hat_nm - truth.load_nm).abs();
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        let (rms, est_rms, load_mae) = ((err2 / n as f64).sqrt(), (est_omega2 / n as f64).sqrt(), load_err / n as f64);
+        assert!(rms < 1.0, "speed error RMS {rms} rad/s");
+        assert!(est_rms < 1.0, "ω̂ RMS error {est_rms} rad/s");
+        assert!(load_mae < 1.5, "T̂_L mean abs error {load_mae} N·m against 8 N·m");
+
+        assert_eq!(post_target(&stack, 25.0, None).await, reqwest::StatusCode::UNAUTHORIZED);
+        assert_eq!(post_target(&stack, 25.0, Some("wrong")).await, reqwest::StatusCode::UNAUTHORIZED);
+        assert_eq!(post_target(&stack, 1e6, Some(TOKEN)).await, reqwest::StatusCode::UNPROCESSABLE_ENTITY);
+        assert_eq!(post_target(&stack, 25.0, Some(TOKEN)).await, reqwest::StatusCode::OK);
+        let t2 = settle(&stack, 25.0, Duration::from_secs(10)).await.expect("within 5 % of 25 rad/s in 10 s");
+        assert_eq!(stack.status().await["target_omega_rad_s"], 25.0);
+        eprintln!(
+            "regulation: settled to 40 rad/s (±5 %) in {t1:.2} s, RMS error {rms:.3} rad/s; ω̂ RMS {est_rms:.3} rad/s, \
+             |T̂_L − T_L| {load_mae:.3} N·m; retarget to 25 rad/s settled in {t2:.2} s"
+        );
+        assert!(!stack.sim.lock().truth().tripped);
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+}
+
+/// At the default 10 ms poll the service sees every tenth plant sample. The Kalman filter (true J and B) keeps its
+/// load estimate there; rls-sgd is tuned for ~1 kHz and lets J drift at 100 Hz (docs/estimator.md, "Sample rate").
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn at_the_default_10_ms_poll_kalman_regulates_and_estimates_near_truth() {
+    let run = async {
+        let config = format!("{SPEED}\n[drives.estimator]\nmethod = \"kalman\"\n");
+        let stack = Stack::start(8.0, 10, &config).await;
+        let t1 = settle(&stack, 40.0, Duration::from_secs(10)).await.expect("within 5 % of 40 rad/s in 10 s");
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        let (mut load_err, mut est_omega2, n) = (0.0, 0.0, 50);
+        for _ in 0..n {
+            let truth = stack.sim.lock().truth();
+            let e = stack.state.drives[0].snapshot().estimate.expect("estimates");
+            load_err += (e.load_hat_nm - truth.load_nm).abs();
+            est_omega2 += (e.omega_hat_rad_s - truth.omega_rad_s).powi(2);
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        let (load_mae, est_rms) = (load_err / n as f64, (est_omega2 / n as f64).sqrt());
+        eprintln!("10 ms poll, kalman: settled in {t1:.2} s; ω̂ RMS {est_rms:.3} rad/s, |T̂_L − T_L| {load_mae:.3} N·m");
+        assert!(est_rms < 1.0, "ω̂ RMS error {est_rms} rad/s");
+        assert!(load_mae < 1.5, "T̂_L mean abs error {load_mae} N·m against 8 N·m");
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn monitor_mode_writes_nothing_and_refuses_write_routes() {
+    let run = async {
+        let stack = Stack::start(5.0, 10, "").await;
+        wait_for(Duration::from_secs(5), || async { stack.state.ready() }).await.expect("fresh data");
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        assert_eq!(post_target(&stack, 30.0, Some(TOKEN)).await, reqwest::StatusCode::CONFLICT);
+        let reset = reqwest::Client::new()
+            .post(format!("{}/api/drives/pump1/reset", stack.url))
+            .bearer_auth(TOKEN)
+            .send()
+            .await
+            .expect("POST reset");
+        assert_eq!(reset.status(), reqwest::StatusCode::CONFLICT);
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        assert_eq!(stack.sim.lock().writes, 0, "monitor mode never writes");
+        let s = stack.status().await;
+        assert_eq!(s["mode"], "monitor");
+        assert!(s["link"]["polls"].as_u64().expect("polls") > 30);
+        assert_eq!(s["setpoint_hz"], serde_json::Value::Null);
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(20), run).await.expect("bounded");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn recordings_hold_every_fresh_sample_and_are_readable() {
+    let run = async {
+        let stack = Stack::start(6.0, 10, SPEED).await;
+        wait_for(Duration::from_secs(5), || async { stack.state.ready() }).await.expect("fresh data");
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        let list: serde_json::Value = reqwest::get(format!("{}/api/recordings", stack.url))
+            .await
+            .expect("GET recordings")
+            .json()
+            .await
+            .expect("json");
+        let name = list["files"][0]["name"].as_str().expect("a recording").to_string();
+        assert!(name.starts_with("pump1-") && name.ends_with(".csv"), "{name}");
+        let live = reqwest::get(format!("{}/api/recordings/{name}", stack.url)).await.expect("GET file");
+        assert_eq!(live.status(), 200);
+        let text = live.text().await.expect("text");
+        assert!(
+            text.starts_with("t_s,f_set_hz,f_drive_hz,p_in_bar,p_out_bar,omega_rad_s,omega_hat_rad_s"),
+            "{text:.80}"
+        );
+        let bad = reqwest::get(format!("{}/api/recordings/..%2Fsecret.csv", stack.url)).await.expect("GET");
+        assert!(bad.status().is_client_error());
+        let dir = stack.stop().await; // closes the file: every row written
+        let rec = hydrolens::recording::load(&dir.path().join(&name)).expect("a valid recording");
+        assert!(rec.len() > 100, "{} rows", rec.len());
+        for col in hydrolens::service::state::COLUMNS {
+            assert!(rec.present(col).is_some(), "column {col}");
+        }
+        let omega = rec.column("omega_rad_s").expect("omega");
+        let hat = rec.column("omega_hat_rad_s").expect("omega_hat");
+        assert!(support::rmse(hat, omega) < 3.0);
+    };
+    tokio::time::timeout(Duration::from_secs(20), run).await.expect("bounded");
+}
+
+/// Loop timing on loopback at 1 ms and 10 ms (the figures go to the test log).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn poll_loop_holds_1_ms_and_10_ms_on_loopback() {
+    let run = async {
+        for poll_ms in [1u64, 10] {
+            let stack = Stack::start(5.0, poll_ms, SPEED).await;
+            tokio::time::sleep(Duration::from_secs(3)).await;
+            let s = stack.state.drives[0].snapshot();
+            let t = s.timing;
+            eprintln!(
+                "poll {poll_ms} ms: mean period {:.3} ms, jitter p50 {:.3} ms, p99 {:.3} ms, overruns {} of {} polls, \
+                 errors {}",
+                t.mean_period_ms, t.jitter_p50_ms, t.jitter_p99_ms, t.overruns, s.link.polls, s.link.errors
+            );
+            let nominal = poll_ms as f64;
+            assert!((t.mean_period_ms - nominal).abs() < 0.25 * nominal, "mean period {} ms", t.mean_period_ms);
+            assert_eq!(s.link.errors, 0);
+            assert!(s.link.polls as f64 > 0.7 * 3000.0 / nominal, "{} polls", s.link.polls);
+            stack.stop().await;
+        }
+    };
+    tokio::time::timeout(Duration::from_secs(30), run).await.expect("bounded");
+}
