@@ -4,6 +4,9 @@
 "use strict";
 
 const WINDOW_S = 60;
+// `?close_after=N` closes the event stream after N snapshots: a headless browser's virtual-time budget can then
+// run out (an open stream counts as a pending fetch and holds virtual time still). Used by the dashboard test.
+const CLOSE_AFTER = Number(new URLSearchParams(location.search).get("close_after")) || 0;
 const drives = new Map(); // name -> { card, charts, data, lastT }
 let eventCount = 0;
 
@@ -73,23 +76,24 @@ function makeDrive(d) {
     speed: makeChart(row, "speed (rad/s)", [["ω measured", "#9e9e9e"], ["ω̂ estimated", "#1a7f37"], ["target", "#000", [6, 4]]]),
     load: makeChart(row, "load (N·m) and setpoint (Hz)", [["T̂ load", "#6a1b9a"], ["f set", "#ef6c00"], ["f drive", "#0097a7"]]),
   };
-  const entry = { card: makeCard(d), charts, lastT: -Infinity, target: d.target_omega_rad_s };
+  const entry = { card: makeCard(d), charts, lastT: -Infinity, target: d.mode === "speed" ? d.target_omega_rad_s : null };
   drives.set(d.name, entry);
-  fetch(`/api/history?drive=${encodeURIComponent(d.name)}&seconds=${WINDOW_S}&max_points=600`)
-    .then(r => r.ok ? r.json() : null)
-    .then(h => {
-      if (!h) return;
-      for (let i = 0; i < h.t_s.length; i++) {
-        push(entry, {
-          t_s: h.t_s[i], p_in_bar: h.p_in_bar[i], p_out_bar: h.p_out_bar[i], omega_rad_s: h.omega_rad_s[i],
-          omega_hat_rad_s: h.omega_hat_rad_s[i], load_hat_nm: h.load_hat_nm[i], f_set_hz: h.f_set_hz[i],
-          f_drive_hz: h.f_drive_hz[i],
-        }, entry.target, false);
-      }
-      redraw(entry);
-    })
-    .catch(() => {});
   return entry;
+}
+
+/// Fills the charts with the last minute from the in-memory history ring.
+async function loadHistory(entry, name) {
+  const r = await fetch(`/api/history?drive=${encodeURIComponent(name)}&seconds=${WINDOW_S}&max_points=600`);
+  if (!r.ok) return;
+  const h = await r.json();
+  for (let i = 0; i < h.t_s.length; i++) {
+    push(entry, {
+      t_s: h.t_s[i], p_in_bar: h.p_in_bar[i], p_out_bar: h.p_out_bar[i], omega_rad_s: h.omega_rad_s[i],
+      omega_hat_rad_s: h.omega_hat_rad_s[i], load_hat_nm: h.load_hat_nm[i], f_set_hz: h.f_set_hz[i],
+      f_drive_hz: h.f_drive_hz[i],
+    }, entry.target);
+  }
+  redraw(entry);
 }
 
 function append(chart, t, values) {
@@ -163,8 +167,13 @@ function connect() {
   const es = new EventSource("/api/events");
   es.addEventListener("snapshot", m => {
     try { onSnapshot(JSON.parse(m.data)); } catch (err) { console.error(err); }
+    if (CLOSE_AFTER && eventCount >= CLOSE_AFTER) {
+      es.close();
+      document.body.dataset.streamClosed = "true";
+    }
   });
   es.onerror = () => {
+    if (CLOSE_AFTER && eventCount >= CLOSE_AFTER) return;
     const ready = document.getElementById("ready");
     ready.textContent = "disconnected";
     ready.className = "badge bad";
@@ -172,4 +181,19 @@ function connect() {
   };
 }
 
-connect();
+// history first, then live points strictly after it
+async function init() {
+  try {
+    const status = await (await fetch("/api/status")).json();
+    for (const d of status.drives) {
+      const entry = makeDrive(d);
+      updateCard(entry, d);
+      await loadHistory(entry, d.name);
+    }
+  } catch (err) {
+    console.error(err);
+  }
+  connect();
+}
+
+init();
