@@ -5,6 +5,7 @@ mod dashboard;
 mod estimator;
 mod faults;
 mod http;
+mod link_faults;
 mod plant;
 mod proxy;
 mod service;

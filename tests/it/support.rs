@@ -109,8 +109,32 @@ impl Stack {
     /// A stack on a plant with a constant load; `drive_extra` as in [`config_text`].
     pub async fn start(load_nm: f64, poll_ms: u64, drive_extra: &str) -> Stack {
         let (sim, modbus_addr, sim_stop, sim_task) = start_sim(test_plant(load_nm), 0).await;
+        Stack::assemble(sim, modbus_addr, modbus_addr, sim_stop, sim_task, poll_ms, drive_extra).await
+    }
+
+    /// As [`Stack::start`], with the service reaching the simulator through a fault-injecting proxy.
+    pub async fn start_behind_proxy(
+        load_nm: f64,
+        poll_ms: u64,
+        drive_extra: &str,
+    ) -> (Stack, crate::proxy::FaultProxy) {
+        let (sim, modbus_addr, sim_stop, sim_task) = start_sim(test_plant(load_nm), 0).await;
+        let proxy = crate::proxy::FaultProxy::start(modbus_addr).await;
+        let stack = Stack::assemble(sim, modbus_addr, proxy.addr, sim_stop, sim_task, poll_ms, drive_extra).await;
+        (stack, proxy)
+    }
+
+    async fn assemble(
+        sim: SimHandle,
+        modbus_addr: SocketAddr,
+        service_reaches: SocketAddr,
+        sim_stop: CancellationToken,
+        sim_task: JoinHandle<()>,
+        poll_ms: u64,
+        drive_extra: &str,
+    ) -> Stack {
         let dir = tempfile::tempdir().expect("tmp");
-        let text = config_text(modbus_addr, dir.path(), poll_ms, drive_extra);
+        let text = config_text(service_reaches, dir.path(), poll_ms, drive_extra);
         let (svc, url, shutdown, http) = start_service(&text).await;
         Stack {
             sim,
