@@ -1,0 +1,81 @@
+//! `hydrolens serve` as a user meets it: a mistyped config exits 2 naming the key, and the token never reaches
+//! the log, even at debug level.
+
+use std::io::Read;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use crate::support::{bin, root};
+
+fn serve(config: &std::path::Path, extra_env: &[(&str, &str)], run_for: Duration) -> (Option<i32>, String) {
+    let mut child = Command::new(bin())
+        .args(["serve", "--config"])
+        .arg(config)
+        .args(["--http", "127.0.0.1:0"])
+        .envs(extra_env.iter().copied())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("starts");
+    let start = Instant::now();
+    let code = loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            break status.code();
+        }
+        if start.elapsed() > run_for {
+            let pid = child.id().to_string();
+            let _ = Command::new("kill").args(["-TERM", &pid]).status();
+            let deadline = Instant::now() + Duration::from_secs(5);
+            while child.try_wait().expect("wait").is_none() {
+                assert!(Instant::now() < deadline, "serve did not stop on SIGTERM");
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut out = String::new();
+    child.stderr.take().expect("stderr").read_to_string(&mut out).expect("utf-8");
+    child.stdout.take().expect("stdout").read_to_string(&mut out).expect("utf-8");
+    (code, out)
+}
+
+#[test]
+fn a_mistyped_service_config_exits_2_naming_the_key() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let good = std::fs::read_to_string(root().join("config/hydrolens.toml")).expect("config");
+    let good =
+        good.replace("model = \"config/plant.toml\"", &format!("model = {:?}", root().join("config/plant.toml")));
+    let cases = [
+        ("unknown.toml", good.replace("poll_ms = 5", "poll_ms = 5\npoll_rate = 3"), "poll_rate"),
+        ("type.toml", good.replace("unit_id = 1", "unit_id = \"one\""), "unit_id"),
+        ("limits.toml", good.replace("min_hz = 0.0", "min_hz = 55.0"), "min_hz"),
+        ("mode.toml", good.replace("mode = \"monitor\"", "mode = \"turbo\""), "mode"),
+        ("register.toml", format!("{good}\n[drives.registers.inlet_pressure_bar]\ntype = \"f64\"\n"), "f64"),
+    ];
+    for (name, text, needle) in cases {
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).expect("write");
+        let (code, out) = serve(&path, &[], Duration::from_secs(10));
+        assert_eq!(code, Some(2), "{name}: {out}");
+        assert!(out.contains(needle) && out.contains(name), "{name}: {out}");
+    }
+}
+
+#[test]
+fn the_token_never_reaches_the_log() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let secret = "s3cr3t-t0ken-4f9a";
+    let text = format!(
+        "[http]\nbind = \"127.0.0.1:0\"\ntoken = \"{secret}\"\n[recording]\ndir = {:?}\n[[drives]]\nname = \"p\"\n\
+         address = \"127.0.0.1:9\"\n[drives.estimator]\nmodel = {:?}\n",
+        dir.path().join("rec"),
+        root().join("config/plant.toml")
+    );
+    let path = dir.path().join("svc.toml");
+    std::fs::write(&path, text).expect("write");
+    let (code, out) = serve(&path, &[("RUST_LOG", "trace")], Duration::from_secs(2));
+    assert_eq!(code, None, "serve keeps running with an unreachable drive: {out}");
+    assert!(out.contains("dashboard on"), "{out}");
+    assert!(!out.contains(secret), "the token is in the log:\n{out}");
+}
