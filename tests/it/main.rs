@@ -11,4 +11,5 @@ mod plant;
 mod proxy;
 mod service;
 mod simulator;
+mod soak;
 mod support;
