@@ -4,7 +4,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds="${1:-60}"
-for target in register_decode recording_csv plant_config; do
+for target in register_decode recording_csv plant_config service_config; do
   mkdir -p "fuzz/corpus/$target"
   echo "== $target ($seconds s)"
   RUSTC_BOOTSTRAP=1 cargo fuzz run -O "$target" "fuzz/corpus/$target" "fuzz/seeds/$target" -- \
