@@ -7,6 +7,7 @@ mod estimator;
 mod faults;
 mod http;
 mod link_faults;
+mod multi;
 mod plant;
 mod proxy;
 mod service;
