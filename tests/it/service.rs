@@ -158,6 +158,21 @@ async fn recordings_hold_every_fresh_sample_and_are_readable() {
         let omega = rec.column("omega_rad_s").expect("omega");
         let hat = rec.column("omega_hat_rad_s").expect("omega_hat");
         assert!(support::rmse(hat, omega) < 3.0);
+        // and `hydrolens estimate` replays it
+        let out = dir.path().join("est.csv");
+        let status = std::process::Command::new(support::bin())
+            .arg("estimate")
+            .arg(dir.path().join(&name))
+            .arg("--model")
+            .arg(support::root().join("config/plant.toml"))
+            .arg("--out")
+            .arg(&out)
+            .status()
+            .expect("estimate runs");
+        assert!(status.success());
+        let est = hydrolens::recording::load(&out).expect("estimate output");
+        assert_eq!(est.len(), rec.len(), "one output row per recorded row");
+        assert!(est.column("load_hat_nm").expect("load").iter().all(|v| v.is_finite()));
     };
     tokio::time::timeout(Duration::from_secs(20), run).await.expect("bounded");
 }
