@@ -1,12 +1,44 @@
-//! Link faults through the byte-level proxy (drop, refuse, garbage, wrong transaction id, wrong byte count, slow
-//! replies), each held long enough to trip the drive's watchdog: the service stays up, is not ready while the link is
-//! bad, writes nothing from stale data, counts the errors, reconnects within a second of the link returning, and after
-//! `POST /reset` regulates again.
+//! Every fault of the harness, each held long enough to trip the drive's watchdog: through the byte-level proxy (drop,
+//! refuse, garbage, wrong transaction id, wrong byte count, slow replies) and in the simulator (stalled replies, no
+//! reply, Modbus exceptions, a frozen sample counter, an out-of-range sensor). The service stays up, is not ready while
+//! the data are bad, writes nothing from stale data, counts what went wrong in `/api/status` and `/metrics`, is ready
+//! again within about a second of the fault clearing, and after `POST /reset` regulates again.
 
 use std::time::{Duration, Instant};
 
-use crate::proxy::Fault;
+use hydrolens::modbus::simulator::Faults;
+use tokio_modbus::ExceptionCode;
+
+use crate::proxy::{Fault, FaultProxy};
 use crate::support::{Stack, TOKEN, metric, wait_for};
+
+/// One fault of the harness and the `/api/status` link counter it must move.
+#[derive(Debug, Clone, Copy)]
+enum Injected {
+    Link(Fault),
+    Sim(Faults, &'static str),
+}
+
+impl Injected {
+    fn counter(&self) -> &'static str {
+        match self {
+            Injected::Link(_) => "errors",
+            Injected::Sim(_, counter) => counter,
+        }
+    }
+
+    fn apply(&self, stack: &Stack, proxy: &FaultProxy) {
+        match *self {
+            Injected::Link(f) => proxy.set(f),
+            Injected::Sim(f, _) => stack.sim.lock().faults = f,
+        }
+    }
+
+    fn clear(&self, stack: &Stack, proxy: &FaultProxy) {
+        proxy.set(Fault::Pass);
+        stack.sim.lock().faults = Faults::default();
+    }
+}
 
 const SPEED: &str = "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\n";
 
@@ -23,21 +55,28 @@ async fn regulating(stack: &Stack, limit: Duration) -> Option<Duration> {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn every_link_fault_is_survived_and_cleared_by_a_reset() {
+async fn every_fault_is_survived_and_cleared_by_a_reset() {
     let run = async {
         let (stack, proxy) = Stack::start_behind_proxy(5.0, 10, SPEED).await;
         regulating(&stack, Duration::from_secs(10)).await.expect("regulating before any fault");
         let client = reqwest::Client::new();
+        let sim = Faults::default();
         for fault in [
-            Fault::Drop,
-            Fault::Refuse,
-            Fault::Garbage,
-            Fault::WrongTransactionId,
-            Fault::WrongByteCount,
-            Fault::Slow(Duration::from_millis(300)),
+            Injected::Link(Fault::Drop),
+            Injected::Link(Fault::Refuse),
+            Injected::Link(Fault::Garbage),
+            Injected::Link(Fault::WrongTransactionId),
+            Injected::Link(Fault::WrongByteCount),
+            Injected::Link(Fault::Slow(Duration::from_millis(300))),
+            Injected::Sim(Faults { reply_delay: Some(Duration::from_millis(400)), ..sim }, "errors"),
+            Injected::Sim(Faults { no_reply: true, ..sim }, "errors"),
+            Injected::Sim(Faults { exception: Some(ExceptionCode::ServerDeviceFailure), ..sim }, "errors"),
+            Injected::Sim(Faults { freeze_counter: true, ..sim }, "polls"),
+            Injected::Sim(Faults { inlet_pressure_override_bar: Some(650.0), ..sim }, "rejected_samples"),
         ] {
-            let errors_before = stack.status().await["link"]["errors"].as_u64().expect("errors");
-            proxy.set(fault);
+            let counter = fault.counter();
+            let count_before = stack.status().await["link"][counter].as_u64().expect("counter");
+            fault.apply(&stack, &proxy);
             wait_for(Duration::from_secs(3), || async { readyz(&stack).await == 503 })
                 .await
                 .unwrap_or_else(|| panic!("{fault:?}: /readyz must say 503"));
@@ -48,15 +87,17 @@ async fn every_link_fault_is_survived_and_cleared_by_a_reset() {
             assert_eq!(stack.sim.lock().writes, writes, "{fault:?}: a write reached the drive from stale data");
             assert!(stack.sim.lock().truth().tripped, "{fault:?}: the drive's watchdog took over");
             let status = stack.status().await;
-            assert!(status["link"]["errors"].as_u64().expect("errors") > errors_before, "{fault:?}: {status}");
+            assert!(status["link"][counter].as_u64().expect("counter") > count_before, "{fault:?}: {status}");
+            assert_eq!(status["link"]["stale"], true, "{fault:?}: {status}");
 
-            proxy.set(Fault::Pass);
+            fault.clear(&stack, &proxy);
             let back = Instant::now();
             wait_for(Duration::from_secs(3), || async { readyz(&stack).await == 200 })
                 .await
                 .unwrap_or_else(|| panic!("{fault:?}: ready again"));
             let reconnect = back.elapsed();
-            assert!(reconnect < Duration::from_millis(1500), "{fault:?}: reconnected after {reconnect:?}");
+            // the back-off is capped at 1 s; add a poll and the readiness check's own granularity
+            assert!(reconnect < Duration::from_millis(1200), "{fault:?}: ready again after {reconnect:?}");
             // tripped: the service never re-arms it by itself
             tokio::time::sleep(Duration::from_millis(300)).await;
             assert!(stack.sim.lock().truth().tripped, "{fault:?}: re-armed without a reset");
@@ -77,7 +118,9 @@ async fn every_link_fault_is_survived_and_cleared_by_a_reset() {
         }
         let m = stack.metrics().await;
         assert!(metric(&m, "hydrolens_reconnects_total{drive=\"pump1\"}").expect("reconnects") >= 6.0, "{m}");
+        assert!(metric(&m, "hydrolens_stale_samples_total{drive=\"pump1\"}").expect("stale samples") >= 1.0, "{m}");
+        assert!(metric(&m, "hydrolens_rejected_samples_total{drive=\"pump1\"}").expect("rejected") >= 1.0, "{m}");
         stack.stop().await;
     };
-    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
+    tokio::time::timeout(Duration::from_secs(180), run).await.expect("bounded");
 }
