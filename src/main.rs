@@ -157,6 +157,18 @@ fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
     tokio::runtime::Builder::new_multi_thread().enable_all().build().context("starting the async runtime")
 }
 
+/// The runtime of `serve` and `demo`, which carries the HTTP side. Its workers run at a lower priority than the
+/// poll threads (each on a thread and runtime of its own, started from the main thread), so that HTTP load cannot
+/// delay the loops.
+fn http_runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .thread_name("http")
+        .on_thread_start(service::timing::lower_thread_priority)
+        .build()
+        .context("starting the async runtime")
+}
+
 /// A token cancelled on Ctrl-C or SIGTERM.
 fn shutdown_on_signal() -> CancellationToken {
     let token = CancellationToken::new();
@@ -315,7 +327,7 @@ fn serve(config: &Path, http_override: Option<&str>) -> anyhow::Result<()> {
     if let Some(h) = http_override {
         settings.http.bind = parse_addr("--http", h)?;
     }
-    runtime()?.block_on(async move {
+    http_runtime()?.block_on(async move {
         let shutdown = shutdown_on_signal();
         run_service(settings, shutdown, |url| eprintln!("hydrolens serve: dashboard on {url}")).await
     })
@@ -339,10 +351,11 @@ async fn run_service(
         shutdown: shutdown.clone(),
     };
     announce(&url);
-    let served = http::serve(listener, state).await;
+    // on the (lower-priority) workers, not on the thread that started the poll loops
+    let served = tokio::spawn(http::serve(listener, state)).await;
     shutdown.cancel();
     svc.wait().await;
-    served.context("http server")
+    served.context("http server task")?.context("http server")
 }
 
 /// A random token for the demo (std's randomly keyed hasher: no extra dependency).
@@ -356,6 +369,9 @@ fn demo_token() -> String {
     }
     out
 }
+
+/// The SCHED_FIFO priority of the demo's poll thread and plant simulator, where the kernel allows it.
+const DEMO_REALTIME_PRIORITY: u8 = 20;
 
 /// The demo's service config: one drive in speed mode against the embedded simulator.
 fn demo_config(
@@ -380,6 +396,8 @@ unit_id = 1
 # every plant sample (the simulator runs at 1 kHz): the rate the rls-sgd estimator is tuned for
 poll_ms = 1
 timeout_ms = 200
+# the poll thread ahead of everything else, where the kernel allows it (else a warning and normal priority)
+realtime_priority = {DEMO_REALTIME_PRIORITY}
 
 [drives.control]
 mode = "speed"
@@ -400,13 +418,30 @@ fn demo(http_addr: &str, modbus_addr: &str, recordings: &Path, target: f64, seed
     }
     let simulator = Simulator::new(PlantModel::reference(), seed)
         .map_err(|(key, msg)| anyhow::anyhow!("the reference plant: {key} {msg}"))?;
-    runtime()?.block_on(async move {
-        let shutdown = shutdown_on_signal();
-        let modbus_listener = tokio::net::TcpListener::bind(modbus_addr)
-            .await
-            .with_context(|| format!("binding modbus {modbus_addr}"))?;
-        let modbus_addr = modbus_listener.local_addr()?;
-        let sim = tokio::spawn(simulator.run(modbus_listener, shutdown.clone()));
+    let modbus_listener =
+        std::net::TcpListener::bind(modbus_addr).with_context(|| format!("binding modbus {modbus_addr}"))?;
+    let modbus_addr = modbus_listener.local_addr()?;
+    modbus_listener.set_nonblocking(true)?;
+    let shutdown = CancellationToken::new();
+    // the plant on a thread and runtime of its own, as a PLC would be: the dashboard's load cannot slow it
+    let plant_stop = shutdown.clone();
+    let plant = std::thread::Builder::new().name("plant-sim".into()).spawn(move || -> anyhow::Result<()> {
+        // as the poll thread: a PLC answers in its own time, whatever the dashboard does
+        service::timing::use_realtime_priority(DEMO_REALTIME_PRIORITY, "plant-sim");
+        let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+        rt.block_on(async move {
+            let listener = tokio::net::TcpListener::from_std(modbus_listener)?;
+            simulator.run(listener, plant_stop).await
+        })
+        .context("simulator")
+    })?;
+    let result = http_runtime()?.block_on(async move {
+        let signalled = shutdown_on_signal();
+        let stop = shutdown.clone();
+        tokio::spawn(async move {
+            signalled.cancelled().await;
+            stop.cancel();
+        });
         let token = demo_token();
         let text = demo_config(modbus_addr, http_addr, recordings, target, &token);
         let settings = service::config::parse(&text, "demo config", None)?;
@@ -420,10 +455,11 @@ fn demo(http_addr: &str, modbus_addr: &str, recordings: &Path, target: f64, seed
         })
         .await;
         shutdown.cancel();
-        match sim.await {
-            Ok(r) => r.context("simulator")?,
-            Err(e) => tracing::error!(error = %e, "simulator task"),
-        }
         result
-    })
+    });
+    match plant.join() {
+        Ok(r) => r?,
+        Err(_) => tracing::error!("the simulator thread panicked"),
+    }
+    result
 }

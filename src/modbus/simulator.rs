@@ -67,6 +67,15 @@ pub struct DriveSim {
     pub faults: Faults,
     /// Writes accepted (all holding-register writes), for tests that check a client wrote nothing.
     pub writes: u64,
+    /// Wall-clock pacing once [`Simulator::run`] has started it; None while stepped by hand.
+    clock: Option<RealTime>,
+}
+
+/// Wall-clock pacing: sample k is due at `start + k·sample`.
+#[derive(Debug, Clone, Copy)]
+struct RealTime {
+    start: std::time::Instant,
+    done: u64,
 }
 
 impl DriveSim {
@@ -91,6 +100,7 @@ impl DriveSim {
             load_nm: 0.0,
             faults: Faults::default(),
             writes: 0,
+            clock: None,
             model,
         };
         sim.refresh_image();
@@ -125,6 +135,23 @@ impl DriveSim {
             s |= status::COMM_LOSS_TRIP;
         }
         s
+    }
+
+    /// Steps every sample that wall time has made due since the clock started, catching up at most one second
+    /// (a stalled process skips ahead rather than racing). Does nothing while the drive is stepped by hand.
+    fn catch_up(&mut self) {
+        let Some(mut clock) = self.clock else { return };
+        let sample_s = self.sample_s();
+        let due = (clock.start.elapsed().as_secs_f64() / sample_s) as u64;
+        let max_catch_up = (1.0 / sample_s).ceil() as u64;
+        if due.saturating_sub(clock.done) > max_catch_up {
+            clock.done = due - max_catch_up;
+        }
+        while clock.done < due {
+            self.step();
+            clock.done += 1;
+        }
+        self.clock = Some(clock);
     }
 
     /// Advances the plant by one sample and refreshes the register image.
@@ -270,6 +297,8 @@ impl tokio_modbus::server::Service for ModbusService {
     fn call(&self, req: Self::Request) -> Self::Future {
         let (reply, faults) = {
             let mut d = self.drive.lock();
+            // the register image is exactly as of now, not as of the clock task's last tick
+            d.catch_up();
             let faults = d.faults;
             let reply = match req.request {
                 Request::ReadInputRegisters(a, n) => d.read(Table::Input, a, n).map(Response::ReadInputRegisters),
@@ -335,29 +364,22 @@ impl Simulator {
     }
 }
 
-/// Steps the drive in real time: as many samples as wall time asks for, catching up at most one second.
+/// Steps the drive in real time: as many samples as wall time asks for, at each tick of a 1 ms-resolution timer;
+/// requests catch up to the exact instant on their own.
 async fn run_clock(drive: SimHandle, shutdown: CancellationToken) {
-    let sample_s = drive.lock().sample_s();
-    let period = Duration::from_secs_f64(sample_s);
+    let period = {
+        let mut d = drive.lock();
+        d.clock = Some(RealTime { start: std::time::Instant::now(), done: 0 });
+        Duration::from_secs_f64(d.sample_s())
+    };
     let mut tick = tokio::time::interval(period);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-    let start = tokio::time::Instant::now();
-    let mut done: u64 = 0;
-    let max_catch_up = (1.0 / sample_s).ceil() as u64;
     loop {
         tokio::select! {
             _ = tick.tick() => {}
             () = shutdown.cancelled() => break,
         }
-        let due = (start.elapsed().as_secs_f64() / sample_s) as u64;
-        if due.saturating_sub(done) > max_catch_up {
-            done = due - max_catch_up;
-        }
-        let mut d = drive.lock();
-        while done < due {
-            d.step();
-            done += 1;
-        }
+        drive.lock().catch_up();
     }
 }
 

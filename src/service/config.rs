@@ -87,6 +87,8 @@ struct RawDrive {
     /// Watchdog refresh period (default 100 ms, well inside the drive's comm timeout / 3).
     #[serde(default = "hundred")]
     watchdog_ms: u64,
+    /// Real-time (SCHED_FIFO) priority of the drive's poll thread, 1..=99; absent: normal scheduling.
+    realtime_priority: Option<u8>,
     #[serde(default)]
     control: RawControl,
     #[serde(default)]
@@ -215,6 +217,8 @@ pub struct DriveSettings {
     pub timeout: Duration,
     pub stale_after: Duration,
     pub watchdog_every: Duration,
+    /// SCHED_FIFO priority for the poll thread (Linux; needs CAP_SYS_NICE or an rtprio limit, else a warning).
+    pub realtime_priority: Option<u8>,
     pub mode: Mode,
     pub target_omega_rad_s: f64,
     pub fixed_hz: f64,
@@ -335,6 +339,11 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
     if !(1..=60_000).contains(&d.watchdog_ms) {
         return Err((key("watchdog_ms"), format!("must be 1 ..= 60000, got {}", d.watchdog_ms)));
     }
+    if let Some(p) = d.realtime_priority
+        && !(1..=99).contains(&p)
+    {
+        return Err((key("realtime_priority"), format!("must be 1 ..= 99 (SCHED_FIFO priority), got {p}")));
+    }
     let stale_ms = d.stale_ms.unwrap_or((5 * d.poll_ms).max(50));
     if stale_ms < d.poll_ms {
         return Err((key("stale_ms"), format!("must be ≥ poll_ms ({}), got {stale_ms}", d.poll_ms)));
@@ -406,6 +415,7 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
         timeout: Duration::from_millis(d.timeout_ms),
         stale_after: Duration::from_millis(stale_ms),
         watchdog_every: Duration::from_millis(d.watchdog_ms),
+        realtime_priority: d.realtime_priority,
         mode: c.mode,
         target_omega_rad_s: target,
         fixed_hz,
@@ -537,6 +547,8 @@ address = "127.0.0.1:5020"
         assert!(err("[http]\nbnd = \"x\"\n").contains("bnd"));
         let e = err(&format!("{MINIMAL}[drives.control]\nmin_hz = 30.0\nmax_hz = 20.0\n"));
         assert!(e.contains("drives[0].control.min_hz"), "{e}");
+        let e = err(&format!("{MINIMAL}realtime_priority = 0\n"));
+        assert!(e.contains("drives[0].realtime_priority") && e.contains("1 ..= 99"), "{e}");
         let e = err(&format!("{MINIMAL}poll_ms = \"fast\"\n"));
         assert!(e.contains("poll_ms"), "{e}");
         let e = err(&format!("{MINIMAL}[drives.registers.inlet_pressure]\naddress = 3\n"));

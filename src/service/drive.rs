@@ -4,17 +4,20 @@
 //! Data are fresh when the sample counter has moved and every value decodes in range. Only fresh data reach the
 //! estimator, and only fresh data lead to a write: on stale data nothing is written, so the drive's own watchdog
 //! takes over. A tripped drive is commanded towards 0 Hz and only re-armed by a reset request from the API.
+//!
+//! Each loop runs on an OS thread of its own with a current-thread runtime, paced by a [`Ticker`]: the HTTP side,
+//! other drives and the recorder never share its thread, so they cannot delay its ticks.
 
 use std::sync::Arc;
 
-use tokio::time::{Instant, MissedTickBehavior};
+use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 use super::config::{DriveSettings, ValidRanges};
 use super::metrics::{DriveLabel, ErrorLabels, Metrics};
 use super::recorder::Recorder;
 use super::state::{DriveSnapshot, DriveState, DriveStatus, Link, Point};
-use super::timing::LoopTiming;
+use super::timing::{LoopTiming, Ticker};
 use crate::control::{Inputs, SpeedLaw};
 use crate::estimator::{Estimate, Estimator, Measurement};
 use crate::modbus::client::{ClientError, DriveClient};
@@ -230,27 +233,36 @@ impl DriveLoop {
         }
     }
 
-    /// Polls until `shutdown`, then closes the connection and the recording.
-    pub async fn run(mut self, shutdown: CancellationToken) {
+    /// The drive's name.
+    pub fn name(&self) -> &str {
+        &self.settings.name
+    }
+
+    /// Polls until `shutdown` on the calling thread, which it takes over: the ticker sleeps it between cycles and
+    /// `rt` (a current-thread runtime of its own) runs each cycle's I/O. Then closes the connection and the
+    /// recording.
+    pub fn run_blocking(mut self, rt: &tokio::runtime::Runtime, shutdown: &CancellationToken) {
         tracing::info!(drive = %self.settings.name, address = %self.settings.address, mode = ?self.settings.mode,
             poll_ms = self.settings.poll.as_secs_f64() * 1e3, "poll loop started");
-        let mut tick = tokio::time::interval(self.settings.poll);
-        tick.set_missed_tick_behavior(MissedTickBehavior::Skip);
-        loop {
-            tokio::select! {
-                biased;
-                () = shutdown.cancelled() => break,
-                _ = tick.tick() => {}
-            }
-            tokio::select! {
-                biased;
-                () = shutdown.cancelled() => break,
-                () = self.cycle() => {}
+        if let Some(p) = self.settings.realtime_priority {
+            super::timing::use_realtime_priority(p, &self.settings.name);
+        }
+        let mut ticker = Ticker::new(self.settings.poll);
+        while ticker.wait(shutdown) {
+            let stopped = rt.block_on(async {
+                tokio::select! {
+                    biased;
+                    () = shutdown.cancelled() => true,
+                    () = self.cycle() => false,
+                }
+            });
+            if stopped {
+                break;
             }
         }
-        self.client.close().await;
+        rt.block_on(self.client.close());
         if let Some(rec) = self.recorder.take() {
-            let _ = tokio::task::spawn_blocking(move || rec.finish()).await;
+            rec.finish();
         }
         tracing::info!(drive = %self.settings.name, "poll loop stopped");
     }

@@ -11,7 +11,6 @@ pub mod timing;
 
 use std::sync::Arc;
 
-use tokio::task::JoinHandle;
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
@@ -27,10 +26,11 @@ use timing::TimingStats;
 /// The running poll loops.
 pub struct Service {
     pub state: Arc<ServiceState>,
-    tasks: Vec<JoinHandle<()>>,
+    threads: Vec<std::thread::JoinHandle<()>>,
 }
 
-/// Starts one poll loop per drive; they stop when `shutdown` is cancelled. Needs a tokio runtime.
+/// Starts one poll loop per drive, each on a thread of its own (named `poll-<drive>`); they stop when `shutdown`
+/// is cancelled.
 pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Result<Service> {
     let (metrics, registry) = Metrics::new();
     let started = Instant::now();
@@ -66,17 +66,40 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
     }
     let state =
         Arc::new(ServiceState { drives, metrics, registry, recording_dir: settings.recording.dir.clone(), started });
-    let tasks = loops.into_iter().map(|l| tokio::spawn(l.run(shutdown.clone()))).collect();
-    Ok(Service { state, tasks })
+    let mut threads = Vec::with_capacity(loops.len());
+    for l in loops {
+        let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+        let stop = shutdown.clone();
+        let spawned =
+            std::thread::Builder::new().name(format!("poll-{}", l.name())).spawn(move || l.run_blocking(&rt, &stop));
+        match spawned {
+            Ok(t) => threads.push(t),
+            Err(e) => {
+                // the loops already started must not outlive a failed start
+                shutdown.cancel();
+                join(threads);
+                return Err(e);
+            }
+        }
+    }
+    Ok(Service { state, threads })
+}
+
+/// Joins poll threads, logging any that panicked.
+fn join(threads: Vec<std::thread::JoinHandle<()>>) {
+    for t in threads {
+        if t.join().is_err() {
+            tracing::error!("a poll loop ended abnormally");
+        }
+    }
 }
 
 impl Service {
     /// Waits until every loop has stopped and closed its recording.
     pub async fn wait(self) {
-        for t in self.tasks {
-            if let Err(e) = t.await {
-                tracing::error!(error = %e, "a poll loop ended abnormally");
-            }
+        let threads = self.threads;
+        if tokio::task::spawn_blocking(move || join(threads)).await.is_err() {
+            tracing::error!("waiting for the poll loops failed");
         }
     }
 }
