@@ -17,7 +17,7 @@ use super::config::{DriveSettings, ValidRanges};
 use super::metrics::{DriveLabel, ErrorLabels, Metrics};
 use super::recorder::Recorder;
 use super::state::{DriveSnapshot, DriveState, DriveStatus, Link, Point};
-use super::timing::{LoopTiming, Ticker};
+use super::timing::{LoopTiming, ThreadSetup, Ticker, use_realtime_priority};
 use crate::control::{Inputs, SpeedLaw};
 use crate::estimator::{Estimate, Estimator, Measurement};
 use crate::modbus::client::{ClientError, DriveClient};
@@ -244,10 +244,9 @@ impl DriveLoop {
     pub fn run_blocking(mut self, rt: &tokio::runtime::Runtime, shutdown: &CancellationToken) {
         tracing::info!(drive = %self.settings.name, address = %self.settings.address, mode = ?self.settings.mode,
             poll_ms = self.settings.poll.as_secs_f64() * 1e3, "poll loop started");
-        if let Some(p) = self.settings.realtime_priority {
-            super::timing::use_realtime_priority(p, &self.settings.name);
-        }
-        let mut ticker = Ticker::new(self.settings.poll);
+        let granted = self.settings.realtime_priority.filter(|&p| use_realtime_priority(p, &self.settings.name));
+        let (mut ticker, timer_slack_ns) = Ticker::new(self.settings.poll);
+        self.timing.thread = ThreadSetup { realtime_priority: granted, timer_slack_ns };
         while ticker.wait(shutdown) {
             let stopped = rt.block_on(async {
                 tokio::select! {

@@ -23,6 +23,17 @@ pub struct LoopTiming {
     periods_s: VecDeque<f64>,
     last_start: Option<tokio::time::Instant>,
     pub overruns: u64,
+    /// How the loop's thread is scheduled, once it runs.
+    pub thread: ThreadSetup,
+}
+
+/// How a poll thread is scheduled: what the status reports so that an operator sees what the kernel granted.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Default)]
+pub struct ThreadSetup {
+    /// The SCHED_FIFO priority in effect; None: normal scheduling.
+    pub realtime_priority: Option<u8>,
+    /// The thread's timer slack (ns): how late the kernel may wake it to batch wake-ups.
+    pub timer_slack_ns: Option<u64>,
 }
 
 /// What the status and the metrics report.
@@ -33,11 +44,19 @@ pub struct TimingStats {
     pub jitter_p50_ms: f64,
     pub jitter_p99_ms: f64,
     pub overruns: u64,
+    #[serde(flatten)]
+    pub thread: ThreadSetup,
 }
 
 impl LoopTiming {
     pub fn new(nominal: Duration) -> LoopTiming {
-        LoopTiming { nominal, periods_s: VecDeque::with_capacity(WINDOW), last_start: None, overruns: 0 }
+        LoopTiming {
+            nominal,
+            periods_s: VecDeque::with_capacity(WINDOW),
+            last_start: None,
+            overruns: 0,
+            thread: ThreadSetup::default(),
+        }
     }
 
     /// A cycle starts; returns the period since the previous start.
@@ -75,6 +94,7 @@ impl LoopTiming {
             jitter_p50_ms: pct(0.5) * 1e3,
             jitter_p99_ms: pct(0.99) * 1e3,
             overruns: self.overruns,
+            thread: self.thread,
         }
     }
 }
@@ -91,10 +111,11 @@ pub struct Ticker {
 }
 
 impl Ticker {
-    /// A ticker whose first tick is now. Also sets the calling thread's timer slack (see the module doc).
-    pub fn new(period: Duration) -> Ticker {
-        tighten_timer_slack();
-        Ticker { period: period.max(Duration::from_micros(1)), next: std::time::Instant::now() }
+    /// A ticker whose first tick is now. Also sets the calling thread's timer slack (see the module doc) and
+    /// returns the slack in effect, where the platform tells.
+    pub fn new(period: Duration) -> (Ticker, Option<u64>) {
+        let slack = tighten_timer_slack();
+        (Ticker { period: period.max(Duration::from_micros(1)), next: std::time::Instant::now() }, slack)
     }
 
     /// Blocks until the next tick; false when `shutdown` fired first.
@@ -138,8 +159,8 @@ pub fn lower_thread_priority() {
 /// Puts the calling thread under SCHED_FIFO at `priority` (1..=99): it then runs as soon as it wakes, ahead of
 /// every normal thread (HTTP, recorders, other programs). The kernel's real-time throttling still keeps 5 % of
 /// each second for normal threads. Without the privilege (CAP_SYS_NICE, or an `rtprio` limit) it logs a warning
-/// and the thread stays at normal priority.
-pub fn use_realtime_priority(priority: u8, what: &str) {
+/// and the thread stays at normal priority. Returns whether the priority was granted.
+pub fn use_realtime_priority(priority: u8, what: &str) -> bool {
     #[cfg(target_os = "linux")]
     {
         use thread_priority::{
@@ -155,21 +176,36 @@ pub fn use_realtime_priority(priority: u8, what: &str) {
             .map_err(|e| format!("{e:?}"))
         });
         match result {
-            Ok(()) => tracing::info!(thread = what, priority, "real-time priority (SCHED_FIFO)"),
-            Err(e) => tracing::warn!(thread = what, priority, error = %e,
-                "cannot use a real-time priority (needs CAP_SYS_NICE or an rtprio limit); normal priority"),
+            Ok(()) => {
+                tracing::info!(thread = what, priority, "real-time priority (SCHED_FIFO)");
+                true
+            }
+            Err(e) => {
+                tracing::warn!(thread = what, priority, error = %e,
+                    "cannot use a real-time priority (needs CAP_SYS_NICE or an rtprio limit); normal priority");
+                false
+            }
         }
     }
     #[cfg(not(target_os = "linux"))]
-    tracing::warn!(thread = what, priority, "real-time priority is only supported on Linux; normal priority");
+    {
+        tracing::warn!(thread = what, priority, "real-time priority is only supported on Linux; normal priority");
+        false
+    }
 }
 
 /// Cuts this thread's timer slack to 1 µs: the kernel may otherwise defer a wake-up by up to 50 µs to batch it.
-fn tighten_timer_slack() {
+/// Returns the slack in effect (ns), where the platform tells.
+fn tighten_timer_slack() -> Option<u64> {
     #[cfg(target_os = "linux")]
-    if let Err(e) = rustix::thread::set_current_timer_slack(std::num::NonZeroU64::new(1_000)) {
-        tracing::debug!(error = %e, "cannot set the poll thread's timer slack; wake-ups may be up to 50 µs late");
+    {
+        if let Err(e) = rustix::thread::set_current_timer_slack(std::num::NonZeroU64::new(1_000)) {
+            tracing::warn!(error = %e, "cannot set the poll thread's timer slack; wake-ups may be up to 50 µs late");
+        }
+        rustix::thread::current_timer_slack().ok()
     }
+    #[cfg(not(target_os = "linux"))]
+    None
 }
 
 #[cfg(test)]
@@ -198,7 +234,7 @@ mod tests {
     fn ticker_keeps_its_schedule_and_skips_missed_ticks() {
         let shutdown = CancellationToken::new();
         let period = Duration::from_millis(5);
-        let mut t = Ticker::new(period);
+        let (mut t, _) = Ticker::new(period);
         let origin = t.next;
         let start = std::time::Instant::now();
         assert!(t.wait(&shutdown));
@@ -216,5 +252,19 @@ mod tests {
         assert_eq!(on_grid, 0, "skipped ticks keep the grid");
         shutdown.cancel();
         assert!(!t.wait(&shutdown), "shutdown ends the wait");
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn http_threads_run_at_a_lower_priority() {
+        let nice = std::thread::spawn(|| {
+            lower_thread_priority();
+            let stat = std::fs::read_to_string("/proc/thread-self/stat").expect("stat");
+            // nice is field 19; fields after the ")" that ends the name start at field 3
+            stat.rsplit_once(')').and_then(|(_, rest)| rest.split_whitespace().nth(19 - 3)?.parse::<i32>().ok())
+        })
+        .join()
+        .expect("thread");
+        assert_eq!(nice, Some(HTTP_NICE));
     }
 }

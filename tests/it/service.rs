@@ -200,3 +200,82 @@ async fn poll_loop_holds_1_ms_and_10_ms_on_loopback() {
     };
     tokio::time::timeout(Duration::from_secs(30), run).await.expect("bounded");
 }
+
+/// The poll thread of a drive, by its name in /proc (Linux): (thread id, scheduling policy).
+fn poll_thread(drive: &str) -> Option<(String, u32)> {
+    let want = format!("poll-{drive}");
+    let read = |dir: &std::path::Path| -> Option<(String, u32)> {
+        if std::fs::read_to_string(dir.join("comm")).ok()?.trim() != want {
+            return None;
+        }
+        let stat = std::fs::read_to_string(dir.join("stat")).ok()?;
+        // the fields after the ")" that ends the name start at field 3; the policy is field 41
+        let policy = stat.rsplit_once(')')?.1.split_whitespace().nth(41 - 3)?.parse().ok()?;
+        Some((dir.file_name()?.to_string_lossy().into_owned(), policy))
+    };
+    // threads come and go while this reads: skip any that cannot be read
+    std::fs::read_dir("/proc/self/task").ok()?.filter_map(|t| read(&t.ok()?.path())).next()
+}
+
+/// Each drive polls on a thread of its own with a 1 µs timer slack; `realtime_priority` puts it under SCHED_FIFO
+/// where the kernel allows it (probed first on a scratch thread), and it stays at normal priority where not.
+#[cfg(target_os = "linux")]
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn each_drive_polls_on_its_own_thread_with_the_priority_asked_for() {
+    use thread_priority::{RealtimeThreadSchedulePolicy, ThreadPriority, ThreadSchedulePolicy};
+    let allowed = std::thread::spawn(|| {
+        thread_priority::set_thread_priority_and_policy(
+            thread_priority::thread_native_id(),
+            ThreadPriority::Crossplatform(5u8.try_into().expect("1..=99")),
+            ThreadSchedulePolicy::Realtime(RealtimeThreadSchedulePolicy::Fifo),
+        )
+        .is_ok()
+    })
+    .join()
+    .expect("probe");
+    let run = async {
+        let (_sim, addr, sim_stop, sim_task) = support::start_sim(support::test_plant(5.0), 0).await;
+        let dir = tempfile::tempdir().expect("tmp");
+        let drive = |name: &str, extra: &str| {
+            format!(
+                "[[drives]]\nname = \"{name}\"\naddress = \"{addr}\"\npoll_ms = 5\n{extra}[drives.estimator]\n\
+                 model = {:?}\n",
+                support::root().join("config/plant.toml")
+            )
+        };
+        let text = format!(
+            "[http]\nbind = \"127.0.0.1:0\"\n[recording]\ndir = {:?}\n{}{}",
+            dir.path().display().to_string(),
+            drive("rt-probe", "realtime_priority = 5\n"),
+            drive("plain", "")
+        );
+        let (svc, url, shutdown, http) = support::start_service(&text).await;
+        wait_for(Duration::from_secs(5), || async { svc.state.drives.iter().all(|d| d.snapshot().link.polls > 10) })
+            .await
+            .expect("both drives poll");
+        let rt = poll_thread("rt-probe").expect("a thread named poll-rt-probe");
+        let plain = poll_thread("plain").expect("a thread named poll-plain");
+        assert_ne!(rt.0, plain.0, "a thread per drive");
+        assert_eq!(plain.1, 0, "no realtime_priority: SCHED_OTHER");
+        assert_eq!(rt.1, if allowed { 1 } else { 0 }, "SCHED_FIFO exactly when the kernel allows it");
+        // and the status says what the kernel granted
+        let status: serde_json::Value =
+            reqwest::get(format!("{url}/api/status")).await.expect("status").json().await.expect("json");
+        let timing = |i: usize| status["drives"][i]["timing"].clone();
+        assert_eq!(
+            timing(0)["realtime_priority"],
+            if allowed { serde_json::json!(5) } else { serde_json::Value::Null }
+        );
+        assert_eq!(timing(1)["realtime_priority"], serde_json::Value::Null);
+        // the kernel gives real-time threads no slack at all
+        assert_eq!(timing(0)["timer_slack_ns"], if allowed { 0 } else { 1_000 }, "{status}");
+        assert_eq!(timing(1)["timer_slack_ns"], 1_000, "{status}");
+        shutdown.cancel();
+        tokio::time::timeout(Duration::from_secs(5), svc.wait()).await.expect("service stops");
+        assert!(poll_thread("rt-probe").is_none(), "the poll thread ended with the service");
+        let _ = http.await;
+        sim_stop.cancel();
+        let _ = sim_task.await;
+    };
+    tokio::time::timeout(Duration::from_secs(20), run).await.expect("bounded");
+}
