@@ -17,7 +17,7 @@ use super::config::{DriveSettings, ValidRanges};
 use super::metrics::{DriveLabel, ErrorLabels, Metrics};
 use super::recorder::Recorder;
 use super::state::{DriveSnapshot, DriveState, DriveStatus, Link, Point};
-use super::timing::{LoopTiming, ThreadSetup, Ticker, use_realtime_priority};
+use super::timing::{LoopTiming, ThreadSetup, Ticker, TimingStats, use_realtime_priority};
 use crate::control::{Inputs, SpeedLaw};
 use crate::estimator::{Estimate, Estimator, Measurement};
 use crate::modbus::client::{ClientError, DriveClient};
@@ -182,7 +182,13 @@ pub struct DriveLoop {
     status: DriveStatus,
     sample: Option<Point>,
     estimate: Option<Estimate>,
+    /// The window's timing statistics, refreshed every [`STATS_EVERY`].
+    stats: TimingStats,
+    stats_at: Option<Instant>,
 }
+
+/// How often the jitter percentiles are recomputed (each is a pass over the 1000-period window).
+const STATS_EVERY: std::time::Duration = std::time::Duration::from_millis(50);
 
 impl DriveLoop {
     pub fn new(
@@ -230,6 +236,8 @@ impl DriveLoop {
             status: DriveStatus::default(),
             sample: None,
             estimate: None,
+            stats: TimingStats::default(),
+            stats_at: None,
         }
     }
 
@@ -434,8 +442,14 @@ impl DriveLoop {
     }
 
     fn publish(&mut self) {
+        let now = Instant::now();
+        if self.stats_at.is_none_or(|t| now.saturating_duration_since(t) >= STATS_EVERY) {
+            self.stats = self.timing.stats();
+            self.stats_at = Some(now);
+        }
+        self.stats.overruns = self.timing.overruns;
+        let stats = self.stats;
         let l = &self.label;
-        let stats = self.timing.stats();
         self.metrics.jitter_p50.get_or_create(l).set(stats.jitter_p50_ms * 1e-3);
         self.metrics.jitter_p99.get_or_create(l).set(stats.jitter_p99_ms * 1e-3);
         let new_overruns = stats.overruns.saturating_sub(self.metrics.overruns.get_or_create(l).get());
