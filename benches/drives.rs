@@ -13,7 +13,7 @@
 //!
 //! Environment: `HYDROLENS_BENCH_CASES` (default `1x1,10x10,50x10`: drives × poll ms), `HYDROLENS_BENCH_SECONDS`
 //! (window, default 20, rounded up to whole status windows), `HYDROLENS_BENCH_RT` (a SCHED_FIFO priority for the
-//! poll threads; default none), `HYDROLENS_BENCH_WRK=1` (wrk -t1 -c32 on /api/status throughout the window; the
+//! poll threads and, through `chrt`, the simulators; default none), `HYDROLENS_BENCH_WRK=1` (wrk -t1 -c32 on /api/status throughout the window; the
 //! table then gives its requests/s). Linux only (/proc).
 
 use std::collections::BTreeMap;
@@ -164,7 +164,16 @@ fn run_case(drives: usize, poll_ms: u64, seconds: f64, rt: Option<u8>, wrk: bool
     let mut children = Children { sims: Vec::new(), serve: None };
     let mut addrs = Vec::new();
     for i in 0..drives {
-        let mut c = Command::new(BIN)
+        // with real-time poll threads the simulators get the same priority (`chrt`), as PLCs have CPUs of their own
+        let mut cmd = match rt {
+            Some(p) => {
+                let mut c = Command::new("chrt");
+                c.args(["-f", &p.to_string(), BIN]);
+                c
+            }
+            None => Command::new(BIN),
+        };
+        let mut c = cmd
             .args(["sim", "--listen", "127.0.0.1:0", "--seed", &(i + 1).to_string(), "--model"])
             .arg(&model)
             .stdout(Stdio::null())
