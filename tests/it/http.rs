@@ -95,6 +95,10 @@ async fn bad_input_gets_4xx_with_a_json_error() {
     assert_eq!(json["drives"][0]["target_omega_rad_s"], 30.0);
     assert_eq!(json["ready"], false);
     assert_eq!(call(&app, get("/healthz")).await.0, StatusCode::OK);
+    for uri in ["/api/status", "/api/history?drive=pump1&seconds=5"] {
+        let resp = app.clone().oneshot(get(uri)).await.expect("infallible");
+        assert_eq!(resp.headers()[header::CONTENT_TYPE], "application/json", "{uri}");
+    }
     let page = app.clone().oneshot(get("/")).await.expect("infallible");
     assert_eq!(page.status(), StatusCode::OK);
     let html = axum::body::to_bytes(page.into_body(), usize::MAX).await.expect("body");
