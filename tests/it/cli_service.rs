@@ -79,3 +79,22 @@ fn the_token_never_reaches_the_log() {
     assert!(out.contains("dashboard on"), "{out}");
     assert!(!out.contains(secret), "the token is in the log:\n{out}");
 }
+
+/// The configs we ship parse (the compose one with its in-container model path pointed at the repository's).
+#[test]
+fn the_shipped_service_configs_are_valid() {
+    let model = format!("{:?}", root().join("config/plant.toml"));
+    for (file, container_model) in [
+        ("config/hydrolens.toml", "\"config/plant.toml\""),
+        ("docker/hydrolens.compose.toml", "\"/opt/hydrolens/config/plant.toml\""),
+    ] {
+        let text = std::fs::read_to_string(root().join(file)).expect("config");
+        assert!(text.contains(container_model), "{file} names its model as {container_model}");
+        let text = text.replace(container_model, &model);
+        let settings = hydrolens::service::config::parse(&text, file, None).unwrap_or_else(|e| panic!("{file}: {e}"));
+        assert!(!settings.drives.is_empty(), "{file}");
+        if file.starts_with("docker/") {
+            assert_eq!(settings.drives[0].realtime_priority, Some(20), "compose grants SYS_NICE for it");
+        }
+    }
+}
