@@ -349,6 +349,7 @@ async fn run_service(
         token: settings.http.token.as_deref().map(std::sync::Arc::from),
         max_body_bytes: settings.http.max_body_bytes,
         shutdown: shutdown.clone(),
+        status_cache: Default::default(),
     };
     announce(&url);
     // on the (lower-priority) workers, not on the thread that started the poll loops

@@ -30,6 +30,28 @@ pub struct AppState {
     pub max_body_bytes: usize,
     /// Ends the event streams so that a graceful shutdown does not wait on them.
     pub shutdown: CancellationToken,
+    /// The last rendered `/api/status` body (see [`STATUS_MAX_AGE`]).
+    pub status_cache: Arc<StatusCache>,
+}
+
+/// How long a rendered `/api/status` body is served to further requests. Requests within it share one rendering
+/// (the first renders while the others wait), so a flood of requests costs at most 1000 renderings a second
+/// however many clients there are: with 50 drives one rendering is ≈ 75 kB of JSON. The snapshots themselves are
+/// as old as the last poll; this adds at most 1 ms. A write route clears it, so a client reads its own writes.
+pub const STATUS_MAX_AGE: Duration = Duration::from_millis(1);
+
+/// See [`STATUS_MAX_AGE`].
+#[derive(Debug, Default)]
+pub struct StatusCache(std::sync::Mutex<Option<(std::time::Instant, Bytes)>>);
+
+impl StatusCache {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Option<(std::time::Instant, Bytes)>> {
+        self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn clear(&self) {
+        *self.lock() = None;
+    }
 }
 
 /// An error answer: a status and a JSON body `{"error": "..."}`. 5xx are logged once, here.
@@ -152,7 +174,25 @@ fn status_body(state: &AppState) -> StatusBody {
 }
 
 async fn status(State(s): State<AppState>) -> Response {
-    json_response(&status_body(&s), 1536 * s.service.drives.len())
+    let now = std::time::Instant::now();
+    let mut cached = s.status_cache.lock();
+    if let Some((at, body)) = &*cached
+        && now.saturating_duration_since(*at) < STATUS_MAX_AGE
+    {
+        return json_bytes(body.clone());
+    }
+    let mut buf = Vec::with_capacity(1536 * s.service.drives.len() + 256);
+    if let Err(e) = serde_json::to_writer(&mut buf, &status_body(&s)) {
+        tracing::error!(error = %e, "serialising the status");
+        return StatusCode::INTERNAL_SERVER_ERROR.into_response();
+    }
+    let body = Bytes::from(buf);
+    *cached = Some((now, body.clone()));
+    json_bytes(body)
+}
+
+fn json_bytes(body: Bytes) -> Response {
+    ([(header::CONTENT_TYPE, HeaderValue::from_static("application/json"))], body).into_response()
 }
 
 /// A JSON body serialised into a buffer sized up front. axum's `Json` grows a small `BytesMut` through many tiny
@@ -160,7 +200,7 @@ async fn status(State(s): State<AppState>) -> Response {
 fn json_response<T: Serialize>(body: &T, size_hint: usize) -> Response {
     let mut buf = Vec::with_capacity(size_hint.max(256));
     match serde_json::to_writer(&mut buf, body) {
-        Ok(()) => ([(header::CONTENT_TYPE, HeaderValue::from_static("application/json"))], buf).into_response(),
+        Ok(()) => json_bytes(Bytes::from(buf)),
         Err(e) => {
             tracing::error!(error = %e, "serialising a response");
             StatusCode::INTERNAL_SERVER_ERROR.into_response()
@@ -302,6 +342,7 @@ async fn set_target(
         ));
     }
     drive.set_target(t.target_omega_rad_s);
+    s.status_cache.clear();
     tracing::info!(drive = %name, target_omega_rad_s = t.target_omega_rad_s, "new speed target");
     Ok(Json(serde_json::json!({ "drive": name, "target_omega_rad_s": t.target_omega_rad_s })))
 }
@@ -317,6 +358,7 @@ async fn reset(
         return Err(ApiError::new(StatusCode::CONFLICT, format!("drive {name:?} is in monitor mode: it never writes")));
     }
     drive.request_reset();
+    s.status_cache.clear();
     tracing::info!(drive = %name, "fault reset requested");
     Ok((StatusCode::ACCEPTED, Json(serde_json::json!({ "drive": name, "reset": "requested" }))))
 }

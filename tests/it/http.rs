@@ -30,6 +30,7 @@ fn make_app(token: Option<&str>, mode: &str) -> (axum::Router, CancellationToken
         token: token.map(Arc::from),
         max_body_bytes: 1024,
         shutdown: shutdown.clone(),
+        status_cache: Default::default(),
     };
     (router(state), shutdown, dir)
 }
@@ -94,6 +95,14 @@ async fn bad_input_gets_4xx_with_a_json_error() {
     assert_eq!(status, StatusCode::OK);
     assert_eq!(json["drives"][0]["target_omega_rad_s"], 30.0);
     assert_eq!(json["ready"], false);
+    // status bodies are shared for up to a millisecond, but a write clears them: a client reads its own writes
+    for t in [20.0, 25.0, 35.0] {
+        let _ = call(&app, get("/api/status")).await;
+        let (status, _) = call(&app, post(target, Some(TOKEN), format!(r#"{{"target_omega_rad_s": {t}}}"#))).await;
+        assert_eq!(status, StatusCode::OK);
+        let (_, json) = call(&app, get("/api/status")).await;
+        assert_eq!(json["drives"][0]["target_omega_rad_s"], t);
+    }
     assert_eq!(call(&app, get("/healthz")).await.0, StatusCode::OK);
     for uri in ["/api/status", "/api/history?drive=pump1&seconds=5"] {
         let resp = app.clone().oneshot(get(uri)).await.expect("infallible");

@@ -100,6 +100,7 @@ pub async fn start_service(text: &str) -> (Service, String, CancellationToken, J
         token: settings.http.token.as_deref().map(Arc::from),
         max_body_bytes: settings.http.max_body_bytes,
         shutdown: shutdown.clone(),
+        status_cache: Default::default(),
     };
     let http = tokio::spawn(http::serve(listener, state));
     (svc, url, shutdown, http)
