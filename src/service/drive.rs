@@ -185,6 +185,8 @@ pub struct DriveLoop {
     /// The window's timing statistics, refreshed every [`STATS_EVERY`].
     stats: TimingStats,
     stats_at: Option<Instant>,
+    /// Points not yet in the history ring (it was being read when they came).
+    pending_history: Vec<Point>,
 }
 
 /// How often the jitter percentiles are recomputed (each is a pass over the 1000-period window).
@@ -238,6 +240,7 @@ impl DriveLoop {
             estimate: None,
             stats: TimingStats::default(),
             stats_at: None,
+            pending_history: Vec::with_capacity(16),
         }
     }
 
@@ -302,10 +305,11 @@ impl DriveLoop {
         }
         self.link.polls += 1;
         self.metrics.polls.get_or_create(&self.label).inc();
-        let commands = self.state.take_commands();
-        self.law.target_omega_rad_s = commands.target_omega_rad_s;
-        if commands.reset_requested && self.settings.mode.writes() {
-            self.reset_phase = 1;
+        if let Some(commands) = self.state.take_commands() {
+            self.law.target_omega_rad_s = commands.target_omega_rad_s;
+            if commands.reset_requested && self.settings.mode.writes() {
+                self.reset_phase = 1;
+            }
         }
 
         match self.read().await {
@@ -383,7 +387,8 @@ impl DriveLoop {
             status_word: sample.status_word,
         };
         self.sample = Some(point);
-        self.state.push_history(point);
+        self.pending_history.push(point);
+        self.state.push_history(&mut self.pending_history);
         if let Some(r) = &self.recorder {
             r.record(point);
         }
@@ -458,7 +463,8 @@ impl DriveLoop {
         self.metrics.target.get_or_create(l).set(self.law.target_omega_rad_s);
         let stale = self.last_fresh_at.is_none_or(|t| t.elapsed() > self.settings.stale_after);
         self.metrics.stale.get_or_create(l).set(i64::from(stale));
-        self.state.publish(DriveSnapshot {
+        // skipped when a reader holds it: the next cycle publishes again
+        let _ = self.state.publish(DriveSnapshot {
             name: self.settings.name.clone(),
             mode: self.settings.mode,
             address: self.settings.address.clone(),

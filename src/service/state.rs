@@ -3,6 +3,7 @@
 
 use std::collections::VecDeque;
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
@@ -129,8 +130,10 @@ pub struct DriveState {
     pub max_target_omega_rad_s: f64,
     stale_after: Duration,
     snapshot: Mutex<DriveSnapshot>,
-    /// When the last fresh sample arrived, for readiness at query time (a stuck loop still reads as stale).
-    last_fresh: Mutex<Option<Instant>>,
+    /// When the last fresh sample arrived, for readiness at query time (a stuck loop still reads as stale): ns
+    /// after `epoch`, plus one; 0 = never.
+    last_fresh_ns: AtomicU64,
+    epoch: Instant,
     history: Mutex<VecDeque<Point>>,
     history_len: usize,
     commands: Mutex<Commands>,
@@ -150,7 +153,9 @@ impl DriveState {
             stale_after,
             commands: Mutex::new(Commands { target_omega_rad_s: snapshot.target_omega_rad_s, reset_requested: false }),
             snapshot: Mutex::new(snapshot),
-            last_fresh: Mutex::new(None),
+            last_fresh_ns: AtomicU64::new(0),
+            // an hour back, so that instants a little before construction still count
+            epoch: Instant::now().checked_sub(Duration::from_secs(3600)).unwrap_or_else(Instant::now),
             history: Mutex::new(VecDeque::with_capacity(history_len.min(1 << 16))),
             history_len: history_len.max(1),
         }
@@ -166,7 +171,8 @@ impl DriveState {
 
     /// Stale or not now, and the age of the last fresh sample.
     fn freshness(&self) -> (bool, Option<Duration>) {
-        let age = lock(&self.last_fresh).map(|t| t.elapsed());
+        let ns = self.last_fresh_ns.load(Ordering::Acquire);
+        let age = (ns > 0).then(|| (self.epoch + Duration::from_nanos(ns - 1)).elapsed());
         (age.is_none_or(|a| a > self.stale_after), age)
     }
 
@@ -176,20 +182,44 @@ impl DriveState {
         connected && !self.freshness().0
     }
 
-    pub fn publish(&self, snapshot: DriveSnapshot) {
-        *lock(&self.snapshot) = snapshot;
-    }
+    // The poll thread never waits for a lock the HTTP side may hold: an HTTP worker runs at a lower priority and
+    // can be preempted while holding one, which would stall a real-time loop (priority inversion). So the loop's
+    // calls below only try the lock, and the loop tries again next cycle.
 
-    pub fn mark_fresh(&self, at: Instant) {
-        *lock(&self.last_fresh) = Some(at);
-    }
-
-    pub fn push_history(&self, p: Point) {
-        let mut h = lock(&self.history);
-        if h.len() >= self.history_len {
-            h.pop_front();
+    /// Replaces the snapshot; false (nothing done) when a reader holds it right now.
+    pub fn publish(&self, snapshot: DriveSnapshot) -> bool {
+        match self.snapshot.try_lock() {
+            Ok(mut s) => {
+                *s = snapshot;
+                true
+            }
+            Err(std::sync::TryLockError::Poisoned(e)) => {
+                *e.into_inner() = snapshot;
+                true
+            }
+            Err(std::sync::TryLockError::WouldBlock) => false,
         }
-        h.push_back(p);
+    }
+
+    /// Lock-free.
+    pub fn mark_fresh(&self, at: Instant) {
+        let ns = u64::try_from(at.saturating_duration_since(self.epoch).as_nanos()).unwrap_or(u64::MAX - 1);
+        self.last_fresh_ns.store(ns + 1, Ordering::Release);
+    }
+
+    /// Moves `points` into the history ring, oldest first; leaves them in `points` when a reader holds the ring.
+    pub fn push_history(&self, points: &mut Vec<Point>) {
+        let mut h = match self.history.try_lock() {
+            Ok(h) => h,
+            Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
+            Err(std::sync::TryLockError::WouldBlock) => return,
+        };
+        for p in points.drain(..) {
+            if h.len() >= self.history_len {
+                h.pop_front();
+            }
+            h.push_back(p);
+        }
     }
 
     /// The points of the last `seconds`, at most `max_points` of them (evenly thinned, the newest kept).
@@ -216,12 +246,17 @@ impl DriveState {
         lock(&self.commands).reset_requested = true;
     }
 
-    /// The current commands; a pending reset is taken (handed to the loop once).
-    pub fn take_commands(&self) -> Commands {
-        let mut c = lock(&self.commands);
+    /// The current commands, a pending reset taken (handed to the loop once); None when the HTTP side holds them
+    /// right now.
+    pub fn take_commands(&self) -> Option<Commands> {
+        let mut c = match self.commands.try_lock() {
+            Ok(c) => c,
+            Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
+            Err(std::sync::TryLockError::WouldBlock) => return None,
+        };
         let out = *c;
         c.reset_requested = false;
-        out
+        Some(out)
     }
 }
 
@@ -301,7 +336,9 @@ mod tests {
     fn history_ring_keeps_the_newest_and_thins_evenly() {
         let d = state(100);
         for k in 0..250 {
-            d.push_history(point(k as f64 * 0.01));
+            let mut pending = vec![point(k as f64 * 0.01)];
+            d.push_history(&mut pending);
+            assert!(pending.is_empty());
         }
         let all = d.history(1e9, 10_000);
         assert_eq!(all.len(), 100);
@@ -319,7 +356,7 @@ mod tests {
         let mut s = d.snapshot();
         assert!(s.link.stale);
         s.link.connected = true;
-        d.publish(s);
+        assert!(d.publish(s));
         assert!(!d.ready());
         d.mark_fresh(Instant::now());
         assert!(d.ready());
@@ -334,9 +371,31 @@ mod tests {
         let d = state(10);
         d.request_reset();
         d.set_target(12.0);
-        let c = d.take_commands();
+        let c = d.take_commands().expect("free");
         assert!(c.reset_requested);
         assert_eq!(c.target_omega_rad_s, 12.0);
-        assert!(!d.take_commands().reset_requested);
+        assert!(!d.take_commands().expect("free").reset_requested);
+    }
+
+    #[test]
+    fn the_loop_side_never_waits_for_a_reader() {
+        let d = state(10);
+        let held = d.snapshot.lock().expect("lock");
+        let snap = held.clone();
+        assert!(!d.publish(snap.clone()), "a held snapshot is left for next cycle");
+        drop(held);
+        assert!(d.publish(snap));
+        let ring = d.history.lock().expect("lock");
+        let mut pending = vec![point(0.0), point(0.01)];
+        d.push_history(&mut pending);
+        assert_eq!(pending.len(), 2, "kept while the ring is held");
+        drop(ring);
+        d.push_history(&mut pending);
+        assert!(pending.is_empty());
+        assert_eq!(d.history(1e9, 100).len(), 2, "in order, nothing lost");
+        let commands = d.commands.lock().expect("lock");
+        assert!(d.take_commands().is_none());
+        drop(commands);
+        assert!(d.take_commands().is_some());
     }
 }
