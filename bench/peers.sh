@@ -224,11 +224,11 @@ if step c; then
     else
       w=nan ours="not available yet (no \`analyze\`)"
     fi
-    projected=$(awk -v r="${SINDY_RATE:-0}" -v n="$rows" 'BEGIN { printf "%.0f", r * n }')
+    projected=$(awk -v r="${SINDY_RATE:-0}" -v n="$rows" 'BEGIN { printf "%.1f", r * n }')
     if [ -z "$SINDY_RATE" ]; then
       peer="not run: PySINDy failed on the ${DURATION_S} s recordings"
       t=nan
-    elif [ "$projected" -gt "$PYSINDY_MAX_S" ]; then
+    elif awk -v p="$projected" -v m="$PYSINDY_MAX_S" 'BEGIN { exit !(p > m) }'; then
       peer="skipped: projected ${projected} s (> ${PYSINDY_MAX_S} s) for the CSV load and $REPEATS fits"
       t=nan
     else
