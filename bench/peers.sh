@@ -3,10 +3,15 @@
 # table. Idempotent; every step is bounded by `timeout`. Not part of CI (README "Benchmarks").
 #   (a) Modbus: one read of 6 input registers, tokio-modbus (benches/modbus.rs) vs pymodbus, same `hydrolens sim`
 #   (b) estimation: `hydrolens estimate` vs padasip's RLS on the same 60 s recording
-#   (c) analysis: `hydrolens analyze` vs PySINDy on the same recording
+#   (c) analysis: `hydrolens analyze` vs PySINDy, what each finds and how long it takes, on a clean recording and on
+#       one with concealed effects (dead time 30 ms + Coulomb friction 0.6 N·m, the nominal model without them);
+#       then wall time, user CPU and max RSS of both on longer concealed-effects recordings
 #   (d) HTTP: wrk on /api/status of `hydrolens demo`
 # Environment: REQUESTS (Modbus requests per run, 5000), ROUNDS (alternating runs per client, 3),
 # REPEATS (timed runs of each offline tool, 3), DURATION_S (recording length, 60),
+# ANALYSIS_DURATIONS (lengths in s of the concealed-effects recordings timed in (c), "600 3600"),
+# PYSINDY_MAX_S (skip PySINDy on a recording where its projected time is longer, 300), PEERS_STEPS (which steps to
+# run, "a b c d"),
 # HYDROLENS_BIN (the binary to measure, target/release/hydrolens). A failed run of ours counts as nan.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -14,6 +19,9 @@ REQUESTS=${REQUESTS:-5000}
 ROUNDS=${ROUNDS:-3}
 REPEATS=${REPEATS:-3}
 DURATION_S=${DURATION_S:-60}
+ANALYSIS_DURATIONS=${ANALYSIS_DURATIONS:-600 3600}
+PYSINDY_MAX_S=${PYSINDY_MAX_S:-300}
+PEERS_STEPS=${PEERS_STEPS:-a b c d}
 WORK=bench/.work
 VENV=bench/.venv
 BIN=${HYDROLENS_BIN:-target/release/hydrolens}
@@ -40,13 +48,42 @@ wall_s() {
   t1=$(date +%s.%N)
   awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.3f", b - a }'
 }
-ratio() { awk -v a="$1" -v b="$2" 'BEGIN { if (a + 0 == 0 || b + 0 == 0) print "n/a"; else printf "%.1f×", a / b }'; }
+ratio() { awk -v a="$1" -v b="$2" 'BEGIN { if (a == "nan" || b == "nan" || a + 0 == 0 || b + 0 == 0) print "n/a"; else printf "%.1f×", a / b }'; }
 free_port() { "$VENV/bin/python" -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
 has_command() { timeout 10 "$BIN" "$1" --help >/dev/null 2>&1; }
+step() { [[ " $PEERS_STEPS " == *" $1 "* ]]; }
+# qfield NAME LINE: the value of NAME="…" in a result line
+qfield() { sed -n "s/.*[[:space:]]$1=\"\([^\"]*\)\".*/\1/p" <<<"$2" | head -n1; }
+# timed LIMIT_S CMD…: "wall_s user_s max_rss_kb", medians of REPEATS runs under /usr/bin/time (output of the last
+# run in $WORK/last.log); "nan nan nan" if none succeeded
+timed() {
+  local limit=$1
+  shift
+  : >"$WORK/times.txt"
+  for _ in $(seq "$REPEATS"); do
+    if timeout "$limit" /usr/bin/time -f '%e %U %M' -o "$WORK/time1.txt" "$@" >"$WORK/last.log" 2>&1; then
+      tail -n1 "$WORK/time1.txt" >>"$WORK/times.txt"
+    fi
+  done
+  local col meds=()
+  for col in 1 2 3; do meds+=("$(awk -v c="$col" '{ print $c }' "$WORK/times.txt" | median)"); done
+  echo "${meds[*]}"
+}
+mb() { awk -v k="$1" 'BEGIN { if (k == "nan") print "nan"; else printf "%.0f", k / 1024 }'; }
+# recording MODEL DURATION_S OUT: simulate it unless OUT exists and was made from the same model
+recording() {
+  if [ ! -s "$3" ] || ! cmp -s "$1" "$3.model"; then
+    say "recording: simulate $2 s of $1"
+    rm -f "$3" "$3.model"
+    timeout $((120 + $2 / 10)) "$BIN" simulate --model "$1" --duration "$2" --seed 1 --out "$3.tmp" 2>/dev/null
+    mv "$3.tmp" "$3"
+    cp "$1" "$3.model"
+  fi
+}
 
 say "building the release binary and the Modbus bench"
 timeout 1200 cargo build --release --locked --quiet
-timeout 1200 cargo bench --locked --quiet --bench modbus --no-run 2>/dev/null
+if step a; then timeout 1200 cargo bench --locked --quiet --bench modbus --no-run 2>/dev/null; fi
 
 if [ ! -x "$VENV/bin/python" ]; then
   say "creating $VENV"
@@ -54,118 +91,193 @@ if [ ! -x "$VENV/bin/python" ]; then
 fi
 if ! cmp -s bench/requirements.txt "$VENV/.installed" 2>/dev/null; then
   say "installing the Python peers (bench/requirements.txt)"
-  timeout 900 "$VENV/bin/pip" install --quiet --disable-pip-version-check -r bench/requirements.txt
+  timeout 900 "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -r bench/requirements.txt
   cp bench/requirements.txt "$VENV/.installed"
 fi
 PY="$VENV/bin/python"
 
 REC="$WORK/rec${DURATION_S}s.csv"
-if [ ! -s "$REC" ]; then
-  say "recording: simulate ${DURATION_S} s"
-  timeout 120 "$BIN" simulate --model config/plant.toml --duration "$DURATION_S" --seed 1 --out "$REC" 2>/dev/null
-fi
+recording config/plant.toml "$DURATION_S" "$REC"
 ROWS=$(($(wc -l <"$REC") - 1))
 
 # (a) Modbus round trip against one `hydrolens sim`, the two clients alternating
-PORT=$(free_port)
-"$BIN" sim --model config/plant.toml --listen "127.0.0.1:$PORT" >"$WORK/sim.log" 2>&1 &
-PIDS+=($!)
-for _ in $(seq 100); do
-  grep -q "plant simulator on" "$WORK/sim.log" && break
-  sleep 0.1
-done
-say "Modbus: $ROUNDS rounds of $REQUESTS reads per client against 127.0.0.1:$PORT"
-: >"$WORK/modbus.txt"
-for round in $(seq "$ROUNDS"); do
-  HYDROLENS_BENCH_ADDR="127.0.0.1:$PORT" HYDROLENS_BENCH_REQUESTS="$REQUESTS" \
-    timeout 120 cargo bench --locked --quiet --bench modbus -- modbus_read6 2>/dev/null | grep modbus_read6 >>"$WORK/modbus.txt"
-  timeout 120 "$PY" bench/modbus_latency.py 127.0.0.1 "$PORT" "$REQUESTS" >>"$WORK/modbus.txt"
-  say "  round $round done"
-done
-HYDROLENS_BENCH_REQUESTS="$REQUESTS" timeout 120 cargo bench --locked --quiet --bench modbus -- modbus_read6 2>/dev/null \
-  | grep modbus_read6 >>"$WORK/modbus.txt"
-kill "${PIDS[-1]}" 2>/dev/null || true
-wait "${PIDS[-1]}" 2>/dev/null || true
-cat "$WORK/modbus.txt" >&2
-for q in p50 p99; do
-  rust=$(grep 'rust-tokio-modbus simulator=external' "$WORK/modbus.txt" | while read -r l; do field ${q}_us "$l"; done | median)
-  py=$(grep 'python-pymodbus' "$WORK/modbus.txt" | while read -r l; do field ${q}_us "$l"; done | median)
-  row "Modbus read of 6 input registers, $q (µs), median of $ROUNDS alternating runs × $REQUESTS" \
-    "$rust (tokio-modbus)" "$py (pymodbus)" "$(ratio "$py" "$rust") (peer ÷ ours)"
-done
-inproc=$(grep 'simulator=in-process' "$WORK/modbus.txt" | tail -n1)
-row "Modbus read of 6, simulator in the same process (µs)" \
-  "p50 $(field p50_us "$inproc"), p99 $(field p99_us "$inproc")" "—" "—"
+if step a; then
+  PORT=$(free_port)
+  "$BIN" sim --model config/plant.toml --listen "127.0.0.1:$PORT" >"$WORK/sim.log" 2>&1 &
+  PIDS+=($!)
+  for _ in $(seq 100); do
+    grep -q "plant simulator on" "$WORK/sim.log" && break
+    sleep 0.1
+  done
+  say "Modbus: $ROUNDS rounds of $REQUESTS reads per client against 127.0.0.1:$PORT"
+  : >"$WORK/modbus.txt"
+  for round in $(seq "$ROUNDS"); do
+    HYDROLENS_BENCH_ADDR="127.0.0.1:$PORT" HYDROLENS_BENCH_REQUESTS="$REQUESTS" \
+      timeout 120 cargo bench --locked --quiet --bench modbus -- modbus_read6 2>/dev/null | grep modbus_read6 >>"$WORK/modbus.txt"
+    timeout 120 "$PY" bench/modbus_latency.py 127.0.0.1 "$PORT" "$REQUESTS" >>"$WORK/modbus.txt"
+    say "  round $round done"
+  done
+  HYDROLENS_BENCH_REQUESTS="$REQUESTS" timeout 120 cargo bench --locked --quiet --bench modbus -- modbus_read6 2>/dev/null \
+    | grep modbus_read6 >>"$WORK/modbus.txt"
+  kill "${PIDS[-1]}" 2>/dev/null || true
+  wait "${PIDS[-1]}" 2>/dev/null || true
+  cat "$WORK/modbus.txt" >&2
+  for q in p50 p99; do
+    rust=$(grep 'rust-tokio-modbus simulator=external' "$WORK/modbus.txt" | while read -r l; do field ${q}_us "$l"; done | median)
+    py=$(grep 'python-pymodbus' "$WORK/modbus.txt" | while read -r l; do field ${q}_us "$l"; done | median)
+    row "Modbus read of 6 input registers, $q (µs), median of $ROUNDS alternating runs × $REQUESTS" \
+      "$rust (tokio-modbus)" "$py (pymodbus)" "$(ratio "$py" "$rust") (peer ÷ ours)"
+  done
+  inproc=$(grep 'simulator=in-process' "$WORK/modbus.txt" | tail -n1)
+  row "Modbus read of 6, simulator in the same process (µs)" \
+    "p50 $(field p50_us "$inproc"), p99 $(field p99_us "$inproc")" "—" "—"
+fi
 
 # (b) estimation: padasip's RLS vs `hydrolens estimate`
-say "padasip RLS on $ROWS rows"
-pad=$(timeout 300 "$PY" bench/padasip_rls.py "$REC" "$REPEATS")
-echo "$pad" >&2
-pad_rps=$(field rows_per_s "$pad")
-if has_command estimate; then
-  times=()
-  for _ in $(seq "$REPEATS"); do
-    times+=("$(wall_s "$BIN" estimate "$REC" --model config/plant.toml --out "$WORK/est.csv" || echo nan)")
-  done
-  est_s=$(printf '%s\n' "${times[@]}" | grep -v nan | median)
-  ours_rps=$(awk -v n="$ROWS" -v s="$est_s" 'BEGIN { if (s + 0 > 0) printf "%.0f", n / s; else print "failed" }')
-  row "RLS on a ${DURATION_S} s recording, rows/s end to end incl. CSV (median of $REPEATS)" \
-    "$ours_rps (hydrolens estimate)" "$pad_rps (padasip FilterRLS, numpy.loadtxt)" "$(ratio "$ours_rps" "$pad_rps") (ours ÷ peer)"
-else
-  row "RLS on a ${DURATION_S} s recording, rows/s end to end incl. CSV (median of $REPEATS)" \
-    "not available yet (no \`estimate\`)" "$pad_rps (padasip FilterRLS, numpy.loadtxt)" "—"
+if step b; then
+  say "padasip RLS on $ROWS rows"
+  pad=$(timeout 300 "$PY" bench/padasip_rls.py "$REC" "$REPEATS")
+  echo "$pad" >&2
+  pad_rps=$(field rows_per_s "$pad")
+  if has_command estimate; then
+    times=()
+    for _ in $(seq "$REPEATS"); do
+      times+=("$(wall_s "$BIN" estimate "$REC" --model config/plant.toml --out "$WORK/est.csv" || echo nan)")
+    done
+    est_s=$(printf '%s\n' "${times[@]}" | grep -v nan | median)
+    ours_rps=$(awk -v n="$ROWS" -v s="$est_s" 'BEGIN { if (s + 0 > 0) printf "%.0f", n / s; else print "failed" }')
+    row "RLS on a ${DURATION_S} s recording, rows/s end to end incl. CSV (median of $REPEATS)" \
+      "$ours_rps (hydrolens estimate)" "$pad_rps (padasip FilterRLS, numpy.loadtxt)" "$(ratio "$ours_rps" "$pad_rps") (ours ÷ peer)"
+  else
+    row "RLS on a ${DURATION_S} s recording, rows/s end to end incl. CSV (median of $REPEATS)" \
+      "not available yet (no \`estimate\`)" "$pad_rps (padasip FilterRLS, numpy.loadtxt)" "—"
+  fi
+  row "padasip RLS alone (CSV load excluded), rows/s" "—" "$(field rls_rows_per_s "$pad")" "—"
 fi
-row "padasip RLS alone (CSV load excluded), rows/s" "—" "$(field rls_rows_per_s "$pad")" "—"
 
-# (c) analysis: PySINDy vs `hydrolens analyze`
-say "PySINDy on $ROWS rows"
-sindy=$(timeout 300 "$PY" bench/pysindy_fit.py "$REC" "$REPEATS")
-echo "$sindy" >&2
-while read -r line; do
-  eq=$(sed -n 's/.*equation="\(.*\)"/\1/p' <<<"$line")
-  row "PySINDy fit (STLSQ) of omega' on ω, $(field inputs "$line"), sign(ω), 1: s, median of $REPEATS" "—" \
-    "$(field fit_s "$line") s (+ $(field load_s "$line") s numpy.loadtxt): \`$eq\`" "—"
-done <<<"$sindy"
-if has_command analyze; then
-  times=()
-  for _ in $(seq "$REPEATS"); do
-    times+=("$(wall_s "$BIN" analyze "$REC" --model config/plant.toml --json "$WORK/analysis.json" || echo nan)")
+# (c) analysis: `hydrolens analyze` vs PySINDy, what each finds and how long it takes. PySINDy fits the speed equation
+# with the candidate terms of the analysis it can express (ω, Δp, the measured load, sign(ω), a constant; not a dead
+# time, entrained air, leakage/slip or Stribeck: see bench/pysindy_fit.py), and its coefficients are turned into the
+# parameters `analyze` reports. Recordings: the reference plant clean, and with a dead time of 30 ms and a Coulomb
+# friction of 0.6 N·m that the nominal model (config/plant.toml, the one both are given) does not have.
+if step c; then
+  EFFECTS="$WORK/plant_dead_time_coulomb.toml"
+  {
+    cat config/plant.toml
+    printf '\n[effects.dead_time]\nms = 30.0\n\n[effects.coulomb_friction]\ntorque_nm = 0.6\n'
+  } >"$EFFECTS.tmp"
+  if cmp -s "$EFFECTS.tmp" "$EFFECTS"; then rm -f "$EFFECTS.tmp"; else mv "$EFFECTS.tmp" "$EFFECTS"; fi
+  J=$(sed -n 's/^inertia_kg_m2[[:space:]]*=[[:space:]]*//p' config/plant.toml)
+  B=$(sed -n 's/^viscous_nm_s_rad[[:space:]]*=[[:space:]]*//p' config/plant.toml)
+  has_analyze=$(has_command analyze && echo yes || echo no)
+  # summary JSON: one line of what an analysis found
+  summary() { "$PY" bench/analysis_summary.py "$1" 2>/dev/null || echo "no analysis (failed)"; }
+  SINDY_RATE="" # s of PySINDy (CSV load + REPEATS fits of the full library) per row, from the DURATION_S runs
+
+  # side LABEL TRUTH REC TAG: what each finds on one recording, and in what time
+  side() {
+    local label=$1 truth=$2 rec=$3 tag=$4 rows sindy full issue ours t w u m
+    rows=$(($(wc -l <"$rec") - 1))
+    say "analysis, $label: PySINDy, then hydrolens analyze ($rows rows)"
+    sindy=$(timeout 300 "$PY" bench/pysindy_fit.py "$rec" "$REPEATS" || true)
+    echo "$sindy" >&2
+    full=$(grep 'inputs=dP+load ' <<<"$sindy" || true)
+    issue=$(grep 'inputs=dP ' <<<"$sindy" || true)
+    if [ "$has_analyze" = yes ]; then
+      rm -f "$WORK/analysis_$tag.json"
+      read -r w u m <<<"$(timed 300 "$BIN" analyze "$rec" --model config/plant.toml --json "$WORK/analysis_$tag.json")"
+      ours=$(summary "$WORK/analysis_$tag.json")
+    else
+      w=nan u=nan m=nan ours="not available yet (no \`analyze\`)"
+    fi
+    row "$label, ${DURATION_S} s: what is found (truth: $truth)" "$ours" \
+      "PySINDy ω' on ω, Δp, load, sign(ω), 1: ${full:+$(qfield found "$full"); \`$(qfield equation "$full")\`}" "—"
+    row "$label, ${DURATION_S} s: PySINDy with the issue's terms only (no load)" "—" \
+      "${issue:+$(qfield found "$issue"); \`$(qfield equation "$issue")\`}" "—"
+    t=$(awk -v f="$(field fit_s "$full")" -v l="$(field load_s "$full")" 'BEGIN { if (f == "") print "nan"; else printf "%.3f", f + l }')
+    row "$label, ${DURATION_S} s: s incl. reading the CSV (median of $REPEATS)" \
+      "$w s wall, $u s user, $(mb "$m") MB max RSS" \
+      "${full:+$(field fit_s "$full") s fit (Δp+load) + $(field load_s "$full") s numpy.loadtxt}" \
+      "$(ratio "$w" "$t") (ours ÷ peer, time)"
+    if [ -n "$full" ]; then
+      SINDY_RATE=$(awk -v f="$(field fit_s "$full")" -v l="$(field load_s "$full")" -v r="$REPEATS" -v n="$rows" \
+        'BEGIN { printf "%.3g", (l + r * f) / n }')
+    fi
+  }
+
+  REC_EFFECTS="$WORK/rec_dead_time_coulomb_${DURATION_S}s.csv"
+  recording "$EFFECTS" "$DURATION_S" "$REC_EFFECTS"
+  side "clean recording" "nothing missing; J $J, B $B" "$REC" clean
+  side "concealed effects" "dead_time 30 ms, coulomb_friction 0.6 N·m; J $J, B $B" "$REC_EFFECTS" effects
+
+  # timing rows: longer concealed-effects recordings
+  for d in $ANALYSIS_DURATIONS; do
+    rec="$WORK/rec_dead_time_coulomb_${d}s.csv"
+    recording "$EFFECTS" "$d" "$rec"
+    rows=$(($(wc -l <"$rec") - 1))
+    label="concealed effects, ${d} s ($rows rows): wall / user CPU / max RSS incl. CSV"
+    if [ "$has_analyze" = yes ]; then
+      say "hydrolens analyze on $d s ($rows rows), $REPEATS runs"
+      rm -f "$WORK/analysis_effects_${d}s.json"
+      read -r w u m <<<"$(timed $((120 + d / 5)) "$BIN" analyze "$rec" --model config/plant.toml --json "$WORK/analysis_effects_${d}s.json")"
+      ours="$w s / $u s / $(mb "$m") MB (median of $REPEATS); $(summary "$WORK/analysis_effects_${d}s.json")"
+    else
+      w=nan ours="not available yet (no \`analyze\`)"
+    fi
+    projected=$(awk -v r="${SINDY_RATE:-0}" -v n="$rows" 'BEGIN { printf "%.1f", r * n }')
+    if [ -z "$SINDY_RATE" ]; then
+      peer="not run: PySINDy failed on the ${DURATION_S} s recordings"
+      t=nan
+    elif awk -v p="$projected" -v m="$PYSINDY_MAX_S" 'BEGIN { exit !(p > m) }'; then
+      peer="skipped: projected ${projected} s (> ${PYSINDY_MAX_S} s) for the CSV load and $REPEATS fits"
+      t=nan
+    else
+      say "PySINDy on $d s ($rows rows), $REPEATS fits"
+      if out=$(timeout 600 /usr/bin/time -f '%e %U %M' -o "$WORK/time1.txt" \
+        "$PY" bench/pysindy_fit.py "$rec" "$REPEATS" --only dP+load 2>/dev/null); then
+        echo "$out" >&2
+        read -r pw pu pm <<<"$(tail -n1 "$WORK/time1.txt")"
+        t=$(awk -v f="$(field fit_s "$out")" -v l="$(field load_s "$out")" 'BEGIN { printf "%.3f", f + l }')
+        peer="$(field fit_s "$out") s fit (median of $REPEATS) + $(field load_s "$out") s numpy.loadtxt; process (import, load, $REPEATS fits) $pw s / $pu s / $(mb "$pm") MB; $(qfield found "$out")"
+      else
+        peer="failed or over 600 s"
+        t=nan
+      fi
+    fi
+    row "$label" "$ours" "$peer" "$(ratio "$w" "$t") (ours ÷ peer, time)"
   done
-  an_s=$(printf '%s\n' "${times[@]}" | grep -v nan | median)
-  found=$("$PY" -c 'import json,sys; d=json.load(open(sys.argv[1])); print(", ".join(f["effect"] for f in d.get("findings", [])) or "no findings")' "$WORK/analysis.json" 2>/dev/null || echo "?")
-  row "analyze a ${DURATION_S} s recording: s incl. CSV (median of $REPEATS)" "$an_s s: $found" "see the PySINDy rows" "—"
-else
-  row "analyze a ${DURATION_S} s recording" "not available yet (no \`analyze\`)" "see the PySINDy rows" "—"
 fi
 
 # (d) HTTP: wrk on /api/status of the demo
-if has_command demo; then
-  if ! command -v wrk >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
-    say "installing wrk"
-    (apt-get install -y -qq wrk >/dev/null 2>&1 || (apt-get update -qq && apt-get install -y -qq wrk >/dev/null 2>&1)) || true
-  fi
-  if curl -s -o /dev/null --max-time 2 http://127.0.0.1:8080/ 2>/dev/null; then
-    row "HTTP GET /api/status" "not measured: something else already serves 127.0.0.1:8080" "—" "—"
-  elif command -v wrk >/dev/null 2>&1; then
-    "$BIN" demo >"$WORK/demo.log" 2>&1 &
-    PIDS+=($!)
-    for _ in $(seq 100); do
-      curl -sf http://127.0.0.1:8080/api/status >/dev/null 2>&1 && break
-      sleep 0.1
-    done
-    out=$(timeout 60 wrk -t2 -c32 -d10s --latency http://127.0.0.1:8080/api/status 2>&1 || true)
-    echo "$out" >&2
-    rps=$(sed -n 's/^Requests\/sec:[[:space:]]*\([0-9.]*\).*/\1/p' <<<"$out")
-    p99=$(sed -n 's/^[[:space:]]*99%[[:space:]]*\([^[:space:]]*\).*/\1/p' <<<"$out")
-    bad=$(sed -n 's/^[[:space:]]*Non-2xx or 3xx responses:[[:space:]]*\([0-9]*\).*/, \1 of them not 2xx/p' <<<"$out")
-    row "HTTP GET /api/status, wrk -t2 -c32 -d10s (demo running)" "${rps:-?} req/s, p99 ${p99:-?}${bad}" "—" "—"
-    kill "${PIDS[-1]}" 2>/dev/null || true
-    wait "${PIDS[-1]}" 2>/dev/null || true
+if step d; then
+  if has_command demo; then
+    if ! command -v wrk >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+      say "installing wrk"
+      (apt-get install -y -qq wrk >/dev/null 2>&1 || (apt-get update -qq && apt-get install -y -qq wrk >/dev/null 2>&1)) || true
+    fi
+    if curl -s -o /dev/null --max-time 2 http://127.0.0.1:8080/ 2>/dev/null; then
+      row "HTTP GET /api/status" "not measured: something else already serves 127.0.0.1:8080" "—" "—"
+    elif command -v wrk >/dev/null 2>&1; then
+      "$BIN" demo >"$WORK/demo.log" 2>&1 &
+      PIDS+=($!)
+      for _ in $(seq 100); do
+        curl -sf http://127.0.0.1:8080/api/status >/dev/null 2>&1 && break
+        sleep 0.1
+      done
+      out=$(timeout 60 wrk -t2 -c32 -d10s --latency http://127.0.0.1:8080/api/status 2>&1 || true)
+      echo "$out" >&2
+      rps=$(sed -n 's/^Requests\/sec:[[:space:]]*\([0-9.]*\).*/\1/p' <<<"$out")
+      p99=$(sed -n 's/^[[:space:]]*99%[[:space:]]*\([^[:space:]]*\).*/\1/p' <<<"$out")
+      bad=$(sed -n 's/^[[:space:]]*Non-2xx or 3xx responses:[[:space:]]*\([0-9]*\).*/, \1 of them not 2xx/p' <<<"$out")
+      row "HTTP GET /api/status, wrk -t2 -c32 -d10s (demo running)" "${rps:-?} req/s, p99 ${p99:-?}${bad}" "—" "—"
+      kill "${PIDS[-1]}" 2>/dev/null || true
+      wait "${PIDS[-1]}" 2>/dev/null || true
+    else
+      row "HTTP GET /api/status" "not measured: wrk could not be installed" "—" "—"
+    fi
   else
-    row "HTTP GET /api/status" "not measured: wrk could not be installed" "—" "—"
+    row "HTTP GET /api/status" "not available yet (no \`demo\`)" "—" "—"
   fi
-else
-  row "HTTP GET /api/status" "not available yet (no \`demo\`)" "—" "—"
 fi
 
 echo
