@@ -187,6 +187,8 @@ pub struct DriveLoop {
     stats_at: Option<Instant>,
     /// Points not yet in the history ring (it was being read when they came).
     pending_history: Vec<Point>,
+    /// Where in its period this loop ticks, see [`DriveLoop::stagger`].
+    phase: std::time::Duration,
 }
 
 /// How often the jitter percentiles are recomputed (each is a pass over the 1000-period window).
@@ -241,7 +243,15 @@ impl DriveLoop {
             stats: TimingStats::default(),
             stats_at: None,
             pending_history: Vec::with_capacity(16),
+            phase: std::time::Duration::ZERO,
         }
+    }
+
+    /// Spreads the loops' ticks over their period: loop `index` of `count` ticks `index/count` of a period after
+    /// the first. Loops started together would otherwise all wake at the same instant, with their simulators or
+    /// PLC replies, and queue for the cores: the last of 50 waited milliseconds.
+    pub fn stagger(&mut self, index: usize, count: usize) {
+        self.phase = self.settings.poll.mul_f64(index as f64 / count.max(1) as f64);
     }
 
     /// The drive's name.
@@ -256,7 +266,7 @@ impl DriveLoop {
         tracing::info!(drive = %self.settings.name, address = %self.settings.address, mode = ?self.settings.mode,
             poll_ms = self.settings.poll.as_secs_f64() * 1e3, "poll loop started");
         let granted = self.settings.realtime_priority.filter(|&p| use_realtime_priority(p, &self.settings.name));
-        let (mut ticker, timer_slack_ns) = Ticker::new(self.settings.poll);
+        let (mut ticker, timer_slack_ns) = Ticker::new(self.settings.poll, self.phase);
         self.timing.thread = ThreadSetup { realtime_priority: granted, timer_slack_ns };
         while ticker.wait(shutdown) {
             let stopped = rt.block_on(async {

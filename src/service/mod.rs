@@ -67,7 +67,9 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
     let state =
         Arc::new(ServiceState { drives, metrics, registry, recording_dir: settings.recording.dir.clone(), started });
     let mut threads = Vec::with_capacity(loops.len());
-    for l in loops {
+    let count = loops.len();
+    for (index, mut l) in loops.into_iter().enumerate() {
+        l.stagger(index, count);
         let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
         let stop = shutdown.clone();
         let spawned =

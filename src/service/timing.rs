@@ -117,11 +117,11 @@ pub struct Ticker {
 }
 
 impl Ticker {
-    /// A ticker whose first tick is now. Also sets the calling thread's timer slack (see the module doc) and
-    /// returns the slack in effect, where the platform tells.
-    pub fn new(period: Duration) -> (Ticker, Option<u64>) {
+    /// A ticker whose first tick is `phase` from now. Also sets the calling thread's timer slack (see the module
+    /// doc) and returns the slack in effect, where the platform tells.
+    pub fn new(period: Duration, phase: Duration) -> (Ticker, Option<u64>) {
         let slack = tighten_timer_slack();
-        (Ticker { period: period.max(Duration::from_micros(1)), next: std::time::Instant::now() }, slack)
+        (Ticker { period: period.max(Duration::from_micros(1)), next: std::time::Instant::now() + phase }, slack)
     }
 
     /// Blocks until the next tick; false when `shutdown` fired first.
@@ -240,7 +240,7 @@ mod tests {
     fn ticker_keeps_its_schedule_and_skips_missed_ticks() {
         let shutdown = CancellationToken::new();
         let period = Duration::from_millis(5);
-        let (mut t, _) = Ticker::new(period);
+        let (mut t, _) = Ticker::new(period, Duration::ZERO);
         let origin = t.next;
         let start = std::time::Instant::now();
         assert!(t.wait(&shutdown));
@@ -258,6 +258,19 @@ mod tests {
         assert_eq!(on_grid, 0, "skipped ticks keep the grid");
         shutdown.cancel();
         assert!(!t.wait(&shutdown), "shutdown ends the wait");
+    }
+
+    #[test]
+    fn a_phase_delays_the_first_tick_and_keeps_the_period() {
+        let shutdown = CancellationToken::new();
+        let (period, phase) = (Duration::from_millis(4), Duration::from_millis(3));
+        let before = std::time::Instant::now();
+        let (mut t, _) = Ticker::new(period, phase);
+        let first = t.next;
+        assert!(first >= before + phase && first <= std::time::Instant::now() + phase);
+        assert!(t.wait(&shutdown));
+        assert!(std::time::Instant::now() >= first, "not before its phase");
+        assert_eq!(t.next - first, period);
     }
 
     #[cfg(target_os = "linux")]
