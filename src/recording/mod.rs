@@ -6,7 +6,7 @@ mod write;
 
 pub use read::{RecordingError, load, parse};
 pub use stream::{Batch, StreamReader};
-pub use write::{RotatingWriter, RowWriter, format_value, write_csv};
+pub use write::{RotatingWriter, RowWriter, format_value, push_value, write_csv};
 
 /// The columns the contract names; anything else in a file is kept but reported once as unknown.
 pub const KNOWN_COLUMNS: [&str; 14] = [

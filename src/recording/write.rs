@@ -10,11 +10,35 @@ use super::Recording;
 /// A value as the CSV holds it: shortest round-trip decimal, empty for a missing (non-finite) value.
 pub fn format_value(out: &mut String, v: f64) {
     if v.is_finite() {
-        let mut buf = ryu::Buffer::new();
-        let text = buf.format_finite(v);
-        // "3.0" → "3": shorter files, and the same numbers as before
-        out.push_str(text.strip_suffix(".0").unwrap_or(text));
+        out.push_str(shortest(&mut ryu::Buffer::new(), v));
     }
+}
+
+/// [`format_value`] onto bytes, about twice as fast: zmij finds the same shortest digits as ryu and lays them out
+/// the same way, but for a `+` in positive exponents (|v| ≥ 1e16), which is dropped here.
+#[inline]
+pub fn push_value(out: &mut Vec<u8>, v: f64) {
+    if v.is_finite() {
+        let mut buf = zmij::Buffer::new();
+        let text = buf.format_finite(v);
+        let text = text.strip_suffix(".0").unwrap_or(text);
+        if v.abs() >= 1e15
+            && let Some((mantissa, exponent)) = text.split_once("e+")
+        {
+            out.extend_from_slice(mantissa.as_bytes());
+            out.push(b'e');
+            out.extend_from_slice(exponent.as_bytes());
+        } else {
+            out.extend_from_slice(text.as_bytes());
+        }
+    }
+}
+
+#[inline]
+fn shortest(buf: &mut ryu::Buffer, v: f64) -> &str {
+    let text = buf.format_finite(v);
+    // "3.0" → "3": shorter files, and the same numbers as before
+    text.strip_suffix(".0").unwrap_or(text)
 }
 
 /// Writes rows of a fixed set of columns.
