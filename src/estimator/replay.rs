@@ -61,7 +61,9 @@ pub fn replay(
 }
 
 fn no_drive_torque(recording: &str) -> ReplayError {
-    BadInput(format!("recording {recording}: no drive torque: expected a `torque_nm` column, or `p_in_bar` and `p_out_bar`"))
+    BadInput(format!(
+        "recording {recording}: no drive torque: expected a `torque_nm` column, or `p_in_bar` and `p_out_bar`"
+    ))
 }
 
 fn no_speed(recording: &str) -> ReplayError {
@@ -261,5 +263,122 @@ impl<'e> Replayer<'e> {
             return Err(no_speed(&self.recording));
         }
         Ok(self.rows)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimator::{EstimatorSettings, Method, try_build};
+
+    fn rec(names: &[&str], columns: Vec<Vec<f64>>) -> Recording {
+        Recording::from_columns("r.csv", names.iter().map(|n| n.to_string()).collect(), columns)
+    }
+
+    /// A short recording with wandering signals and a few gaps: `t_s`, ω, θ, p_in, p_out, torque.
+    fn signals(n: usize) -> Vec<Vec<f64>> {
+        let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.001 + if k > 50 { 0.0005 } else { 0.0 }).collect();
+        let w: Vec<f64> = t.iter().map(|t| 20.0 + 5.0 * (7.0 * t).sin()).collect();
+        let mut theta = vec![0.0; n];
+        for k in 1..n {
+            theta[k] = theta[k - 1] + w[k] * (t[k] - t[k - 1]);
+        }
+        let p_in: Vec<f64> = t.iter().map(|t| 60.0 + 10.0 * (3.0 * t).cos()).collect();
+        let p_out = vec![3.0; n];
+        let torque: Vec<f64> = p_in.iter().map(|p| 0.5 * p).collect();
+        let mut all = vec![t, w, theta, p_in, p_out, torque];
+        for c in &mut all[1..] {
+            for k in (5..n).step_by(37) {
+                c[k] = f64::NAN;
+            }
+        }
+        all
+    }
+
+    /// Streams `rec` through a [`Replayer`] in batches of `batch` rows, as the plan for its header chooses.
+    fn streamed(rec: &Recording, method: Method, batch: usize) -> Result<Vec<Estimate>, ReplayError> {
+        let model = PlantModel::reference();
+        let mut est = try_build(&EstimatorSettings { method, ..EstimatorSettings::default() }, &model).expect("ok");
+        let plan = Plan::choose(rec.names(), |ask| ask.iter().map(|c| rec.present(c).is_some()).collect());
+        let columns: Vec<&[f64]> = plan.columns().iter().map(|c| rec.column(c).expect("chosen from names")).collect();
+        let mut replayer = Replayer::new(plan, &model, "m.toml", &rec.source, est.as_mut());
+        let mut out = Vec::new();
+        for start in (0..rec.len()).step_by(batch) {
+            let end = (start + batch).min(rec.len());
+            let cols: Vec<Vec<f64>> = columns.iter().map(|c| c[start..end].to_vec()).collect();
+            replayer.push(&rec.t_s()[start..end], &cols, |_, e| out.push(*e));
+        }
+        let rows = replayer.finish()?;
+        assert_eq!(rows as usize, rec.len());
+        Ok(out)
+    }
+
+    fn whole(rec: &Recording, method: Method) -> Result<Vec<Estimate>, ReplayError> {
+        let model = PlantModel::reference();
+        let mut est = try_build(&EstimatorSettings { method, ..EstimatorSettings::default() }, &model).expect("ok");
+        replay(rec, &model, "m.toml", est.as_mut())
+    }
+
+    #[test]
+    fn batches_replay_as_the_whole_recording_does() {
+        let [t, w, theta, p_in, p_out, torque] = <[Vec<f64>; 6]>::try_from(signals(300)).expect("six");
+        let empty = vec![f64::NAN; t.len()];
+        let cases = [
+            rec(
+                &["t_s", "omega_rad_s", "p_in_bar", "p_out_bar"],
+                vec![t.clone(), w.clone(), p_in.clone(), p_out.clone()],
+            ),
+            rec(&["t_s", "omega_rad_s", "torque_nm"], vec![t.clone(), w.clone(), torque.clone()]),
+            rec(
+                &["t_s", "theta_rad", "p_in_bar", "p_out_bar"],
+                vec![t.clone(), theta.clone(), p_in.clone(), p_out.clone()],
+            ),
+            // both a column and its fallback: the column when it holds values, else the fallback
+            rec(
+                &["t_s", "omega_rad_s", "theta_rad", "p_in_bar", "p_out_bar", "torque_nm"],
+                vec![t.clone(), w.clone(), theta.clone(), p_in.clone(), p_out.clone(), torque.clone()],
+            ),
+            rec(
+                &["t_s", "omega_rad_s", "theta_rad", "p_in_bar", "p_out_bar", "torque_nm"],
+                vec![t.clone(), empty.clone(), theta.clone(), p_in.clone(), p_out.clone(), empty.clone()],
+            ),
+        ];
+        for r in &cases {
+            for method in [Method::RlsSgd, Method::Kalman] {
+                let expected = whole(r, method).expect("replays");
+                for batch in [1, 7, 64, 1000] {
+                    assert_eq!(streamed(r, method, batch).expect("replays"), expected, "{:?} {batch}", r.names());
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn batches_fail_as_the_whole_recording_does() {
+        let [t, w, _, p_in, _, torque] = <[Vec<f64>; 6]>::try_from(signals(50)).expect("six");
+        let empty = vec![f64::NAN; t.len()];
+        for r in [
+            rec(&["t_s", "omega_rad_s"], vec![t.clone(), w.clone()]),
+            rec(&["t_s", "torque_nm"], vec![t.clone(), torque.clone()]),
+            rec(&["t_s", "omega_rad_s", "torque_nm"], vec![t.clone(), w.clone(), empty.clone()]),
+            rec(&["t_s", "omega_rad_s", "torque_nm"], vec![t.clone(), empty.clone(), torque.clone()]),
+            rec(&["t_s", "omega_rad_s", "p_in_bar", "p_out_bar"], vec![t.clone(), w.clone(), p_in.clone(), empty]),
+            rec(&["t_s", "omega_rad_s", "p_in_bar"], vec![t.clone(), w.clone(), p_in.clone()]),
+        ] {
+            let expected = whole(&r, Method::RlsSgd).expect_err("fails").to_string();
+            let got = streamed(&r, Method::RlsSgd, 8).expect_err("fails").to_string();
+            assert_eq!(got, expected);
+        }
+        // pressures with a model that has no displacement
+        let r = rec(&["t_s", "omega_rad_s", "p_in_bar", "p_out_bar"], vec![t.clone(), w, p_in.clone(), p_in]);
+        let mut model = PlantModel::reference();
+        model.motor.displacement_cm3 = None;
+        let mut est = try_build(&EstimatorSettings::default(), &model).expect("ok");
+        let expected = replay(&r, &model, "m.toml", est.as_mut()).expect_err("no displacement").to_string();
+        let plan = Plan::choose(r.names(), |_| unreachable!("nothing to ask"));
+        let mut replayer = Replayer::new(plan, &model, "m.toml", &r.source, est.as_mut());
+        let cols: Vec<Vec<f64>> = plan.columns().iter().map(|c| r.column(c).expect("col").to_vec()).collect();
+        replayer.push(r.t_s(), &cols, |_, _| panic!("a replay sure to fail estimates nothing"));
+        assert_eq!(replayer.finish().expect_err("no displacement").to_string(), expected);
     }
 }

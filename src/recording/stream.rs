@@ -110,6 +110,8 @@ struct CsvInput<R: Read> {
     record: csv::ByteRecord,
     /// Physical line = csv crate's line + this.
     line_shift: i64,
+    /// The first record's line, where the csv crate's count is off.
+    first_line: Option<u64>,
 }
 
 impl StreamReader<std::fs::File> {
@@ -213,7 +215,8 @@ impl<R: Read> StreamReader<R> {
         while batch.len() < max_rows {
             let (t, line) = match &mut self.input {
                 Input::Lines(lines) => {
-                    let Some((a, b, number)) = lines.next_line().map_err(|source| io_error(&self.origin, source))? else {
+                    let Some((a, b, number)) = lines.next_line().map_err(|source| io_error(&self.origin, source))?
+                    else {
                         break;
                     };
                     let line = &lines.buf[a..b];
@@ -502,19 +505,28 @@ impl<R: Read> Lines<R> {
 impl<R: Read> CsvInput<R> {
     /// The csv crate's reader from `lines.buf[from..]` on, the line there having physical number `number`.
     fn new(lines: Lines<R>, from: usize, number: u64, header: bool) -> CsvInput<R> {
-        // A leading blank line (which the csv crate skips) keeps it from taking a BOM-like start for a BOM.
-        let mut head = Vec::with_capacity(1 + lines.end - from);
-        head.push(b'\n');
-        head.extend_from_slice(&lines.buf[from..lines.end]);
+        let rest = &lines.buf[from..lines.end];
+        // The csv crate drops a BOM at the start of its input; one that starts a later line is data, so it is put
+        // behind a blank line (which the csv crate skips, counting its line for the next record but not this one).
+        let shield = rest.starts_with(UTF8_BOM);
+        let mut head = Vec::with_capacity(1 + rest.len());
+        if shield {
+            head.push(b'\n');
+        }
+        head.extend_from_slice(rest);
         let csv = csv::ReaderBuilder::new()
             .has_headers(header)
             .flexible(true)
             .trim(csv::Trim::All)
             .from_reader(Cursor::new(head).chain(lines.reader));
-        CsvInput { csv, record: csv::ByteRecord::new(), line_shift: number as i64 - 2 }
+        let line_shift = number as i64 - 1 - i64::from(shield);
+        CsvInput { csv, record: csv::ByteRecord::new(), line_shift, first_line: shield.then_some(number) }
     }
 
-    fn line(&self, position: Option<&csv::Position>) -> u64 {
+    fn line(&mut self, position: Option<&csv::Position>) -> u64 {
+        if let Some(first) = self.first_line.take() {
+            return first;
+        }
         position.map_or(0, |p| (p.line() as i64 + self.line_shift).max(0) as u64)
     }
 
@@ -534,9 +546,267 @@ impl<R: Read> CsvInput<R> {
                 return Err(RecordingError::Line { path: origin.into(), line, message: e.to_string() });
             }
         }
-        let line = self.line(self.record.position());
+        let position = self.record.position().cloned();
+        let line = self.line(position.as_ref());
         let fields: Vec<&[u8]> = self.record.iter().collect();
         let t = row_from_fields(&fields, line, names, roles, origin, batch)?;
         Ok(Some((t, line)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::recording::parse;
+    use proptest::prelude::*;
+
+    /// Reads all of `text` with every column but `t_s` selected, `max_rows` at a time, through a reader that hands
+    /// out `piece` bytes per read: (names, columns with t_s first as `parse` orders them).
+    fn read_all(text: &[u8], max_rows: usize, piece: usize) -> Result<(Vec<String>, Vec<Vec<f64>>), RecordingError> {
+        let mut r = StreamReader::new(Trickle { text, at: 0, piece }, "r.csv")?;
+        let others: Vec<usize> = (0..r.names().len()).filter(|&i| r.names()[i] != "t_s").collect();
+        r.select(&others);
+        let mut columns = vec![Vec::new(); others.len() + 1];
+        let mut batch = Batch::default();
+        while r.read_batch(&mut batch, max_rows)? > 0 {
+            assert!(batch.len() <= max_rows);
+            columns[0].extend(&batch.t_s);
+            for (c, values) in columns[1..].iter_mut().zip(&batch.columns) {
+                assert_eq!(values.len(), batch.len());
+                c.extend(values);
+            }
+        }
+        let mut names = vec!["t_s".to_string()];
+        names.extend(others.iter().map(|&i| r.names()[i].clone()));
+        Ok((names, columns))
+    }
+
+    /// A reader that returns at most `piece` bytes a call, to cut lines at every place.
+    struct Trickle<'a> {
+        text: &'a [u8],
+        at: usize,
+        piece: usize,
+    }
+
+    impl Read for Trickle<'_> {
+        fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+            let n = self.piece.min(buf.len()).min(self.text.len() - self.at);
+            buf[..n].copy_from_slice(&self.text[self.at..self.at + n]);
+            self.at += n;
+            Ok(n)
+        }
+    }
+
+    fn same_bits(a: &[f64], b: &[f64]) -> bool {
+        a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits() || (x.is_nan() && y.is_nan()))
+    }
+
+    /// The streaming reader and `parse` agree on `text`: the same values, or both an error (the same one, but for
+    /// line numbers and the ragged-row wording).
+    fn assert_agrees(text: &str, max_rows: usize, piece: usize) {
+        let whole = parse(text.as_bytes(), "r.csv");
+        let streamed = read_all(text.as_bytes(), max_rows, piece);
+        match (whole, streamed) {
+            (Ok(rec), Ok((names, columns))) => {
+                assert_eq!(rec.names(), names.as_slice(), "{text:?}");
+                for (name, c) in names.iter().zip(&columns) {
+                    assert!(same_bits(rec.column(name).expect("column"), c), "{name} in {text:?}");
+                }
+            }
+            (Err(a), Err(b)) => match (&a, &b) {
+                (
+                    RecordingError::Cell { column: x, message: m, .. },
+                    RecordingError::Cell { column: y, message: n, .. },
+                ) => {
+                    assert_eq!((x, m), (y, n), "{text:?}")
+                }
+                (RecordingError::File { message: m, .. }, RecordingError::File { message: n, .. }) => {
+                    assert_eq!(m, n, "{text:?}")
+                }
+                (RecordingError::Line { .. }, RecordingError::Line { .. }) => {}
+                _ => panic!("{text:?}: parse says {a}, the stream says {b}"),
+            },
+            (a, b) => panic!("{text:?}: parse gives {a:?}, the stream {b:?}"),
+        }
+    }
+
+    #[test]
+    fn reads_the_selected_columns_in_batches() {
+        let text = "omega_rad_s, t_s ,foo\n 1.5 ,0.0,\n,0.001,3\n2,0.002,-4e-3\n";
+        let mut r = StreamReader::new(text.as_bytes(), "r.csv").expect("header");
+        assert_eq!(r.names(), ["omega_rad_s", "t_s", "foo"]);
+        let foo = r.index_of("foo").expect("foo");
+        let omega = r.index_of("omega_rad_s").expect("omega");
+        r.select(&[foo, omega]);
+        let mut b = Batch::default();
+        assert_eq!(r.read_batch(&mut b, 2).expect("rows"), 2);
+        assert_eq!(b.t_s, [0.0, 0.001]);
+        assert!(b.columns[0][0].is_nan() && b.columns[0][1] == 3.0);
+        assert!(b.columns[1][0] == 1.5 && b.columns[1][1].is_nan());
+        assert_eq!(r.read_batch(&mut b, 2).expect("rows"), 1);
+        assert_eq!(b.columns, [vec![-4e-3], vec![2.0]]);
+        assert_eq!(r.read_batch(&mut b, 2).expect("end"), 0);
+        assert_eq!(r.rows(), 3);
+    }
+
+    #[test]
+    fn crlf_bom_spaces_quotes_and_blank_lines_read_as_parse_reads_them() {
+        for text in [
+            "t_s,omega_rad_s\r\n0,1\r\n0.001,2\r\n",
+            "\u{feff}t_s,omega_rad_s\n0,1\n0.001,2",
+            " t_s , omega_rad_s \n 0 , 1 \n\t0.001\t,\t2\t\n",
+            "\"t_s\",omega_rad_s\n0,\"1\"\n0.001,2\n",
+            "t_s,omega_rad_s\n0,1\n\"0.001\",\"2.5\"\n",
+            "t_s,omega_rad_s\n0,1\n0.001,2\n\"0.002\",3\n0.003,4\n",
+            "\n\nt_s,omega_rad_s\n\n0,1\n\r\n\n0.001,2\n\n",
+            "t_s,omega_rad_s\r0,1\r0.001,2\r",
+            "t_s,omega_rad_s\n0,nan\n0.001,-inf\n0.002,+Infinity\n0.003,1.\n0.004,.5\n0.005,1E5\n",
+            "t_s,omega_rad_s\n0,1\x0c\n",
+            "t_s,omega_rad_s\n0,\r\n0.001,\r\n",
+            "t_s\n0\n1\n",
+        ] {
+            for (max_rows, piece) in [(1, 1), (2, 3), (4096, 1 << 20)] {
+                assert_agrees(text, max_rows, piece);
+            }
+            read_all(text.as_bytes(), 3, 2).expect("a valid file");
+        }
+    }
+
+    #[test]
+    fn errors_name_the_physical_line_and_the_column() {
+        let err = |text: &str| read_all(text.as_bytes(), 4096, 1 << 20).expect_err("bad input").to_string();
+        let e = err("t_s,omega_rad_s,f_set_hz\n0,1,2\n0.001,abc,2\n");
+        assert!(e.contains("line 3") && e.contains("`omega_rad_s`") && e.contains("\"abc\""), "{e}");
+        // a cell of a column nobody selected is still checked
+        let mut r = StreamReader::new(&b"t_s,omega_rad_s,f_set_hz\n0,1,2\n0.001,1,2x\n"[..], "r.csv").expect("header");
+        r.select(&[1]);
+        let e = r.read_batch(&mut Batch::default(), 10).expect_err("bad unused cell").to_string();
+        assert!(e.contains("r.csv") && e.contains("line 3") && e.contains("`f_set_hz`") && e.contains("2x"), "{e}");
+        // CRLF and blank lines: the row's own line (the csv crate says 2 and 3 here)
+        let e = err("t_s,omega_rad_s\r\n0,1\r\n0.001,abc\r\n");
+        assert!(e.contains("line 3"), "{e}");
+        let e = err("t_s,omega_rad_s\n0,1\n\n\n0.001,abc\n");
+        assert!(e.contains("line 5"), "{e}");
+        let e = err("t_s,omega_rad_s\n0,1\n0.001,1,2\n");
+        assert!(e.contains("line 3") && e.contains("3 fields, expected 2"), "{e}");
+        let e = err("t_s,omega_rad_s\n0,1\n0.001\n");
+        assert!(e.contains("line 3") && e.contains("1 fields, expected 2"), "{e}");
+        let e = err("t_s,omega_rad_s\n0,1\n0.002,1\n0.001,1\n");
+        assert!(e.contains("line 4") && e.contains("`t_s`") && e.contains("backwards"), "{e}");
+        let e = err("t_s,omega_rad_s\n0,1\n,1\n");
+        assert!(e.contains("line 3") && e.contains("`t_s`") && e.contains("missing"), "{e}");
+        // in the order `parse` checks: t_s before the other cells of its row
+        let e = err("t_s,omega_rad_s\n0,1\nx,y\n");
+        assert!(e.contains("`t_s`") && e.contains("\"x\""), "{e}");
+        assert!(err("").contains("empty"));
+        assert!(err("\n\n").contains("empty"));
+        assert!(err("t_s,omega_rad_s\n").contains("no data rows"));
+        assert!(err("omega_rad_s\n1\n").contains("no `t_s`"));
+        assert!(err("t_s,t_s\n1,2\n").contains("twice"));
+        // past a quote the csv crate reads, lines shifted to the file's
+        let e = err("t_s,omega_rad_s\n0,1\n\"0.001\",1\n0.002,zz\n");
+        assert!(e.contains("line 4") && e.contains("zz"), "{e}");
+        let e = err("t_s,omega_rad_s\n0,1\n\"0.001\",\"2,5\"\n");
+        assert!(e.contains("line 3") && e.contains("2,5"), "{e}");
+        let e = err("t_s,omega_rad_s\n0,1\n\u{feff}\"0.001\",2\n");
+        assert!(e.contains("line 3") && e.contains("`t_s`"), "{e}");
+    }
+
+    #[test]
+    fn a_line_longer_than_the_buffer_grows_it() {
+        let long_name = "x".repeat(CHUNK_BYTES + 10);
+        let text = format!("t_s,{long_name}\n0,1\n0.001,2\n");
+        let (names, columns) = read_all(text.as_bytes(), 10, 1 << 16).expect("valid");
+        assert_eq!(names[1], long_name);
+        assert_eq!(columns[1], [1.0, 2.0]);
+    }
+
+    #[test]
+    fn plain_numbers_are_what_std_accepts() {
+        for ok in ["0", "-1", "+1.5", "1.", ".5", "1e5", "1E-5", "-.5e+3", "007", "123456789012345678901234567890"] {
+            assert_eq!(plain_number_end(ok.as_bytes(), 0), Some(ok.len()), "{ok}");
+        }
+        for bad in ["", "+", "-", ".", "e5", ".e5", "1e", "1e+", "+-1"] {
+            assert_ne!(plain_number_end(bad.as_bytes(), 0), Some(bad.len()), "{bad}");
+        }
+    }
+
+    proptest! {
+        /// An unchecked column's cell is accepted exactly when `str::parse` accepts it.
+        #[test]
+        fn checked_cells_accept_what_std_accepts(cell in "[ 0-9.eE+\\-a-z]{0,12}") {
+            let whole = cell.trim_ascii();
+            let std_ok = whole.is_empty() || whole.parse::<f64>().is_ok();
+            let line = format!("{cell},1");
+            if let Some(end) = checked_cell_end(line.as_bytes(), 0) {
+                prop_assert!(std_ok, "{cell:?}");
+                prop_assert_eq!(end, cell.len());
+            }
+            let text = format!("t_s,f_set_hz,omega_rad_s\n0,{cell},1\n");
+            let mut r = StreamReader::new(text.as_bytes(), "r.csv").expect("header");
+            r.select(&[2]);
+            prop_assert_eq!(r.read_batch(&mut Batch::default(), 10).is_ok(), std_ok, "{:?}", cell);
+        }
+
+        /// A selected cell's value is `str::parse`'s, to the bit.
+        #[test]
+        fn parsed_cells_are_std_to_the_bit(
+            mantissa in "[+-]?[0-9]{0,20}(\\.[0-9]{0,20})?",
+            exponent in proptest::option::of(-330i32..330),
+            bits in any::<u64>(),
+        ) {
+            let mut cells = vec![format!("{}", f64::from_bits(bits)), format!("{:e}", f64::from_bits(bits))];
+            cells.push(match exponent {
+                Some(e) => format!("{mantissa}e{e}"),
+                None => mantissa.clone(),
+            });
+            for cell in cells {
+                let std = cell.parse::<f64>().ok();
+                let fast = number_cell(cell.as_bytes(), 0).filter(|(_, end)| *end == cell.len()).map(|(v, _)| v);
+                match (std, fast) {
+                    (Some(a), Some(b)) => prop_assert!(a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()), "{cell}"),
+                    (None, None) => {}
+                    (None, Some(_)) if cell.trim_ascii().is_empty() => {}
+                    (a, b) => prop_assert!(false, "{cell:?}: std {a:?}, fast {b:?}"),
+                }
+            }
+        }
+
+        /// Small random recordings, with odd spacing, gaps, line ends and the odd bad cell: the stream reads what
+        /// `parse` reads, or fails where it fails, whatever the batch size and however the reads cut the text.
+        #[test]
+        fn small_recordings_read_as_parse_reads_them(
+            rows in proptest::collection::vec(
+                (0.0f64..0.01, proptest::collection::vec(
+                    prop_oneof![
+                        8 => any::<f64>().prop_map(|v| v.to_string()),
+                        2 => (-1e3f64..1e3).prop_map(|v| format!("{v:e}")),
+                        2 => Just(String::new()),
+                        1 => Just(" 2.5 ".to_string()),
+                        1 => Just("nan".to_string()),
+                        1 => Just("\"4\"".to_string()),
+                        1 => Just("x".to_string()),
+                        1 => Just("1e".to_string()),
+                    ],
+                    3,
+                ), prop_oneof![8 => Just("\n"), 2 => Just("\r\n"), 1 => Just("\n\n")]),
+                1..12,
+            ),
+            ragged in proptest::option::of(0usize..12),
+            max_rows in 1usize..5,
+            piece in 1usize..40,
+        ) {
+            let mut text = String::from("t_s,omega_rad_s,f_set_hz,torque_nm\n");
+            let mut t = 0.0;
+            for (k, (dt, cells, end)) in rows.iter().enumerate() {
+                t += dt;
+                text += &format!("{t},{}", cells.join(","));
+                if ragged == Some(k) {
+                    text += ",9";
+                }
+                text += end;
+            }
+            assert_agrees(&text, max_rows, piece);
+        }
     }
 }

@@ -214,6 +214,42 @@ impl Drop for RotatingWriter {
 mod tests {
     use super::*;
     use crate::recording::parse;
+    use proptest::prelude::*;
+
+    fn both(v: f64) -> (String, String) {
+        let mut s = String::new();
+        format_value(&mut s, v);
+        let mut b = Vec::new();
+        push_value(&mut b, v);
+        (s, String::from_utf8(b).expect("ASCII"))
+    }
+
+    #[test]
+    fn push_value_writes_what_format_value_writes_at_the_edges() {
+        for e in -330..310 {
+            for m in [1.0, 1.5, 9.999_999_999_999_999, 1.234_567_890_123_456_7] {
+                let v = m * 10f64.powi(e);
+                let (a, b) = both(v);
+                assert_eq!(a, b, "{v:e}");
+                let (a, b) = both(-v);
+                assert_eq!(a, b, "{v:e}");
+            }
+        }
+        for v in [0.0, -0.0, 3.0, 1e15, 1e16, 9_999_999_999_999_998.0, f64::MAX, f64::MIN_POSITIVE, 5e-324, f64::NAN] {
+            let (a, b) = both(v);
+            assert_eq!(a, b, "{v:e}");
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn push_value_writes_what_format_value_writes(bits in any::<u64>(), small in -1e6f64..1e6) {
+            for v in [f64::from_bits(bits), small] {
+                let (a, b) = both(v);
+                prop_assert_eq!(a, b);
+            }
+        }
+    }
 
     #[test]
     fn round_trip_keeps_values_and_gaps() {
