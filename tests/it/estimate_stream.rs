@@ -82,8 +82,16 @@ fn streamed_output_is_the_whole_file_output_for_every_shape_of_recording() {
     let text = csv_of(&rec);
     assert_same_as_whole_file(dir.path(), "stand.csv", text.as_bytes());
     assert_same_as_whole_file(dir.path(), "crlf.csv", map_cells(&text, "\r\n", |_, _, v| v.into()).as_bytes());
-    assert_same_as_whole_file(dir.path(), "spaces.csv", map_cells(&text, "\n", |_, _, v| format!(" {v}\t ")).as_bytes());
-    assert_same_as_whole_file(dir.path(), "quoted.csv", map_cells(&text, "\n", |_, _, v| format!("\"{v}\"")).as_bytes());
+    assert_same_as_whole_file(
+        dir.path(),
+        "spaces.csv",
+        map_cells(&text, "\n", |_, _, v| format!(" {v}\t ")).as_bytes(),
+    );
+    assert_same_as_whole_file(
+        dir.path(),
+        "quoted.csv",
+        map_cells(&text, "\n", |_, _, v| format!("\"{v}\"")).as_bytes(),
+    );
     // quotes from the middle on: the csv crate takes over there
     let half = rec.len() / 2;
     let mid = map_cells(&text, "\n", |r, c, v| if r > half && c % 3 == 0 { format!("\"{v}\"") } else { v.into() });
