@@ -7,6 +7,10 @@
 //! output file's. The estimates are written under a temporary name beside the output (`.NAME.PID.tmp`) and renamed
 //! to it when everything is done, so on any error the output path is left as it was and the temporary file is
 //! removed. A path that is not a regular file, such as `/dev/null`, is written directly.
+//!
+//! The replay takes `torque_nm` only if it holds a value somewhere, else the pressures (and `omega_rad_s` before
+//! `theta_rad` likewise). When both are in the header, the file is first read until the column shows a value,
+//! which is the first row as a rule; a column that is empty all the way costs a second pass over the file.
 
 use std::fs::File;
 use std::io::Write;
