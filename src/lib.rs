@@ -9,6 +9,7 @@
 //! - [`recording`]: the contract's CSV, read strictly and written streaming with rotation.
 //! - [`modbus`]: the register map (pure), the client, and the plant simulator server.
 //! - [`estimator`]: PURE RLS+SGD and Kalman estimators; fed Δt and samples.
+//! - [`replay_file`]: `hydrolens estimate`: a recording file streamed through an estimator into a CSV, two threads.
 //! - [`analysis`]: PURE mismatch analysis (fit, free-run residuals, effect search) + its HTML report at the edge.
 //! - [`control`]: PURE control law (speed PI with load feed-forward, clamp, ramp limit, nothing on stale data).
 //! - [`service`]: the poll loops per drive (modbus → estimator → control → modbus), snapshots, history, recording.
@@ -24,6 +25,7 @@ pub mod http;
 pub mod modbus;
 pub mod plant;
 pub mod recording;
+pub mod replay_file;
 pub mod service;
 pub mod units;
 

@@ -9,7 +9,7 @@ use clap::{Parser, Subcommand};
 use hydrolens::modbus::simulator::Simulator;
 use hydrolens::plant::PlantModel;
 use hydrolens::service::Settings;
-use hydrolens::{BadInput, http, plant, recording, service};
+use hydrolens::{BadInput, http, plant, recording, replay_file, service};
 use tokio_util::sync::CancellationToken;
 
 #[derive(Parser)]
@@ -272,18 +272,12 @@ fn estimate(rec_path: &Path, model_path: &Path, out: &Path, flags: &EstimateFlag
     settings.load_rate_nm_per_s = f.load_rate.unwrap_or(settings.load_rate_nm_per_s);
     let mut est = estimator::try_build(&settings, &model)
         .map_err(|(key, msg)| BadInput(format!("{key} (command line or model file {origin}) {msg}")))?;
-    let rec = recording::load(rec_path)?;
-    let estimates = estimator::replay(&rec, &model, &origin, est.as_mut())?;
-    let file = std::fs::File::create(out).with_context(|| format!("creating {}", out.display()))?;
-    let columns = ["t_s", "omega_hat_rad_s", "load_hat_nm", "inertia_hat_kg_m2", "viscous_hat_nm_s_rad"];
-    let mut w = recording::RowWriter::new(std::io::BufWriter::new(file), &columns)
-        .with_context(|| format!("writing {}", out.display()))?;
-    for (t, e) in rec.t_s().iter().zip(&estimates) {
-        w.write_row([*t, e.omega_hat_rad_s, e.load_hat_nm, e.inertia_hat_kg_m2, e.viscous_hat_nm_s_rad])
-            .with_context(|| format!("writing {}", out.display()))?;
-    }
-    w.flush().with_context(|| format!("writing {}", out.display()))?;
-    eprintln!("estimate ({}): {} rows written to {}", settings.method, estimates.len(), out.display());
+    let rows = replay_file::estimate_file(rec_path, &model, &origin, est.as_mut(), out).map_err(|e| match e {
+        replay_file::EstimateError::Recording(e) => anyhow::Error::new(e),
+        replay_file::EstimateError::Replay(e) => anyhow::Error::new(e),
+        e @ replay_file::EstimateError::Output { .. } => anyhow::Error::new(e),
+    })?;
+    eprintln!("estimate ({}): {rows} rows written to {}", settings.method, out.display());
     Ok(())
 }
 

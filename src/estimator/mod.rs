@@ -10,7 +10,7 @@ pub mod settings;
 
 pub use kalman::Kalman;
 pub use paper::PaperLiteral;
-pub use replay::{ReplayError, drive_torques, replay};
+pub use replay::{Plan, ReplayError, Replayer, SpeedFrom, TorqueFrom, drive_torques, replay};
 pub use rls_sgd::RlsSgd;
 pub use settings::{EstimatorSettings, Method, Resolved};
 

@@ -1,4 +1,5 @@
-//! Offline replay: turns a recording's columns into measurements (CONTRACT.md rules) and runs an estimator over them.
+//! Offline replay: turns a recording's columns into measurements (CONTRACT.md rules) and runs an estimator over them,
+//! over a whole [`Recording`] ([`replay`]) or batch by batch as a file streams in ([`Plan`], [`Replayer`]).
 
 use super::{Estimate, Estimator, Measurement};
 use crate::error::BadInput;
@@ -15,17 +16,9 @@ pub fn drive_torques(rec: &Recording, model: &PlantModel, model_origin: &str) ->
         return Ok(t.to_vec());
     }
     let (Some(p_in), Some(p_out)) = (rec.present("p_in_bar"), rec.present("p_out_bar")) else {
-        return Err(BadInput(format!(
-            "recording {}: no drive torque: expected a `torque_nm` column, or `p_in_bar` and `p_out_bar`",
-            rec.source
-        )));
+        return Err(no_drive_torque(&rec.source));
     };
-    let Some(cm3) = model.motor.displacement_cm3 else {
-        return Err(BadInput(format!(
-            "model file {model_origin}: key `motor.displacement_cm3` is required to turn the recording's pressures into torque"
-        )));
-    };
-    let d = cm3_per_rev_to_m3_per_rad(cm3);
+    let d = displacement_m3_per_rad(model, model_origin)?;
     Ok(p_in.iter().zip(p_out).map(|(a, b)| d * bar_to_pa(a - b)).collect())
 }
 
@@ -35,10 +28,7 @@ pub fn speeds(rec: &Recording) -> Result<Vec<f64>, ReplayError> {
         return Ok(w.to_vec());
     }
     let Some(theta) = rec.present("theta_rad") else {
-        return Err(BadInput(format!(
-            "recording {}: no speed: expected an `omega_rad_s` or a `theta_rad` column",
-            rec.source
-        )));
+        return Err(no_speed(&rec.source));
     };
     let t = rec.t_s();
     Ok((0..theta.len())
@@ -68,4 +58,327 @@ pub fn replay(
     estimator: &mut dyn Estimator,
 ) -> Result<Vec<Estimate>, ReplayError> {
     Ok(measurements(rec, model, model_origin)?.iter().map(|m| estimator.update(m)).collect())
+}
+
+fn no_drive_torque(recording: &str) -> ReplayError {
+    BadInput(format!(
+        "recording {recording}: no drive torque: expected a `torque_nm` column, or `p_in_bar` and `p_out_bar`"
+    ))
+}
+
+fn no_speed(recording: &str) -> ReplayError {
+    BadInput(format!("recording {recording}: no speed: expected an `omega_rad_s` or a `theta_rad` column"))
+}
+
+/// The motor's displacement per radian, which turns pressures into torque.
+fn displacement_m3_per_rad(model: &PlantModel, model_origin: &str) -> Result<f64, ReplayError> {
+    match model.motor.displacement_cm3 {
+        Some(cm3) => Ok(cm3_per_rev_to_m3_per_rad(cm3)),
+        None => Err(BadInput(format!(
+            "model file {model_origin}: key `motor.displacement_cm3` is required to turn the recording's pressures into torque"
+        ))),
+    }
+}
+
+/// Where a streamed replay takes the drive torque from ([`drive_torques`]'s choice).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum TorqueFrom {
+    TorqueColumn,
+    Pressures,
+    /// No column can give it: the replay fails (after the whole file has been checked, as [`replay`] does).
+    Nothing,
+}
+
+/// Where a streamed replay takes the shaft speed from ([`speeds`]' choice).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SpeedFrom {
+    OmegaColumn,
+    ThetaColumn,
+    Nothing,
+}
+
+/// The columns a streamed replay reads, chosen from a header as [`replay`] chooses from a whole recording.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Plan {
+    pub torque: TorqueFrom,
+    pub speed: SpeedFrom,
+}
+
+impl Plan {
+    /// Chooses from the header's `names`. [`replay`] takes a column only if it holds a value somewhere, so where
+    /// both a column and its fallback are in the header (`torque_nm` beside both pressures, `omega_rad_s` beside
+    /// `theta_rad`) the choice depends on the content: `holds(columns)` then says, for each column asked about,
+    /// whether it holds a finite value anywhere. It is not called otherwise.
+    pub fn choose(names: &[String], holds: impl FnOnce(&[&'static str]) -> Vec<bool>) -> Plan {
+        let has = |name: &str| names.iter().any(|n| n == name);
+        let pressures = has("p_in_bar") && has("p_out_bar");
+        let mut ask = Vec::new();
+        if has("torque_nm") && pressures {
+            ask.push("torque_nm");
+        }
+        if has("omega_rad_s") && has("theta_rad") {
+            ask.push("omega_rad_s");
+        }
+        let answers = if ask.is_empty() { Vec::new() } else { holds(&ask) };
+        // a column nobody asked about is taken when it is there: the end of the replay checks it held a value
+        let take = |name: &str| {
+            has(name) && ask.iter().position(|a| *a == name).is_none_or(|k| answers.get(k).copied().unwrap_or(false))
+        };
+        let torque = if take("torque_nm") {
+            TorqueFrom::TorqueColumn
+        } else if pressures {
+            TorqueFrom::Pressures
+        } else {
+            TorqueFrom::Nothing
+        };
+        let speed = if take("omega_rad_s") {
+            SpeedFrom::OmegaColumn
+        } else if has("theta_rad") {
+            SpeedFrom::ThetaColumn
+        } else {
+            SpeedFrom::Nothing
+        };
+        Plan { torque, speed }
+    }
+
+    /// The columns to read besides `t_s`, in the order [`Replayer::push`] takes them: speed, then torque or the
+    /// two pressures.
+    pub fn columns(&self) -> Vec<&'static str> {
+        let mut c = Vec::with_capacity(3);
+        match self.speed {
+            SpeedFrom::OmegaColumn => c.push("omega_rad_s"),
+            SpeedFrom::ThetaColumn => c.push("theta_rad"),
+            SpeedFrom::Nothing => {}
+        }
+        match self.torque {
+            TorqueFrom::TorqueColumn => c.push("torque_nm"),
+            TorqueFrom::Pressures => c.extend(["p_in_bar", "p_out_bar"]),
+            TorqueFrom::Nothing => {}
+        }
+        c
+    }
+}
+
+/// [`replay`] batch by batch: the same measurements, estimates and errors, with memory that does not grow with the
+/// recording. Feed it [`Plan::columns`] with [`Replayer::push`], then ask [`Replayer::finish`] whether the replay
+/// stands: a column that never held a value, or a model without the displacement the pressures need, fails it at
+/// the end as [`replay`] would have failed at the start.
+pub struct Replayer<'e> {
+    plan: Plan,
+    /// m³/rad, or why pressures cannot become torque.
+    displacement: Result<f64, ReplayError>,
+    estimator: &'e mut dyn Estimator,
+    /// False when it is already sure the replay fails: rows are then only looked at, for the right message.
+    runs: bool,
+    prev_t_s: f64,
+    prev_theta_rad: f64,
+    /// Whether the speed column, the torque column (or `p_in_bar`) and `p_out_bar` held a finite value yet.
+    held: [bool; 3],
+    rows: u64,
+    recording: String,
+}
+
+impl<'e> Replayer<'e> {
+    /// `recording` names the recording in messages.
+    pub fn new(
+        plan: Plan,
+        model: &PlantModel,
+        model_origin: &str,
+        recording: &str,
+        estimator: &'e mut dyn Estimator,
+    ) -> Replayer<'e> {
+        let displacement = displacement_m3_per_rad(model, model_origin);
+        let runs = plan.speed != SpeedFrom::Nothing
+            && match plan.torque {
+                TorqueFrom::TorqueColumn => true,
+                TorqueFrom::Pressures => displacement.is_ok(),
+                TorqueFrom::Nothing => false,
+            };
+        Replayer {
+            plan,
+            displacement,
+            estimator,
+            runs,
+            prev_t_s: f64::NAN,
+            prev_theta_rad: f64::NAN,
+            held: [false; 3],
+            rows: 0,
+            recording: recording.to_string(),
+        }
+    }
+
+    /// Replays rows: `columns` are [`Plan::columns`]' values for the times `t_s`. Calls `out(t_s, estimate)` for each
+    /// row, unless the replay is already sure to fail.
+    pub fn push(&mut self, t_s: &[f64], columns: &[Vec<f64>], mut out: impl FnMut(f64, &Estimate)) {
+        let n = t_s.len();
+        let has_speed = self.plan.speed != SpeedFrom::Nothing;
+        let torque_at = usize::from(has_speed);
+        let empty: &[f64] = &[];
+        let column = |k: usize| columns.get(k).map_or(empty, |c| &c[..n]);
+        let speed = if has_speed { column(0) } else { empty };
+        let (torque, p_out) = match self.plan.torque {
+            TorqueFrom::TorqueColumn => (column(torque_at), empty),
+            TorqueFrom::Pressures => (column(torque_at), column(torque_at + 1)),
+            TorqueFrom::Nothing => (empty, empty),
+        };
+        for (held, values) in self.held.iter_mut().zip([speed, torque, p_out]) {
+            *held = *held || values.iter().any(|v| v.is_finite());
+        }
+        self.rows += n as u64;
+        if !self.runs {
+            return;
+        }
+        let d = self.displacement.as_ref().copied().unwrap_or(f64::NAN);
+        for k in 0..n {
+            let t = t_s[k];
+            let omega_rad_s = match self.plan.speed {
+                SpeedFrom::ThetaColumn => {
+                    let w = (speed[k] - self.prev_theta_rad) / (t - self.prev_t_s);
+                    self.prev_theta_rad = speed[k];
+                    w
+                }
+                _ => speed[k],
+            };
+            let drive_torque_nm = match self.plan.torque {
+                TorqueFrom::Pressures => d * bar_to_pa(torque[k] - p_out[k]),
+                _ => torque[k],
+            };
+            let m = Measurement { dt_s: t - self.prev_t_s, omega_rad_s, drive_torque_nm };
+            self.prev_t_s = t;
+            out(t, &self.estimator.update(&m));
+        }
+    }
+
+    /// Whether the replay stands, with [`replay`]'s error if not; the number of rows replayed.
+    pub fn finish(self) -> Result<u64, ReplayError> {
+        let [speed, torque_or_p_in, p_out] = self.held;
+        match self.plan.torque {
+            TorqueFrom::TorqueColumn if torque_or_p_in => {}
+            TorqueFrom::Pressures if torque_or_p_in && p_out => {
+                self.displacement?;
+            }
+            _ => return Err(no_drive_torque(&self.recording)),
+        }
+        if self.plan.speed == SpeedFrom::Nothing || !speed {
+            return Err(no_speed(&self.recording));
+        }
+        Ok(self.rows)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimator::{EstimatorSettings, Method, try_build};
+
+    fn rec(names: &[&str], columns: Vec<Vec<f64>>) -> Recording {
+        Recording::from_columns("r.csv", names.iter().map(|n| n.to_string()).collect(), columns)
+    }
+
+    /// A short recording with wandering signals and a few gaps: `t_s`, ω, θ, p_in, p_out, torque.
+    fn signals(n: usize) -> Vec<Vec<f64>> {
+        let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.001 + if k > 50 { 0.0005 } else { 0.0 }).collect();
+        let w: Vec<f64> = t.iter().map(|t| 20.0 + 5.0 * (7.0 * t).sin()).collect();
+        let mut theta = vec![0.0; n];
+        for k in 1..n {
+            theta[k] = theta[k - 1] + w[k] * (t[k] - t[k - 1]);
+        }
+        let p_in: Vec<f64> = t.iter().map(|t| 60.0 + 10.0 * (3.0 * t).cos()).collect();
+        let p_out = vec![3.0; n];
+        let torque: Vec<f64> = p_in.iter().map(|p| 0.5 * p).collect();
+        let mut all = vec![t, w, theta, p_in, p_out, torque];
+        for c in &mut all[1..] {
+            for k in (5..n).step_by(37) {
+                c[k] = f64::NAN;
+            }
+        }
+        all
+    }
+
+    /// Streams `rec` through a [`Replayer`] in batches of `batch` rows, as the plan for its header chooses.
+    fn streamed(rec: &Recording, method: Method, batch: usize) -> Result<Vec<Estimate>, ReplayError> {
+        let model = PlantModel::reference();
+        let mut est = try_build(&EstimatorSettings { method, ..EstimatorSettings::default() }, &model).expect("ok");
+        let plan = Plan::choose(rec.names(), |ask| ask.iter().map(|c| rec.present(c).is_some()).collect());
+        let columns: Vec<&[f64]> = plan.columns().iter().map(|c| rec.column(c).expect("chosen from names")).collect();
+        let mut replayer = Replayer::new(plan, &model, "m.toml", &rec.source, est.as_mut());
+        let mut out = Vec::new();
+        for start in (0..rec.len()).step_by(batch) {
+            let end = (start + batch).min(rec.len());
+            let cols: Vec<Vec<f64>> = columns.iter().map(|c| c[start..end].to_vec()).collect();
+            replayer.push(&rec.t_s()[start..end], &cols, |_, e| out.push(*e));
+        }
+        let rows = replayer.finish()?;
+        assert_eq!(rows as usize, rec.len());
+        Ok(out)
+    }
+
+    fn whole(rec: &Recording, method: Method) -> Result<Vec<Estimate>, ReplayError> {
+        let model = PlantModel::reference();
+        let mut est = try_build(&EstimatorSettings { method, ..EstimatorSettings::default() }, &model).expect("ok");
+        replay(rec, &model, "m.toml", est.as_mut())
+    }
+
+    #[test]
+    fn batches_replay_as_the_whole_recording_does() {
+        let [t, w, theta, p_in, p_out, torque] = <[Vec<f64>; 6]>::try_from(signals(300)).expect("six");
+        let empty = vec![f64::NAN; t.len()];
+        let cases = [
+            rec(
+                &["t_s", "omega_rad_s", "p_in_bar", "p_out_bar"],
+                vec![t.clone(), w.clone(), p_in.clone(), p_out.clone()],
+            ),
+            rec(&["t_s", "omega_rad_s", "torque_nm"], vec![t.clone(), w.clone(), torque.clone()]),
+            rec(
+                &["t_s", "theta_rad", "p_in_bar", "p_out_bar"],
+                vec![t.clone(), theta.clone(), p_in.clone(), p_out.clone()],
+            ),
+            // both a column and its fallback: the column when it holds values, else the fallback
+            rec(
+                &["t_s", "omega_rad_s", "theta_rad", "p_in_bar", "p_out_bar", "torque_nm"],
+                vec![t.clone(), w.clone(), theta.clone(), p_in.clone(), p_out.clone(), torque.clone()],
+            ),
+            rec(
+                &["t_s", "omega_rad_s", "theta_rad", "p_in_bar", "p_out_bar", "torque_nm"],
+                vec![t.clone(), empty.clone(), theta.clone(), p_in.clone(), p_out.clone(), empty.clone()],
+            ),
+        ];
+        for r in &cases {
+            for method in [Method::RlsSgd, Method::Kalman] {
+                let expected = whole(r, method).expect("replays");
+                for batch in [1, 7, 64, 1000] {
+                    assert_eq!(streamed(r, method, batch).expect("replays"), expected, "{:?} {batch}", r.names());
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn batches_fail_as_the_whole_recording_does() {
+        let [t, w, _, p_in, _, torque] = <[Vec<f64>; 6]>::try_from(signals(50)).expect("six");
+        let empty = vec![f64::NAN; t.len()];
+        for r in [
+            rec(&["t_s", "omega_rad_s"], vec![t.clone(), w.clone()]),
+            rec(&["t_s", "torque_nm"], vec![t.clone(), torque.clone()]),
+            rec(&["t_s", "omega_rad_s", "torque_nm"], vec![t.clone(), w.clone(), empty.clone()]),
+            rec(&["t_s", "omega_rad_s", "torque_nm"], vec![t.clone(), empty.clone(), torque.clone()]),
+            rec(&["t_s", "omega_rad_s", "p_in_bar", "p_out_bar"], vec![t.clone(), w.clone(), p_in.clone(), empty]),
+            rec(&["t_s", "omega_rad_s", "p_in_bar"], vec![t.clone(), w.clone(), p_in.clone()]),
+        ] {
+            let expected = whole(&r, Method::RlsSgd).expect_err("fails").to_string();
+            let got = streamed(&r, Method::RlsSgd, 8).expect_err("fails").to_string();
+            assert_eq!(got, expected);
+        }
+        // pressures with a model that has no displacement
+        let r = rec(&["t_s", "omega_rad_s", "p_in_bar", "p_out_bar"], vec![t.clone(), w, p_in.clone(), p_in]);
+        let mut model = PlantModel::reference();
+        model.motor.displacement_cm3 = None;
+        let mut est = try_build(&EstimatorSettings::default(), &model).expect("ok");
+        let expected = replay(&r, &model, "m.toml", est.as_mut()).expect_err("no displacement").to_string();
+        let plan = Plan::choose(r.names(), |_| unreachable!("nothing to ask"));
+        let mut replayer = Replayer::new(plan, &model, "m.toml", &r.source, est.as_mut());
+        let cols: Vec<Vec<f64>> = plan.columns().iter().map(|c| r.column(c).expect("col").to_vec()).collect();
+        replayer.push(r.t_s(), &cols, |_, _| panic!("a replay sure to fail estimates nothing"));
+        assert_eq!(replayer.finish().expect_err("no displacement").to_string(), expected);
+    }
 }

@@ -1,10 +1,12 @@
 //! Recordings: the contract's CSV (CONTRACT.md "Recording CSV"), read strictly and written streaming, with rotation.
 
 mod read;
+pub mod stream;
 mod write;
 
 pub use read::{RecordingError, load, parse};
-pub use write::{RotatingWriter, RowWriter, format_value, write_csv};
+pub use stream::{Batch, StreamReader};
+pub use write::{RotatingWriter, RowWriter, format_value, push_value, write_csv};
 
 /// The columns the contract names; anything else in a file is kept but reported once as unknown.
 pub const KNOWN_COLUMNS: [&str; 14] = [

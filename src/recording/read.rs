@@ -40,31 +40,7 @@ pub fn parse<R: Read>(reader: R, origin: &str) -> Result<Recording, RecordingErr
     let file_err = |message: String| RecordingError::File { path: origin.to_string(), message };
     let mut csv = csv::ReaderBuilder::new().has_headers(true).trim(csv::Trim::All).from_reader(reader);
     let headers = csv.headers().map_err(|e| file_err(format!("cannot read the header row: {e}")))?.clone();
-    if headers.is_empty() || (headers.len() == 1 && headers[0].is_empty()) {
-        return Err(file_err("the file is empty: expected a header row starting with `t_s`".into()));
-    }
-    let names: Vec<String> = headers.iter().map(|h| h.trim().to_string()).collect();
-    let Some(t_index) = names.iter().position(|n| n == "t_s") else {
-        return Err(RecordingError::Line {
-            path: origin.into(),
-            line: 1,
-            message: format!("no `t_s` column (required); the header has {}", names.join(", ")),
-        });
-    };
-    for (i, n) in names.iter().enumerate() {
-        if names[..i].contains(n) {
-            return Err(RecordingError::Line {
-                path: origin.into(),
-                line: 1,
-                message: format!("column `{n}` appears twice"),
-            });
-        }
-    }
-    let unknown: Vec<&str> =
-        names.iter().map(String::as_str).filter(|n| !KNOWN_COLUMNS.contains(n) && !n.starts_with("true_")).collect();
-    if !unknown.is_empty() {
-        tracing::info!(recording = origin, columns = ?unknown, "ignoring unknown columns");
-    }
+    let (names, t_index) = header_names(headers.iter(), origin)?;
     // t_s first, the rest in file order
     let order: Vec<usize> = std::iter::once(t_index).chain((0..names.len()).filter(|&i| i != t_index)).collect();
     let mut columns: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
@@ -88,36 +64,10 @@ pub fn parse<R: Read>(reader: R, origin: &str) -> Result<Recording, RecordingErr
             });
         }
         for (slot, &i) in order.iter().enumerate() {
-            let cell = record[i].trim_ascii();
-            let value = if cell.is_empty() {
-                f64::NAN
-            } else {
-                parse_number(cell).ok_or_else(|| RecordingError::Cell {
-                    path: origin.into(),
-                    line,
-                    column: names[i].clone(),
-                    message: format!("expected a number, got {:?}", String::from_utf8_lossy(cell)),
-                })?
-            };
-            columns[slot].push(value);
+            columns[slot].push(cell_value(&record[i], origin, line, &names[i])?);
         }
         let t = *columns[0].last().unwrap_or(&f64::NAN);
-        if !t.is_finite() {
-            return Err(RecordingError::Cell {
-                path: origin.into(),
-                line,
-                column: "t_s".into(),
-                message: "time is missing or not finite (required in every row)".into(),
-            });
-        }
-        if t <= last_t {
-            return Err(RecordingError::Cell {
-                path: origin.into(),
-                line,
-                column: "t_s".into(),
-                message: format!("time goes backwards or repeats: {t} after {last_t} (must strictly increase)"),
-            });
-        }
+        check_time(t, last_t, origin, line)?;
         last_t = t;
     }
     if columns[0].is_empty() {
@@ -127,8 +77,81 @@ pub fn parse<R: Read>(reader: R, origin: &str) -> Result<Recording, RecordingErr
     Ok(Recording::from_columns(origin, ordered_names, columns))
 }
 
+/// The column names of a header row, from its fields as the csv crate gives them (ASCII spaces trimmed), checked:
+/// not empty, `t_s` present, no name twice; unknown names are logged once. Returns the names and where `t_s` is.
+pub(super) fn header_names<'a>(
+    fields: impl IntoIterator<Item = &'a str>,
+    origin: &str,
+) -> Result<(Vec<String>, usize), RecordingError> {
+    let fields: Vec<&str> = fields.into_iter().collect();
+    if fields.is_empty() || (fields.len() == 1 && fields[0].is_empty()) {
+        return Err(RecordingError::File {
+            path: origin.to_string(),
+            message: "the file is empty: expected a header row starting with `t_s`".into(),
+        });
+    }
+    let names: Vec<String> = fields.iter().map(|h| h.trim().to_string()).collect();
+    let Some(t_index) = names.iter().position(|n| n == "t_s") else {
+        return Err(RecordingError::Line {
+            path: origin.into(),
+            line: 1,
+            message: format!("no `t_s` column (required); the header has {}", names.join(", ")),
+        });
+    };
+    for (i, n) in names.iter().enumerate() {
+        if names[..i].contains(n) {
+            return Err(RecordingError::Line {
+                path: origin.into(),
+                line: 1,
+                message: format!("column `{n}` appears twice"),
+            });
+        }
+    }
+    let unknown: Vec<&str> =
+        names.iter().map(String::as_str).filter(|n| !KNOWN_COLUMNS.contains(n) && !n.starts_with("true_")).collect();
+    if !unknown.is_empty() {
+        tracing::info!(recording = origin, columns = ?unknown, "ignoring unknown columns");
+    }
+    Ok((names, t_index))
+}
+
+/// A cell's value: NaN when empty (after trimming ASCII spaces), else the number it must hold.
+pub(super) fn cell_value(cell: &[u8], origin: &str, line: u64, column: &str) -> Result<f64, RecordingError> {
+    let cell = cell.trim_ascii();
+    if cell.is_empty() {
+        return Ok(f64::NAN);
+    }
+    parse_number(cell).ok_or_else(|| RecordingError::Cell {
+        path: origin.into(),
+        line,
+        column: column.to_string(),
+        message: format!("expected a number, got {:?}", String::from_utf8_lossy(cell)),
+    })
+}
+
+/// A row's time must be finite and later than the row before's.
+pub(super) fn check_time(t: f64, last_t: f64, origin: &str, line: u64) -> Result<(), RecordingError> {
+    if !t.is_finite() {
+        return Err(RecordingError::Cell {
+            path: origin.into(),
+            line,
+            column: "t_s".into(),
+            message: "time is missing or not finite (required in every row)".into(),
+        });
+    }
+    if t <= last_t {
+        return Err(RecordingError::Cell {
+            path: origin.into(),
+            line,
+            column: "t_s".into(),
+            message: format!("time goes backwards or repeats: {t} after {last_t} (must strictly increase)"),
+        });
+    }
+    Ok(())
+}
+
 /// A decimal number from a cell's bytes.
-fn parse_number(cell: &[u8]) -> Option<f64> {
+pub(super) fn parse_number(cell: &[u8]) -> Option<f64> {
     std::str::from_utf8(cell).ok()?.parse::<f64>().ok()
 }
 

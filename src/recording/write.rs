@@ -10,11 +10,35 @@ use super::Recording;
 /// A value as the CSV holds it: shortest round-trip decimal, empty for a missing (non-finite) value.
 pub fn format_value(out: &mut String, v: f64) {
     if v.is_finite() {
-        let mut buf = ryu::Buffer::new();
-        let text = buf.format_finite(v);
-        // "3.0" → "3": shorter files, and the same numbers as before
-        out.push_str(text.strip_suffix(".0").unwrap_or(text));
+        out.push_str(shortest(&mut ryu::Buffer::new(), v));
     }
+}
+
+/// [`format_value`] onto bytes, about twice as fast: zmij finds the same shortest digits as ryu and lays them out
+/// the same way, but for a `+` in positive exponents (|v| ≥ 1e16), which is dropped here.
+#[inline]
+pub fn push_value(out: &mut Vec<u8>, v: f64) {
+    if v.is_finite() {
+        let mut buf = zmij::Buffer::new();
+        let text = buf.format_finite(v);
+        let text = text.strip_suffix(".0").unwrap_or(text);
+        if v.abs() >= 1e15
+            && let Some((mantissa, exponent)) = text.split_once("e+")
+        {
+            out.extend_from_slice(mantissa.as_bytes());
+            out.push(b'e');
+            out.extend_from_slice(exponent.as_bytes());
+        } else {
+            out.extend_from_slice(text.as_bytes());
+        }
+    }
+}
+
+#[inline]
+fn shortest(buf: &mut ryu::Buffer, v: f64) -> &str {
+    let text = buf.format_finite(v);
+    // "3.0" → "3": shorter files, and the same numbers as before
+    text.strip_suffix(".0").unwrap_or(text)
 }
 
 /// Writes rows of a fixed set of columns.
@@ -190,6 +214,42 @@ impl Drop for RotatingWriter {
 mod tests {
     use super::*;
     use crate::recording::parse;
+    use proptest::prelude::*;
+
+    fn both(v: f64) -> (String, String) {
+        let mut s = String::new();
+        format_value(&mut s, v);
+        let mut b = Vec::new();
+        push_value(&mut b, v);
+        (s, String::from_utf8(b).expect("ASCII"))
+    }
+
+    #[test]
+    fn push_value_writes_what_format_value_writes_at_the_edges() {
+        for e in -330..310 {
+            for m in [1.0, 1.5, 9.999_999_999_999_999, 1.234_567_890_123_456_7] {
+                let v = m * 10f64.powi(e);
+                let (a, b) = both(v);
+                assert_eq!(a, b, "{v:e}");
+                let (a, b) = both(-v);
+                assert_eq!(a, b, "{v:e}");
+            }
+        }
+        for v in [0.0, -0.0, 3.0, 1e15, 1e16, 9_999_999_999_999_998.0, f64::MAX, f64::MIN_POSITIVE, 5e-324, f64::NAN] {
+            let (a, b) = both(v);
+            assert_eq!(a, b, "{v:e}");
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn push_value_writes_what_format_value_writes(bits in any::<u64>(), small in -1e6f64..1e6) {
+            for v in [f64::from_bits(bits), small] {
+                let (a, b) = both(v);
+                prop_assert_eq!(a, b);
+            }
+        }
+    }
 
     #[test]
     fn round_trip_keeps_values_and_gaps() {

@@ -3,6 +3,7 @@
 mod analysis;
 mod cli_service;
 mod dashboard;
+mod estimate_stream;
 mod estimator;
 mod faults;
 mod http;

@@ -1,0 +1,81 @@
+//! The two halves of `hydrolens estimate` (src/replay_file.rs), each on one thread, on a `simulate` recording of
+//! 100 k rows (11 columns) in memory: the streaming reader (with the 4 columns the replay needs, and with all 11),
+//! and the replay with the formatting of its output. Times are the thread's CPU time (support/cpu_time.rs).
+
+#[path = "support/cpu_time.rs"]
+mod cpu_time;
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use hydrolens::estimator::{self, EstimatorSettings, Method, Plan, Replayer};
+use hydrolens::plant::{PlantModel, simulate};
+use hydrolens::recording::{self, Batch, StreamReader};
+
+const ROWS: usize = 100_000;
+
+fn bench_estimate(c: &mut Criterion<cpu_time::Clock>) {
+    let model = PlantModel::reference();
+    let duration_s = (ROWS - 1) as f64 * model.sample_s();
+    let rec = simulate::test_stand(&model, duration_s, 1, &mut |_| {}).expect("reference plant is hydraulic");
+    let mut text = Vec::new();
+    recording::write_csv(&mut text, &rec).expect("writing to memory");
+
+    let mut g = c.benchmark_group("estimate/100k_rows");
+    g.measurement_time(Duration::from_secs(3)).sample_size(20).warm_up_time(Duration::from_secs(1));
+    g.throughput(Throughput::ElementsAndBytes { elements: ROWS as u64, bytes: text.len() as u64 });
+    let plan = Plan::choose(rec.names(), |_| unreachable!("no column beside its fallback"));
+    let read = |columns: &[&str]| {
+        let mut r = StreamReader::new(black_box(text.as_slice()), "bench.csv").expect("header");
+        let selected: Vec<usize> = columns.iter().filter_map(|c| r.index_of(c)).collect();
+        r.select(&selected);
+        let mut batch = Batch::default();
+        let mut sum = 0.0;
+        while r.read_batch(&mut batch, 4096).expect("valid") > 0 {
+            sum += batch.t_s[0];
+        }
+        sum
+    };
+    let used = plan.columns();
+    g.bench_function("stream_read_4_columns", |b| b.iter(|| read(&used)));
+    let all: Vec<&str> = rec.names().iter().map(String::as_str).filter(|n| *n != "t_s").collect();
+    g.bench_function("stream_read_11_columns", |b| b.iter(|| read(&all)));
+
+    // the other thread: measurements, estimator, output text
+    let columns: Vec<Vec<f64>> = used.iter().map(|c| rec.column(c).expect("column").to_vec()).collect();
+    let t_s = rec.t_s().to_vec();
+    let mut out = Vec::with_capacity(ROWS * 100);
+    for method in [Method::RlsSgd, Method::Kalman] {
+        let settings = EstimatorSettings { method, ..EstimatorSettings::default() };
+        g.bench_function(format!("replay_and_format_{method}"), |b| {
+            b.iter(|| {
+                let mut est = estimator::try_build(&settings, &model).expect("settings");
+                let mut replayer = Replayer::new(plan, &model, "model", "bench.csv", est.as_mut());
+                out.clear();
+                for start in (0..ROWS).step_by(4096) {
+                    let end = (start + 4096).min(ROWS);
+                    let cols: Vec<Vec<f64>> = columns.iter().map(|c| c[start..end].to_vec()).collect();
+                    replayer.push(&t_s[start..end], &cols, |t, e| {
+                        for v in [t, e.omega_hat_rad_s, e.load_hat_nm, e.inertia_hat_kg_m2] {
+                            recording::push_value(&mut out, v);
+                            out.push(b',');
+                        }
+                        recording::push_value(&mut out, e.viscous_hat_nm_s_rad);
+                        out.push(b'\n');
+                    });
+                }
+                replayer.finish().expect("replays");
+                out.len()
+            })
+        });
+    }
+    g.finish();
+}
+
+criterion_group! {
+    name = benches;
+    config = cpu_time::criterion();
+    targets = bench_estimate
+}
+criterion_main!(benches);

@@ -1,0 +1,232 @@
+//! `hydrolens estimate` streams: its output is byte for byte the whole-recording path's (load, replay, RowWriter),
+//! for every shape of recording the contract allows, and its errors name file, line and column with exit code 2.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use hydrolens::estimator::{self, EstimatorSettings, Method};
+use hydrolens::plant::{PlantModel, simulate};
+use hydrolens::recording::{self, Recording, RowWriter};
+use proptest::prelude::*;
+
+use crate::support;
+
+fn model_path() -> PathBuf {
+    support::root().join("config/plant.toml")
+}
+
+fn run_estimate(rec: &Path, out: &Path, method: &str) -> Output {
+    Command::new(support::bin())
+        .arg("estimate")
+        .arg(rec)
+        .args(["--model".as_ref(), model_path().as_os_str(), "--out".as_ref(), out.as_os_str()])
+        .args(["--method", method])
+        .output()
+        .expect("run hydrolens")
+}
+
+/// What `estimate` wrote before it streamed: the whole recording loaded, replayed, and written row by row.
+fn whole_file_estimate(rec: &Path, method: Method) -> Vec<u8> {
+    let model = PlantModel::load(&model_path()).expect("model");
+    let origin = model_path().display().to_string();
+    let settings = EstimatorSettings { method, ..EstimatorSettings::from_model(&model, &origin).expect("settings") };
+    let mut est = estimator::try_build(&settings, &model).expect("estimator");
+    let r = recording::load(rec).expect("a valid recording");
+    let estimates = estimator::replay(&r, &model, &origin, est.as_mut()).expect("replays");
+    let mut w = RowWriter::new(Vec::new(), &hydrolens::replay_file::COLUMNS).expect("header");
+    for (t, e) in r.t_s().iter().zip(&estimates) {
+        w.write_row([*t, e.omega_hat_rad_s, e.load_hat_nm, e.inertia_hat_kg_m2, e.viscous_hat_nm_s_rad]).expect("row");
+    }
+    w.into_inner()
+}
+
+/// Runs the binary on `text` with both methods and compares with [`whole_file_estimate`].
+fn assert_same_as_whole_file(dir: &Path, name: &str, text: &[u8]) {
+    let rec = dir.join(name);
+    std::fs::write(&rec, text).expect("write recording");
+    for (flag, method) in [("rls-sgd", Method::RlsSgd), ("kalman", Method::Kalman)] {
+        let out = dir.join(format!("est-{flag}-{name}"));
+        let o = run_estimate(&rec, &out, flag);
+        assert!(o.status.success(), "{name} {flag}: {}", String::from_utf8_lossy(&o.stderr));
+        let got = std::fs::read(&out).expect("output");
+        let expected = whole_file_estimate(&rec, method);
+        assert!(got == expected, "{name} {flag}: the streamed output differs from the whole-file path's");
+    }
+}
+
+fn csv_of(rec: &Recording) -> String {
+    let mut buf = Vec::new();
+    recording::write_csv(&mut buf, rec).expect("write");
+    String::from_utf8(buf).expect("UTF-8")
+}
+
+fn test_stand(seconds: f64) -> Recording {
+    simulate::test_stand(&PlantModel::reference(), seconds, 3, &mut |_| {}).expect("simulate")
+}
+
+/// Rewrites each line of CSV text: `cell(row, column, text)` gives the new cell (row 0 is the header).
+fn map_cells(text: &str, end: &str, mut cell: impl FnMut(usize, usize, &str) -> String) -> String {
+    let mut out = String::new();
+    for (r, line) in text.lines().enumerate() {
+        let cells: Vec<String> = line.split(',').enumerate().map(|(c, v)| cell(r, c, v)).collect();
+        out += &cells.join(",");
+        out += end;
+    }
+    out
+}
+
+#[test]
+fn streamed_output_is_the_whole_file_output_for_every_shape_of_recording() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec = test_stand(12.0);
+    let text = csv_of(&rec);
+    assert_same_as_whole_file(dir.path(), "stand.csv", text.as_bytes());
+    assert_same_as_whole_file(dir.path(), "crlf.csv", map_cells(&text, "\r\n", |_, _, v| v.into()).as_bytes());
+    assert_same_as_whole_file(
+        dir.path(),
+        "spaces.csv",
+        map_cells(&text, "\n", |_, _, v| format!(" {v}\t ")).as_bytes(),
+    );
+    assert_same_as_whole_file(
+        dir.path(),
+        "quoted.csv",
+        map_cells(&text, "\n", |_, _, v| format!("\"{v}\"")).as_bytes(),
+    );
+    // quotes from the middle on: the csv crate takes over there
+    let half = rec.len() / 2;
+    let mid = map_cells(&text, "\n", |r, c, v| if r > half && c % 3 == 0 { format!("\"{v}\"") } else { v.into() });
+    assert_same_as_whole_file(dir.path(), "midquote.csv", mid.as_bytes());
+    assert_same_as_whole_file(dir.path(), "bom.csv", format!("\u{feff}{text}").as_bytes());
+    // missing cells in the columns the replay uses, `nan` and `inf` in one it does not
+    let names = rec.names().to_vec();
+    let col = |n: &str| names.iter().position(|x| x == n).expect("column");
+    let (w, p_in, load) = (col("omega_rad_s"), col("p_in_bar"), col("load_nm"));
+    let gaps = map_cells(&text, "\n", |r, c, v| match (r % 13, r % 17, r % 19) {
+        _ if r == 0 => v.into(),
+        (0, _, _) if c == w => String::new(),
+        (_, 0, _) if c == p_in => String::new(),
+        (_, _, 0) if c == load => "nan".into(),
+        (_, _, 1) if c == load => "-inf".into(),
+        _ => v.into(),
+    });
+    assert_same_as_whole_file(dir.path(), "gaps.csv", gaps.as_bytes());
+
+    // torque only; shaft position only; both with their fallbacks empty or full
+    let t = rec.t_s();
+    let omega = rec.column("omega_rad_s").expect("omega");
+    let torque: Vec<f64> = rec
+        .column("p_in_bar")
+        .expect("p_in")
+        .iter()
+        .zip(rec.column("p_out_bar").expect("p_out"))
+        .map(|(a, b)| 0.509 * (a - b))
+        .collect();
+    let mut theta = vec![0.0; t.len()];
+    for k in 1..t.len() {
+        theta[k] = theta[k - 1] + omega[k] * (t[k] - t[k - 1]);
+    }
+    let only = |names: &[&str], columns: Vec<Vec<f64>>| {
+        csv_of(&Recording::from_columns("x", names.iter().map(|n| n.to_string()).collect(), columns))
+    };
+    let torque_only = only(&["t_s", "omega_rad_s", "torque_nm"], vec![t.to_vec(), omega.to_vec(), torque.clone()]);
+    assert_same_as_whole_file(dir.path(), "torque.csv", torque_only.as_bytes());
+    let theta_only = only(
+        &["t_s", "theta_rad", "p_in_bar", "p_out_bar"],
+        vec![t.to_vec(), theta.clone(), rec.column("p_in_bar").expect("p").to_vec(), vec![3.0; t.len()]],
+    );
+    assert_same_as_whole_file(dir.path(), "theta.csv", theta_only.as_bytes());
+    let empty = vec![f64::NAN; t.len()];
+    let fallbacks = only(
+        &["t_s", "omega_rad_s", "theta_rad", "torque_nm", "p_in_bar", "p_out_bar"],
+        vec![t.to_vec(), empty.clone(), theta, empty, rec.column("p_in_bar").expect("p").to_vec(), vec![3.0; t.len()]],
+    );
+    assert_same_as_whole_file(dir.path(), "fallbacks.csv", fallbacks.as_bytes());
+}
+
+/// Runs `estimate` on `text`, expecting bad input: exit code 2, a message naming the file and each of `parts`, and
+/// no output file (nor a temporary one) left behind.
+fn assert_rejected(text: &str, parts: &[&str]) {
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec = dir.path().join("bad.csv");
+    std::fs::write(&rec, text).expect("write");
+    let out = dir.path().join("est.csv");
+    let o = run_estimate(&rec, &out, "rls-sgd");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{text:?}: {err}");
+    assert!(err.contains(&rec.display().to_string()), "{err}");
+    for p in parts {
+        assert!(err.contains(p), "{text:?}: `{p}` not in {err}");
+    }
+    let left: Vec<_> = std::fs::read_dir(dir.path()).expect("dir").map(|e| e.expect("entry").file_name()).collect();
+    assert_eq!(left, ["bad.csv"], "nothing but the recording remains");
+}
+
+#[test]
+fn bad_recordings_are_rejected_with_file_line_and_column() {
+    let good = "t_s,f_set_hz,omega_rad_s,p_in_bar,p_out_bar\n0,10,1,50,3\n0.001,10,1.1,51,3\n";
+    assert_rejected(&format!("{good}0.002,10,abc,50,3\n"), &["line 4", "`omega_rad_s`", "abc"]);
+    // a column the replay does not use is still checked
+    assert_rejected(&format!("{good}0.002,1x0,1,50,3\n"), &["line 4", "`f_set_hz`", "1x0"]);
+    assert_rejected(&format!("{good}0.002,10,1,50,3,7\n"), &["line 4", "6 fields, expected 5"]);
+    assert_rejected(&format!("{good}0.002,10,1,50\n"), &["line 4", "4 fields, expected 5"]);
+    assert_rejected(&format!("{good}0.0005,10,1,50,3\n"), &["line 4", "`t_s`", "backwards"]);
+    assert_rejected(&format!("{good},10,1,50,3\n"), &["line 4", "`t_s`", "missing"]);
+    assert_rejected(&format!("{good}inf,10,1,50,3\n"), &["line 4", "`t_s`", "not finite"]);
+    // CRLF and blank lines: still the row's own line
+    assert_rejected(&format!("{good}\n\n0.002,10,abc,50,3\n"), &["line 6", "`omega_rad_s`"]);
+    assert_rejected(&format!("{good}0.002,10,abc,50,3\n").replace('\n', "\r\n"), &["line 4", "`omega_rad_s`"]);
+    assert_rejected("", &["empty"]);
+    assert_rejected("t_s,omega_rad_s,torque_nm\n", &["no data rows"]);
+    assert_rejected("omega_rad_s,torque_nm\n1,2\n", &["line 1", "no `t_s`"]);
+    assert_rejected("t_s,omega_rad_s\n0,1\n", &["no drive torque"]);
+    assert_rejected("t_s,torque_nm\n0,1\n", &["no speed"]);
+    assert_rejected("t_s,omega_rad_s,torque_nm\n0,1,\n0.001,2,\n", &["no drive torque"]);
+    // the recording's error comes first, even when the header already shows the replay cannot work
+    assert_rejected("t_s,omega_rad_s\n0,1\n0.001,zz\n", &["line 3", "zz"]);
+}
+
+#[test]
+fn an_error_leaves_an_existing_output_untouched() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec = dir.path().join("r.csv");
+    std::fs::write(&rec, "t_s,omega_rad_s,torque_nm\n0,1,2\n0.001,1,2\n").expect("write");
+    let out = dir.path().join("est.csv");
+    assert!(run_estimate(&rec, &out, "kalman").status.success());
+    let before = std::fs::read(&out).expect("output");
+    std::fs::write(&rec, "t_s,omega_rad_s,torque_nm\n0,1,2\n0.001,1,?\n").expect("write");
+    assert_eq!(run_estimate(&rec, &out, "kalman").status.code(), Some(2));
+    assert_eq!(std::fs::read(&out).expect("output"), before);
+    assert_eq!(std::fs::read_dir(dir.path()).expect("dir").count(), 2, "no temporary file left");
+    // the output may be the recording itself: it is read to the end before it is replaced
+    std::fs::write(&rec, "t_s,omega_rad_s,torque_nm\n0,1,2\n0.001,1,2\n").expect("write");
+    assert!(run_estimate(&rec, &rec, "kalman").status.success());
+    assert_eq!(std::fs::read(&rec).expect("output"), before);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+
+    /// Small random recordings (random values, gaps, spacing, line ends): the binary's output is the whole-file path's.
+    #[test]
+    fn small_random_recordings_estimate_as_the_whole_file_path_does(
+        rows in proptest::collection::vec(
+            (1e-4f64..0.01, proptest::option::of(-50.0f64..50.0), proptest::option::of(-100.0f64..100.0),
+             -1e3f64..1e3, prop_oneof![Just(""), Just(" "), Just("\t")]),
+            1..60,
+        ),
+        crlf in any::<bool>(),
+    ) {
+        let dir = tempfile::tempdir().expect("tmp");
+        let end = if crlf { "\r\n" } else { "\n" };
+        let mut text = format!("t_s,omega_rad_s,torque_nm,f_set_hz{end}");
+        let mut t = 0.0;
+        let cell = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
+        for (dt, w, q, f, pad) in &rows {
+            t += dt;
+            text += &format!("{t},{pad}{}{pad},{},{f:e}{end}", cell(*w), cell(*q));
+        }
+        let has_values = rows.iter().any(|r| r.1.is_some()) && rows.iter().any(|r| r.2.is_some());
+        prop_assume!(has_values);
+        assert_same_as_whole_file(dir.path(), "r.csv", text.as_bytes());
+    }
+}
