@@ -20,6 +20,15 @@ pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
+/// As [`lock`], but None instead of waiting when someone holds it.
+fn try_lock<T>(m: &Mutex<T>) -> Option<MutexGuard<'_, T>> {
+    match m.try_lock() {
+        Ok(g) => Some(g),
+        Err(std::sync::TryLockError::Poisoned(e)) => Some(e.into_inner()),
+        Err(std::sync::TryLockError::WouldBlock) => None,
+    }
+}
+
 /// One fresh, validated sample with what the service made of it: a row of the recording and of the history.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Point {
@@ -188,17 +197,7 @@ impl DriveState {
 
     /// Replaces the snapshot; false (nothing done) when a reader holds it right now.
     pub fn publish(&self, snapshot: DriveSnapshot) -> bool {
-        match self.snapshot.try_lock() {
-            Ok(mut s) => {
-                *s = snapshot;
-                true
-            }
-            Err(std::sync::TryLockError::Poisoned(e)) => {
-                *e.into_inner() = snapshot;
-                true
-            }
-            Err(std::sync::TryLockError::WouldBlock) => false,
-        }
+        try_lock(&self.snapshot).map(|mut s| *s = snapshot).is_some()
     }
 
     /// Lock-free.
@@ -209,11 +208,7 @@ impl DriveState {
 
     /// Moves `points` into the history ring, oldest first; leaves them in `points` when a reader holds the ring.
     pub fn push_history(&self, points: &mut Vec<Point>) {
-        let mut h = match self.history.try_lock() {
-            Ok(h) => h,
-            Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
-            Err(std::sync::TryLockError::WouldBlock) => return,
-        };
+        let Some(mut h) = try_lock(&self.history) else { return };
         for p in points.drain(..) {
             if h.len() >= self.history_len {
                 h.pop_front();
@@ -249,11 +244,7 @@ impl DriveState {
     /// The current commands, a pending reset taken (handed to the loop once); None when the HTTP side holds them
     /// right now.
     pub fn take_commands(&self) -> Option<Commands> {
-        let mut c = match self.commands.try_lock() {
-            Ok(c) => c,
-            Err(std::sync::TryLockError::Poisoned(e)) => e.into_inner(),
-            Err(std::sync::TryLockError::WouldBlock) => return None,
-        };
+        let mut c = try_lock(&self.commands)?;
         let out = *c;
         c.reset_requested = false;
         Some(out)
