@@ -1,6 +1,12 @@
 //! PURE estimation of shaft speed, load torque, inertia and viscous friction from measured speed and pressures
 //! (PHYSICS.md §2). Fed Δt and samples; never reads a clock. Implementations: RLS+SGD (the seed paper, corrected)
 //! and a Kalman filter.
+//!
+//! A service builds one estimator per drive and feeds it every sample:
+//! `let settings = EstimatorSettings::from_model(&model, path)?;` (the model's `[estimator]` table, checked, bad
+//! input naming the key), then `let mut est = build(&settings, &model);` and `est.update(&Measurement { .. })`
+//! per sample. Measurements carry Δt since the previous sample; a non-finite field is a missing value.
+//! docs/estimator.md gives the design, the measured accuracy and the settings.
 
 mod kalman;
 mod paper;
