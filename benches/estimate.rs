@@ -1,6 +1,8 @@
 //! The two halves of `hydrolens estimate` (src/replay_file.rs), each on one thread, on a `simulate` recording of
 //! 100 k rows (11 columns) in memory: the streaming reader (with the 4 columns the replay needs, and with all 11),
-//! and the replay with the formatting of its output. Times are the thread's CPU time (support/cpu_time.rs).
+//! and the replay with the formatting of its output (the careful way's two halves). Times are the thread's CPU
+//! time (support/cpu_time.rs). Then the whole of `estimate_file` on the same rows from a file to a file, the fast
+//! way with its two threads, in wall time.
 
 #[path = "support/cpu_time.rs"]
 mod cpu_time;
@@ -73,9 +75,42 @@ fn bench_estimate(c: &mut Criterion<cpu_time::Clock>) {
     g.finish();
 }
 
+/// `estimate_file` end to end, file to file (both threads: wall time). The output is removed after each run, so
+/// that each writes a new file as a first run does (replacing a file just written costs the kernel more).
+fn bench_estimate_file(c: &mut Criterion) {
+    let model = PlantModel::reference();
+    let duration_s = (ROWS - 1) as f64 * model.sample_s();
+    let rec = simulate::test_stand(&model, duration_s, 1, &mut |_| {}).expect("reference plant is hydraulic");
+    let dir = tempfile::tempdir().expect("temporary directory");
+    let path = dir.path().join("rec.csv");
+    let mut text = Vec::new();
+    recording::write_csv(&mut text, &rec).expect("writing to memory");
+    std::fs::write(&path, &text).expect("writing the recording");
+    let out = dir.path().join("est.csv");
+
+    let mut g = c.benchmark_group("estimate/100k_rows");
+    g.measurement_time(Duration::from_secs(4)).sample_size(20).warm_up_time(Duration::from_secs(1));
+    g.throughput(Throughput::ElementsAndBytes { elements: ROWS as u64, bytes: text.len() as u64 });
+    for method in [Method::RlsSgd, Method::Kalman] {
+        let settings = EstimatorSettings { method, ..EstimatorSettings::default() };
+        g.bench_function(format!("file_to_file_{method}"), |b| {
+            b.iter_batched(
+                || {
+                    let _ = std::fs::remove_file(&out);
+                    estimator::try_build(&settings, &model).expect("settings")
+                },
+                |mut est| hydrolens::replay_file::estimate_file(&path, &model, "model", est.as_mut(), &out),
+                criterion::BatchSize::PerIteration,
+            )
+        });
+    }
+    g.finish();
+}
+
 criterion_group! {
     name = benches;
     config = cpu_time::criterion();
     targets = bench_estimate
 }
-criterion_main!(benches);
+criterion_group!(wall, bench_estimate_file);
+criterion_main!(benches, wall);

@@ -1,12 +1,20 @@
 //! `hydrolens estimate` as a library: a recording file streamed through an estimator into an estimates CSV, in
-//! flat memory, on two threads: one reads, parses and writes the file, the other estimates and formats.
+//! flat memory, on two threads.
 //!
-//! The output is byte for byte what replaying the whole [`crate::recording::load`]ed recording and writing every
-//! row with [`crate::recording::RowWriter`] gives, and the errors are the ones that path reports, in its order:
-//! the recording's (first bad line), then the replay's (no torque or speed column, no displacement), then the
-//! output file's. The estimates are written under a temporary name beside the output (`.NAME.PID.tmp`) and renamed
-//! to it when everything is done, so on any error the output path is left as it was and the temporary file is
-//! removed. A path that is not a regular file, such as `/dev/null`, is written directly.
+//! The fast way, for the files `simulate` and `serve` write (and any other that the reader's fast path takes
+//! whole): the two threads are alike. Each takes the next chunk of lines from the file, parses it, waits for its
+//! turn to run the estimator over it (the one step that must go row after row), formats the estimates and waits
+//! for its turn to write them. So parsing and formatting, nine tenths of the work, run on both cores. A chunk the
+//! fast path turns down (quotes, `nan`, a bad cell, `t_s` not increasing) stops both, and the file is read again
+//! from the start the careful way, with a copy of the estimator as it was given: one thread reads, parses and
+//! writes, the other estimates and formats, and every rule and error message of the reader applies.
+//!
+//! Either way the output is byte for byte what replaying the whole [`crate::recording::load`]ed recording and
+//! writing every row with [`crate::recording::RowWriter`] gives, and the errors are the ones that path reports, in
+//! its order: the recording's (first bad line), then the replay's (no torque or speed column, no displacement),
+//! then the output file's. The estimates are written under a temporary name beside the output (`.NAME.PID.tmp`)
+//! and renamed to it when everything is done, so on any error the output path is left as it was and the temporary
+//! file is removed. A path that is not a regular file, such as `/dev/null`, is written directly.
 //!
 //! The replay takes `torque_nm` only if it holds a value somewhere, else the pressures (and `omega_rad_s` before
 //! `theta_rad` likewise). When both are in the header, the file is first read until the column shows a value,
@@ -15,11 +23,12 @@
 use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::mpsc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Condvar, Mutex, PoisonError, mpsc};
 
-use crate::estimator::{Estimator, Plan, ReplayError, Replayer};
+use crate::estimator::{Estimate, Estimator, Plan, ReplayError, Replayer};
 use crate::plant::PlantModel;
-use crate::recording::{Batch, RecordingError, StreamReader, push_value};
+use crate::recording::{Batch, Chunk, ChunkParser, ChunkSource, RecordingError, StreamReader, push_value};
 
 /// The columns of an estimates file.
 pub const COLUMNS: [&str; 5] = ["t_s", "omega_hat_rad_s", "load_hat_nm", "inertia_hat_kg_m2", "viscous_hat_nm_s_rad"];
@@ -30,6 +39,9 @@ const BATCH_ROWS: usize = 4096;
 const BATCHES_IN_FLIGHT: usize = 4;
 /// Output text handed back to the reading thread to write, in pieces of about this size.
 const TEXT_BYTES: usize = 1 << 18;
+/// Bytes of the recording a thread takes at a time on the fast way: its text, parsed columns, estimates and
+/// output (about 1 600 rows) stay in the core's own caches.
+const CHUNK_BYTES: usize = 1 << 18;
 
 /// Why an estimates file was not written.
 #[derive(Debug, thiserror::Error)]
@@ -53,10 +65,254 @@ pub fn estimate_file(
     estimator: &mut dyn Estimator,
     out: &Path,
 ) -> Result<u64, EstimateError> {
+    estimate_file_in_chunks(recording, model, model_origin, estimator, out, CHUNK_BYTES)
+}
+
+/// [`estimate_file`], taking `chunk_bytes` of the file at a time on the fast way (tests make it small).
+#[doc(hidden)]
+pub fn estimate_file_in_chunks(
+    recording: &Path,
+    model: &PlantModel,
+    model_origin: &str,
+    estimator: &mut dyn Estimator,
+    out: &Path,
+    chunk_bytes: usize,
+) -> Result<u64, EstimateError> {
+    let mut copy = estimator.boxed_clone();
+    match estimate_fast(recording, model, model_origin, copy.as_mut(), out, chunk_bytes) {
+        Some(done) => done,
+        None => estimate_careful(recording, model, model_origin, estimator, out),
+    }
+}
+
+/// The recording's reader with the replay's columns selected, and the replay's plan.
+fn open_planned(recording: &Path) -> Result<(StreamReader<File>, Plan), EstimateError> {
     let mut reader = StreamReader::open(recording).map_err(EstimateError::Recording)?;
     let plan = Plan::choose(reader.names(), |columns| holds_values(recording, columns));
     let selected: Vec<usize> = plan.columns().iter().filter_map(|c| reader.index_of(c)).collect();
     reader.select(&selected);
+    Ok((reader, plan))
+}
+
+/// Where the replay is, in the fast way: taken by one thread at a time, chunk after chunk.
+struct Estimating<'e> {
+    replayer: Replayer<'e>,
+    /// `t_s` of the last row replayed.
+    last_t: f64,
+}
+
+/// The fast way (see the module doc): `None` if the file is not for it, and nothing is left behind then.
+fn estimate_fast(
+    recording: &Path,
+    model: &PlantModel,
+    model_origin: &str,
+    estimator: &mut dyn Estimator,
+    out: &Path,
+    chunk_bytes: usize,
+) -> Option<Result<u64, EstimateError>> {
+    let (reader, plan) = match open_planned(recording) {
+        Ok(opened) => opened,
+        Err(e) => return Some(Err(e)),
+    };
+    let (source, parser) = reader.into_chunks()?;
+    let name = recording.display().to_string();
+    let replayer = Replayer::new(plan, model, model_origin, &name, estimator);
+    let shared = Shared {
+        source: Mutex::new((source, 0)),
+        parser,
+        chunk_bytes,
+        estimating: Turns::new(Estimating { replayer, last_t: f64::NEG_INFINITY }),
+        // an output error waits until the recording and the replay are known to be good
+        writing: Turns::new(Output::create(out)),
+        stop: AtomicBool::new(false),
+        rows: std::sync::atomic::AtomicU64::new(0),
+    };
+    std::thread::scope(|s| {
+        s.spawn(|| work(&shared));
+        work(&shared);
+    });
+    let estimating = shared.estimating.into_inner();
+    let output = shared.writing.into_inner();
+    if shared.stop.into_inner() || shared.rows.into_inner() == 0 {
+        // not for the fast way (or no rows, which the careful way names)
+        if let Ok(o) = output {
+            o.discard();
+        }
+        return None;
+    }
+    Some(match (estimating.replayer.finish(), output) {
+        (Err(e), output) => {
+            if let Ok(o) = output {
+                o.discard();
+            }
+            Err(EstimateError::Replay(e))
+        }
+        (Ok(_), Err(e)) => Err(e),
+        (Ok(rows), Ok(o)) => o.commit().map(|()| rows),
+    })
+}
+
+/// What the two threads of the fast way share.
+struct Shared<'e, R> {
+    /// The file, and the number of the next chunk.
+    source: Mutex<(ChunkSource<R>, u64)>,
+    parser: ChunkParser,
+    chunk_bytes: usize,
+    estimating: Turns<Estimating<'e>>,
+    writing: Turns<Result<Output, EstimateError>>,
+    /// Set when a chunk is not for the fast way (or a thread panicked): every thread stops.
+    stop: AtomicBool,
+    rows: std::sync::atomic::AtomicU64,
+}
+
+impl<R> Shared<'_, R> {
+    fn stop(&self) {
+        self.stop.store(true, Ordering::SeqCst);
+        self.estimating.wake_all();
+        self.writing.wake_all();
+    }
+}
+
+/// Stops the other thread if this one panics, so that it does not wait for a turn that never comes.
+struct StopOnPanic<'a, 'e, R>(&'a Shared<'e, R>);
+
+impl<R> Drop for StopOnPanic<'_, '_, R> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            self.0.stop();
+        }
+    }
+}
+
+/// One thread of the fast way: chunk after chunk, read and parse, estimate (in turn), format, write (in turn).
+fn work<R: std::io::Read>(shared: &Shared<'_, R>) {
+    let _stop_on_panic = StopOnPanic(shared);
+    let mut chunk = Chunk::default();
+    let mut batch = Batch::default();
+    let mut estimates: Vec<(f64, Estimate)> = Vec::new();
+    let mut text = Vec::new();
+    let mut rows = RowFormatter::default();
+    while !shared.stop.load(Ordering::Relaxed) {
+        let k = {
+            let mut source = shared.source.lock().unwrap_or_else(PoisonError::into_inner);
+            match source.0.next_chunk(&mut chunk, shared.chunk_bytes) {
+                Ok(true) => {
+                    source.1 += 1;
+                    source.1 - 1
+                }
+                Ok(false) => return,
+                // the careful way reads the file again and reports it
+                Err(_) => return shared.stop(),
+            }
+        };
+        if !shared.parser.parse(chunk.bytes(), &mut batch) {
+            return shared.stop();
+        }
+        let in_order = shared.estimating.take(k, &shared.stop, |e| {
+            if batch.t_s.first().is_some_and(|&t| t <= e.last_t) {
+                return false;
+            }
+            e.last_t = batch.t_s.last().copied().unwrap_or(e.last_t);
+            estimates.clear();
+            e.replayer.push(&batch.t_s, &batch.columns, |t, estimate| estimates.push((t, *estimate)));
+            true
+        });
+        match in_order {
+            Some(true) => {}
+            Some(false) => return shared.stop(),
+            None => return,
+        }
+        shared.rows.fetch_add(batch.len() as u64, Ordering::Relaxed);
+        text.clear();
+        for (t, e) in &estimates {
+            rows.push(&mut text, *t, e);
+        }
+        let written = shared.writing.take(k, &shared.stop, |output| {
+            if let Ok(o) = output {
+                o.write(&text);
+            }
+        });
+        if written.is_none() {
+            return;
+        }
+    }
+}
+
+/// A value used by turns: turn `k` comes after turns `0..k`, whichever thread takes them.
+struct Turns<T> {
+    state: Mutex<(u64, T)>,
+    next: Condvar,
+}
+
+impl<T> Turns<T> {
+    fn new(value: T) -> Turns<T> {
+        Turns { state: Mutex::new((0, value)), next: Condvar::new() }
+    }
+
+    /// Waits for turn `k` and runs `f` on the value; `None`, without running it, once `stop` is set.
+    fn take<U>(&self, k: u64, stop: &AtomicBool, f: impl FnOnce(&mut T) -> U) -> Option<U> {
+        let mut state = self.state.lock().unwrap_or_else(PoisonError::into_inner);
+        while state.0 != k && !stop.load(Ordering::SeqCst) {
+            state = self.next.wait(state).unwrap_or_else(PoisonError::into_inner);
+        }
+        if stop.load(Ordering::SeqCst) {
+            return None;
+        }
+        let done = f(&mut state.1);
+        state.0 += 1;
+        drop(state);
+        self.next.notify_all();
+        Some(done)
+    }
+
+    /// Wakes every thread waiting for a turn (to see `stop`).
+    fn wake_all(&self) {
+        drop(self.state.lock().unwrap_or_else(PoisonError::into_inner));
+        self.next.notify_all();
+    }
+
+    fn into_inner(self) -> T {
+        self.state.into_inner().unwrap_or_else(PoisonError::into_inner).1
+    }
+}
+
+/// Formats rows of estimates as the estimates file has them. J and B, which the RLS changes once a block and the
+/// Kalman filter never, are formatted once and copied while they stay the same (the same bits, the same text).
+#[derive(Default)]
+struct RowFormatter {
+    tail_bits: Option<[u64; 2]>,
+    /// `J,B\n` of the row before.
+    tail: Vec<u8>,
+}
+
+impl RowFormatter {
+    fn push(&mut self, text: &mut Vec<u8>, t: f64, e: &Estimate) {
+        for v in [t, e.omega_hat_rad_s, e.load_hat_nm] {
+            push_value(text, v);
+            text.push(b',');
+        }
+        let bits = [e.inertia_hat_kg_m2.to_bits(), e.viscous_hat_nm_s_rad.to_bits()];
+        if self.tail_bits != Some(bits) {
+            self.tail.clear();
+            push_value(&mut self.tail, e.inertia_hat_kg_m2);
+            self.tail.push(b',');
+            push_value(&mut self.tail, e.viscous_hat_nm_s_rad);
+            self.tail.push(b'\n');
+            self.tail_bits = Some(bits);
+        }
+        text.extend_from_slice(&self.tail);
+    }
+}
+
+/// The careful way (see the module doc).
+fn estimate_careful(
+    recording: &Path,
+    model: &PlantModel,
+    model_origin: &str,
+    estimator: &mut dyn Estimator,
+    out: &Path,
+) -> Result<u64, EstimateError> {
+    let (mut reader, plan) = open_planned(recording)?;
     let name = recording.display().to_string();
     let mut replayer = Replayer::new(plan, model, model_origin, &name, estimator);
     // an output error waits until the recording and the replay are known to be good
@@ -103,6 +359,7 @@ pub fn estimate_file(
         });
 
         let mut text = Vec::with_capacity(TEXT_BYTES + 1024);
+        let mut rows = RowFormatter::default();
         let mut recording_error = None;
         for message in batch_rx {
             let batch = match message {
@@ -112,14 +369,7 @@ pub fn estimate_file(
                     break;
                 }
             };
-            replayer.push(&batch.t_s, &batch.columns, |t, e| {
-                for v in [t, e.omega_hat_rad_s, e.load_hat_nm, e.inertia_hat_kg_m2] {
-                    push_value(&mut text, v);
-                    text.push(b',');
-                }
-                push_value(&mut text, e.viscous_hat_nm_s_rad);
-                text.push(b'\n');
-            });
+            replayer.push(&batch.t_s, &batch.columns, |t, e| rows.push(&mut text, t, e));
             if text.len() >= TEXT_BYTES {
                 let spare = spare_text_rx.try_recv().unwrap_or_else(|_| Vec::with_capacity(TEXT_BYTES + 1024));
                 let _ = text_tx.send(std::mem::replace(&mut text, spare));
@@ -226,6 +476,126 @@ impl Output {
     fn discard(self) {
         if let Some(temp) = &self.temp {
             let _ = std::fs::remove_file(temp);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimator::{EstimatorSettings, Method, try_build};
+    use crate::plant::simulate;
+
+    fn estimator(method: Method) -> Box<dyn Estimator> {
+        let settings = EstimatorSettings { method, ..EstimatorSettings::default() };
+        try_build(&settings, &PlantModel::reference()).expect("default settings fit the reference plant")
+    }
+
+    /// A test-stand recording of `seconds` as CSV text.
+    fn stand_csv(seconds: f64) -> String {
+        let rec = simulate::test_stand(&PlantModel::reference(), seconds, 7, &mut |_| {}).expect("simulate");
+        let mut text = Vec::new();
+        crate::recording::write_csv(&mut text, &rec).expect("to memory");
+        String::from_utf8(text).expect("UTF-8")
+    }
+
+    /// The estimates file the careful way writes for `rec`.
+    fn careful(rec: &Path, out: &Path, method: Method) -> Result<Vec<u8>, String> {
+        let model = PlantModel::reference();
+        estimate_careful(rec, &model, "model", estimator(method).as_mut(), out).map_err(|e| e.to_string())?;
+        Ok(std::fs::read(out).expect("output"))
+    }
+
+    fn files_in(dir: &Path) -> Vec<String> {
+        let mut names: Vec<String> = std::fs::read_dir(dir)
+            .expect("dir")
+            .map(|e| e.expect("entry").file_name().to_string_lossy().into())
+            .collect();
+        names.sort();
+        names
+    }
+
+    #[test]
+    fn the_fast_way_writes_what_the_careful_way_writes_in_chunks_of_any_size() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let rec = dir.path().join("r.csv");
+        std::fs::write(&rec, stand_csv(2.0)).expect("write");
+        let model = PlantModel::reference();
+        for method in [Method::RlsSgd, Method::Kalman] {
+            let expected = careful(&rec, &dir.path().join("careful.csv"), method).expect("valid");
+            for chunk_bytes in [1, 100, 4096, CHUNK_BYTES] {
+                let out = dir.path().join("fast.csv");
+                let done = estimate_fast(&rec, &model, "model", estimator(method).as_mut(), &out, chunk_bytes);
+                let rows = done.expect("a clean recording goes the fast way").expect("valid");
+                assert_eq!(rows, 2001);
+                let got = std::fs::read(&out).expect("output");
+                assert!(got == expected, "{method}, chunks of {chunk_bytes}: the fast way's output differs");
+            }
+        }
+        assert_eq!(files_in(dir.path()), ["careful.csv", "fast.csv", "r.csv"]);
+    }
+
+    #[test]
+    fn a_file_the_fast_way_turns_down_late_is_read_again_the_careful_way() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let text = stand_csv(2.0);
+        let lines: Vec<&str> = text.lines().collect();
+        let model = PlantModel::reference();
+        // at line 1501 of 2002: `nan` in a column the replay does not parse; quoted cells
+        let at = 1500;
+        let mut shapes = Vec::new();
+        for (name, line) in [
+            ("nan.csv", {
+                let mut cells: Vec<&str> = lines[at].split(',').collect();
+                cells[1] = "nan";
+                cells.join(",")
+            }),
+            ("quote.csv", lines[at].split(',').map(|c| format!("\"{c}\"")).collect::<Vec<_>>().join(",")),
+        ] {
+            let mut changed = lines.clone();
+            changed[at] = &line;
+            shapes.push((name, changed.join("\n") + "\n"));
+        }
+        for (name, text) in shapes {
+            let rec = dir.path().join(name);
+            std::fs::write(&rec, &text).expect("write");
+            let out = dir.path().join("out.csv");
+            assert!(estimate_fast(&rec, &model, "model", estimator(Method::RlsSgd).as_mut(), &out, 4096).is_none());
+            assert!(!out.exists(), "{name}: the fast way leaves nothing behind");
+            let expected = careful(&rec, &dir.path().join("careful.csv"), Method::RlsSgd).expect("valid");
+            let mut est = estimator(Method::RlsSgd);
+            estimate_file_in_chunks(&rec, &model, "model", est.as_mut(), &out, 4096).expect("valid");
+            assert!(std::fs::read(&out).expect("output") == expected, "{name}: not the careful way's output");
+            std::fs::remove_file(&out).expect("remove");
+        }
+    }
+
+    #[test]
+    fn errors_found_across_chunks_are_the_careful_ways_and_leave_nothing_behind() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let model = PlantModel::reference();
+        let head = "t_s,omega_rad_s,torque_nm,f_set_hz\n";
+        let rows: String = (0..40).map(|k| format!("{},{}.5,2,10\n", k as f64 * 0.001, k)).collect();
+        for (tail, parts) in [
+            ("0.01,1,2,10\n", ["line 42", "`t_s`", "backwards"]),
+            ("0.05,1,2,1x0\n", ["line 42", "`f_set_hz`", "1x0"]),
+            ("0.05,1,2\n", ["line 42", "3 fields", "expected 4"]),
+        ] {
+            let rec = dir.path().join("bad.csv");
+            std::fs::write(&rec, format!("{head}{rows}{tail}")).expect("write");
+            let out = dir.path().join("est.csv");
+            std::fs::write(&out, "before").expect("write");
+            for chunk_bytes in [1, 30, 4096] {
+                let mut est = estimator(Method::Kalman);
+                let err = estimate_file_in_chunks(&rec, &model, "model", est.as_mut(), &out, chunk_bytes)
+                    .expect_err("bad input")
+                    .to_string();
+                for p in parts {
+                    assert!(err.contains(p), "chunks of {chunk_bytes}: `{p}` not in {err}");
+                }
+                assert_eq!(std::fs::read(&out).expect("output"), b"before");
+                assert_eq!(files_in(dir.path()), ["bad.csv", "est.csv"]);
+            }
         }
     }
 }

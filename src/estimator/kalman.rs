@@ -100,6 +100,10 @@ impl Estimator for Kalman {
         after
     }
 
+    fn boxed_clone(&self) -> Box<dyn Estimator> {
+        Box::new(self.clone())
+    }
+
     fn estimate(&self) -> Estimate {
         Estimate {
             omega_hat_rad_s: self.x[0],

@@ -49,6 +49,8 @@ pub trait Estimator: Send {
     fn update(&mut self, m: &Measurement) -> Estimate;
     /// The latest estimate.
     fn estimate(&self) -> Estimate;
+    /// A copy in the present state, for a replay that may have to start over.
+    fn boxed_clone(&self) -> Box<dyn Estimator>;
 }
 
 /// The estimator `settings.method` names, for a model; the settings key at fault when they do not fit the model.

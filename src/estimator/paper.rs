@@ -90,6 +90,10 @@ impl Estimator for PaperLiteral {
         after
     }
 
+    fn boxed_clone(&self) -> Box<dyn Estimator> {
+        Box::new(self.clone())
+    }
+
     fn estimate(&self) -> Estimate {
         let [jlo, jhi] = self.s.inertia_bounds_kg_m2;
         let [blo, bhi] = self.s.viscous_bounds_nm_s_rad;

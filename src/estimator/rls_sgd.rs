@@ -324,6 +324,10 @@ impl Estimator for RlsSgd {
         after
     }
 
+    fn boxed_clone(&self) -> Box<dyn Estimator> {
+        Box::new(self.clone())
+    }
+
     fn estimate(&self) -> Estimate {
         Estimate {
             omega_hat_rad_s: self.omega_hat_rad_s,

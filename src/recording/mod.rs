@@ -5,7 +5,7 @@ pub mod stream;
 mod write;
 
 pub use read::{RecordingError, load, parse};
-pub use stream::{Batch, StreamReader};
+pub use stream::{Batch, Chunk, ChunkParser, ChunkSource, StreamReader};
 pub use write::{RotatingWriter, RowWriter, format_value, push_value, write_csv};
 
 /// The columns the contract names; anything else in a file is kept but reported once as unknown.

@@ -262,6 +262,119 @@ impl<R: Read> StreamReader<R> {
     }
 }
 
+impl<R: Read> StreamReader<R> {
+    /// The rest of the file as chunks of whole lines that [`ChunkParser::parse`] reads on the fast path, on as many
+    /// threads as there are chunks, or `None` when the csv crate reads this file (quotes in the header). Call it
+    /// right after [`StreamReader::select`], before any row is read.
+    pub fn into_chunks(self) -> Option<(ChunkSource<R>, ChunkParser)> {
+        match self.input {
+            Input::Lines(lines) if self.rows == 0 => Some((
+                ChunkSource {
+                    reader: lines.reader,
+                    pending: lines.buf[lines.start..lines.end].to_vec(),
+                    eof: lines.eof,
+                },
+                ChunkParser { roles: self.roles, selected: self.selected },
+            )),
+            _ => None,
+        }
+    }
+}
+
+/// The rows of a recording after its header, handed out as chunks of whole lines (see [`StreamReader::into_chunks`]).
+pub struct ChunkSource<R> {
+    reader: R,
+    /// Read and not yet handed out: the start of a line the last chunk did not take whole.
+    pending: Vec<u8>,
+    eof: bool,
+}
+
+/// One chunk of whole lines, its buffer reused from chunk to chunk.
+#[derive(Debug, Default)]
+pub struct Chunk {
+    buf: Vec<u8>,
+    len: usize,
+}
+
+impl Chunk {
+    /// The lines, each ended by `\n` but for the file's last one.
+    pub fn bytes(&self) -> &[u8] {
+        &self.buf[..self.len]
+    }
+}
+
+impl<R: Read> ChunkSource<R> {
+    /// Replaces `chunk` with the next whole lines, at least `bytes` of them unless the file ends first (a longer line
+    /// comes whole); `false` at the end of the file.
+    pub fn next_chunk(&mut self, chunk: &mut Chunk, bytes: usize) -> std::io::Result<bool> {
+        let want = bytes.max(1);
+        if chunk.buf.len() < want.max(self.pending.len()) {
+            chunk.buf.resize(want.max(self.pending.len()), 0);
+        }
+        chunk.buf[..self.pending.len()].copy_from_slice(&self.pending);
+        chunk.len = self.pending.len();
+        self.pending.clear();
+        while !self.eof {
+            if chunk.len >= want
+                && let Some(last) = memchr::memrchr(b'\n', &chunk.buf[..chunk.len])
+            {
+                self.pending.extend_from_slice(&chunk.buf[last + 1..chunk.len]);
+                chunk.len = last + 1;
+                break;
+            }
+            // up to `want` bytes, or twice as many for a line that is longer
+            let end = if chunk.len < want { want } else { 2 * chunk.len };
+            if chunk.buf.len() < end {
+                chunk.buf.resize(end, 0);
+            }
+            match self.reader.read(&mut chunk.buf[chunk.len..end]) {
+                Ok(0) => self.eof = true,
+                Ok(n) => chunk.len += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e),
+            }
+        }
+        Ok(chunk.len > 0)
+    }
+}
+
+/// Reads chunks of a recording's lines into batches on the fast path alone, on any thread.
+#[derive(Debug, Clone)]
+pub struct ChunkParser {
+    roles: Vec<Role>,
+    selected: usize,
+}
+
+impl ChunkParser {
+    /// Replaces `batch`'s content with the rows of `lines` (whole lines, blank ones skipped): `false` if a line is
+    /// not for the fast path (quotes, a bad or unusual cell such as `nan`, a ragged row) or `t_s` is not finite and
+    /// increasing within the chunk. The file must then be read by [`StreamReader::read_batch`], which gives its
+    /// values or the error with its line and column. Rows of different chunks are not compared.
+    pub fn parse(&self, lines: &[u8], batch: &mut Batch) -> bool {
+        batch.reset(self.selected);
+        let mut last_t = f64::NEG_INFINITY;
+        let mut start = 0;
+        for end in memchr::memchr_iter(b'\n', lines).chain(std::iter::once(lines.len())) {
+            let line = &lines[start..end];
+            start = end + 1;
+            if is_blank(line) {
+                continue;
+            }
+            match fast_row(line, &self.roles, batch) {
+                Some(t) if t.is_finite() && t > last_t => {
+                    batch.t_s.push(t);
+                    last_t = t;
+                }
+                _ => {
+                    batch.truncate_to_rows();
+                    return false;
+                }
+            }
+        }
+        true
+    }
+}
+
 fn io_error(origin: &str, source: std::io::Error) -> RecordingError {
     RecordingError::Io { path: origin.to_string(), source }
 }
@@ -324,10 +437,21 @@ fn skip_blanks(line: &[u8], mut i: usize) -> usize {
     }
 }
 
+/// Where the content of the cell starting at `i` starts, after blanks.
+#[inline]
+fn cell_start(line: &[u8], i: usize) -> usize {
+    if matches!(line.get(i), Some(b' ' | b'\t' | b'\r')) { skip_blanks(line, i) } else { i }
+}
+
 /// Where a cell whose content ends at `i` ends: at a comma or the end of the line, after blanks; `None` if
 /// anything else follows.
 #[inline]
 fn cell_end(line: &[u8], i: usize) -> Option<usize> {
+    // the common case first: the comma or the end right there (a branch, not a jump table)
+    let b = line.get(i).copied();
+    if b == Some(b',') || b.is_none() {
+        return Some(i);
+    }
     let i = skip_blanks(line, i);
     match line.get(i) {
         None | Some(b',') => Some(i),
@@ -338,7 +462,7 @@ fn cell_end(line: &[u8], i: usize) -> Option<usize> {
 /// The number in the cell starting at `i` (NaN when empty) and where the cell ends.
 #[inline]
 fn number_cell(line: &[u8], i: usize) -> Option<(f64, usize)> {
-    let i = skip_blanks(line, i);
+    let i = cell_start(line, i);
     match line.get(i) {
         None | Some(b',') => Some((f64::NAN, i)),
         Some(_) => {
@@ -351,7 +475,7 @@ fn number_cell(line: &[u8], i: usize) -> Option<(f64, usize)> {
 /// Where the cell starting at `i` ends, if it is empty or a plain decimal number.
 #[inline]
 fn checked_cell_end(line: &[u8], i: usize) -> Option<usize> {
-    let i = skip_blanks(line, i);
+    let i = cell_start(line, i);
     match line.get(i) {
         None | Some(b',') => Some(i),
         Some(_) => cell_end(line, plain_number_end(line, i)?),
@@ -397,10 +521,12 @@ fn skip_digits(s: &[u8], mut i: usize) -> usize {
         let mut word = [0u8; 8];
         word.copy_from_slice(chunk);
         let v = u64::from_le_bytes(word);
-        // every byte in b'0'..=b'9' (fast_float's test): no high bit after adding 0x46 or subtracting 0x30
-        if (v.wrapping_add(0x4646_4646_4646_4646) | v.wrapping_sub(0x3030_3030_3030_3030)) & 0x8080_8080_8080_8080 != 0
-        {
-            break;
+        // a byte outside b'0'..=b'9' gets its high bit from adding 0x46 or subtracting 0x30 (fast_float's test);
+        // carries and borrows only run towards later bytes, so the first flagged byte is the first non-digit
+        let flagged =
+            (v.wrapping_add(0x4646_4646_4646_4646) | v.wrapping_sub(0x3030_3030_3030_3030)) & 0x8080_8080_8080_8080;
+        if flagged != 0 {
+            return i + (flagged.trailing_zeros() / 8) as usize;
         }
         i += 8;
     }
@@ -627,6 +753,105 @@ mod tests {
                 _ => panic!("{text:?}: parse says {a}, the stream says {b}"),
             },
             (a, b) => panic!("{text:?}: parse gives {a:?}, the stream {b:?}"),
+        }
+        // the chunks may turn a file down, but what they take they read as `parse` does
+        for want in [1, 7, 64] {
+            if let Some(chunked) = read_chunked(text.as_bytes(), want, piece) {
+                let rec = parse(text.as_bytes(), "r.csv").expect("the chunks took a file that `parse` rejects");
+                for (name, c) in rec.names().iter().zip(&chunked) {
+                    assert!(same_bits(rec.column(name).expect("column"), c), "{name} in {text:?}, chunks of {want}");
+                }
+            }
+        }
+    }
+
+    /// All of `text` through [`StreamReader::into_chunks`], every column but `t_s` selected, in chunks of `want`
+    /// bytes read `piece` bytes at a time: the columns in `parse`'s order (`t_s` first); `None` if a chunk
+    /// was turned down or `t_s` does not increase from one chunk to the next. Checks that each chunk is whole lines
+    /// and that together they are the file after the header.
+    fn read_chunked(text: &[u8], want: usize, piece: usize) -> Option<Vec<Vec<f64>>> {
+        let mut r = StreamReader::new(Trickle { text, at: 0, piece }, "r.csv").ok()?;
+        let others: Vec<usize> = (0..r.names().len()).filter(|&i| r.names()[i] != "t_s").collect();
+        r.select(&others);
+        let (mut source, parser) = r.into_chunks()?;
+        let mut columns = vec![Vec::new(); others.len() + 1];
+        let (mut chunk, mut batch, mut all) = (Chunk::default(), Batch::default(), Vec::new());
+        let mut turned_down = false;
+        while source.next_chunk(&mut chunk, want).expect("in memory") {
+            assert!(!all.is_empty() || !chunk.bytes().is_empty());
+            assert!(all.is_empty() || all.ends_with(b"\n"), "a chunk ends a line, but for the file's last");
+            all.extend_from_slice(chunk.bytes());
+            if turned_down || !parser.parse(chunk.bytes(), &mut batch) {
+                turned_down = true;
+                continue;
+            }
+            if batch.t_s.first().is_some_and(|t| columns[0].last().is_some_and(|last| t <= last)) {
+                turned_down = true;
+            }
+            columns[0].extend(&batch.t_s);
+            for (c, values) in columns[1..].iter_mut().zip(&batch.columns) {
+                assert_eq!(values.len(), batch.len());
+                c.extend(values);
+            }
+        }
+        assert!(text.ends_with(&all), "the chunks are the file after the header");
+        let header = &text[..text.len() - all.len()];
+        assert!(header.ends_with(b"\n") || all.is_empty(), "the header is not in the chunks");
+        (!turned_down).then_some(columns)
+    }
+
+    #[test]
+    fn clean_files_go_through_the_chunks_whole() {
+        for text in [
+            "t_s,omega_rad_s\r\n0,1\r\n0.001,2\r\n",
+            "\u{feff}t_s,omega_rad_s\n0,1\n0.001,2",
+            " t_s , omega_rad_s \n 0 , 1 \n\t0.001\t,\t2\t\n",
+            "\n\nt_s,omega_rad_s\n\n0,1\n\r\n\n0.001,2\n\n",
+            "omega_rad_s,t_s,x\n1.5,0,\n,0.001,3\n2,0.002,-4e-3\n-0.25,0.003,1E+5\n",
+        ] {
+            for (want, piece) in [(1, 1), (5, 3), (64, 2), (1 << 18, 1 << 20)] {
+                let chunked = read_chunked(text.as_bytes(), want, piece).expect("a clean file is taken");
+                let rec = parse(text.as_bytes(), "r.csv").expect("valid");
+                for (name, c) in rec.names().iter().zip(&chunked) {
+                    assert!(same_bits(rec.column(name).expect("column"), c), "{name} in {text:?}");
+                }
+            }
+        }
+        // a line longer than the chunk comes whole
+        let long = format!("t_s,x\n0,{}\n0.001,2\n", "1".repeat(300));
+        assert!(read_chunked(long.as_bytes(), 16, 7).is_some());
+    }
+
+    #[test]
+    fn the_chunks_turn_down_what_needs_the_careful_path() {
+        for text in [
+            "t_s,x\n0,1\n0.001,\"2\"\n",
+            "t_s,x\n0,1\n0.001,abc\n",
+            "t_s,x\n0,1,2\n",
+            "t_s,x\n0.001,1\n0.001,2\n",
+            "t_s,x\n0.002,1\n0.001,2\n",
+            "t_s,x\n,1\n",
+            "t_s,x\n0,1\r0.001,2\n",
+        ] {
+            for want in [1, 64] {
+                assert!(read_chunked(text.as_bytes(), want, 3).is_none(), "{text:?} in chunks of {want}");
+            }
+        }
+        // quotes in the header: the csv crate reads the whole file
+        let r = StreamReader::new("\"t_s\",x\n0,1\n".as_bytes(), "r.csv").expect("header");
+        assert!(r.into_chunks().is_none());
+        // `nan` and `inf` are parsed where a column is selected, and left to the careful path where it is only checked
+        let taken = |text: &str, selected: &[usize]| {
+            let mut r = StreamReader::new(text.as_bytes(), "r.csv").expect("header");
+            r.select(selected);
+            let (mut source, parser) = r.into_chunks().expect("no quotes");
+            let (mut chunk, mut batch) = (Chunk::default(), Batch::default());
+            source.next_chunk(&mut chunk, 64).expect("in memory");
+            parser.parse(chunk.bytes(), &mut batch)
+        };
+        for text in ["t_s,x\n0,nan\n", "t_s,x\n0,-inf\n"] {
+            assert!(taken(text, &[1]));
+            assert!(!taken(text, &[]));
         }
     }
 

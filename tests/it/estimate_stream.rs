@@ -51,6 +51,16 @@ fn assert_same_as_whole_file(dir: &Path, name: &str, text: &[u8]) {
         let got = std::fs::read(&out).expect("output");
         let expected = whole_file_estimate(&rec, method);
         assert!(got == expected, "{name} {flag}: the streamed output differs from the whole-file path's");
+        // and in small chunks, so that the two threads of the fast way take turns many times
+        let model = PlantModel::load(&model_path()).expect("model");
+        let origin = model_path().display().to_string();
+        let settings =
+            EstimatorSettings { method, ..EstimatorSettings::from_model(&model, &origin).expect("settings") };
+        let mut est = estimator::try_build(&settings, &model).expect("estimator");
+        let small = dir.join(format!("small-{flag}-{name}"));
+        hydrolens::replay_file::estimate_file_in_chunks(&rec, &model, &origin, est.as_mut(), &small, 4096)
+            .expect("valid");
+        assert!(std::fs::read(&small).expect("output") == expected, "{name} {flag}: differs in chunks of 4 KiB");
     }
 }
 
