@@ -2,13 +2,14 @@
 # Runs hydrolens side by side with the Python peers a user might reach for, on this machine, and prints one markdown
 # table. Idempotent; every step is bounded by `timeout`. Not part of CI (README "Benchmarks").
 #   (a) Modbus: one read of 6 input registers, tokio-modbus (benches/modbus.rs) vs pymodbus, same `hydrolens sim`
-#   (b) estimation: `hydrolens estimate` vs padasip's RLS on the same 60 s recording
+#   (b) estimation: `hydrolens estimate` vs padasip's RLS on the same 60 s and 10-minute recordings
 #   (c) analysis: `hydrolens analyze` vs PySINDy, what each finds and how long it takes, on a clean recording and on
 #       one with concealed effects (dead time 30 ms + Coulomb friction 0.6 N·m, the nominal model without them);
 #       then wall time, user CPU and max RSS of both on longer concealed-effects recordings
 #   (d) HTTP: wrk on /api/status of `hydrolens demo`
 # Environment: REQUESTS (Modbus requests per run, 5000), ROUNDS (alternating runs per client, 3),
 # REPEATS (timed runs of each offline tool, 3), DURATION_S (recording length, 60),
+# ESTIMATE_DURATIONS (lengths in s of the further recordings timed in (b), "600"),
 # ANALYSIS_DURATIONS (lengths in s of the concealed-effects recordings timed in (c), "600 3600"),
 # PYSINDY_MAX_S (skip PySINDy on a recording where its projected time is longer, 300), PEERS_STEPS (which steps to
 # run, "a b c d"),
@@ -19,6 +20,7 @@ REQUESTS=${REQUESTS:-5000}
 ROUNDS=${ROUNDS:-3}
 REPEATS=${REPEATS:-3}
 DURATION_S=${DURATION_S:-60}
+ESTIMATE_DURATIONS=${ESTIMATE_DURATIONS:-600}
 ANALYSIS_DURATIONS=${ANALYSIS_DURATIONS:-600 3600}
 PYSINDY_MAX_S=${PYSINDY_MAX_S:-300}
 PEERS_STEPS=${PEERS_STEPS:-a b c d}
@@ -133,26 +135,39 @@ if step a; then
     "p50 $(field p50_us "$inproc"), p99 $(field p99_us "$inproc")" "—" "—"
 fi
 
-# (b) estimation: padasip's RLS vs `hydrolens estimate`
+# (b) estimation: padasip's RLS vs `hydrolens estimate`, on the DURATION_S recording and on each of
+# ESTIMATE_DURATIONS, ROUNDS rounds: padasip once, then `estimate` REPEATS times, each writing a new file (replacing
+# the file the run before wrote would add the kernel's work of dropping its pages)
 if step b; then
-  say "padasip RLS on $ROWS rows"
-  pad=$(timeout 300 "$PY" bench/padasip_rls.py "$REC" "$REPEATS")
-  echo "$pad" >&2
-  pad_rps=$(field rows_per_s "$pad")
-  if has_command estimate; then
-    times=()
-    for _ in $(seq "$REPEATS"); do
-      times+=("$(wall_s "$BIN" estimate "$REC" --model config/plant.toml --out "$WORK/est.csv" || echo nan)")
+  for d in "$DURATION_S" $ESTIMATE_DURATIONS; do
+    rec="$WORK/rec${d}s.csv"
+    recording config/plant.toml "$d" "$rec"
+    rows=$(($(wc -l <"$rec") - 1))
+    : >"$WORK/padasip.txt"
+    ours=()
+    for round in $(seq "$ROUNDS"); do
+      say "padasip RLS and hydrolens estimate on $rows rows, round $round"
+      timeout 900 "$PY" bench/padasip_rls.py "$rec" 1 >>"$WORK/padasip.txt"
+      if has_command estimate; then
+        for _ in $(seq "$REPEATS"); do
+          rm -f "$WORK/est.csv"
+          ours+=("$(wall_s "$BIN" estimate "$rec" --model config/plant.toml --out "$WORK/est.csv" || echo nan)")
+        done
+      fi
     done
-    est_s=$(printf '%s\n' "${times[@]}" | grep -v nan | median)
-    ours_rps=$(awk -v n="$ROWS" -v s="$est_s" 'BEGIN { if (s + 0 > 0) printf "%.0f", n / s; else print "failed" }')
-    row "RLS on a ${DURATION_S} s recording, rows/s end to end incl. CSV (median of $REPEATS)" \
-      "$ours_rps (hydrolens estimate)" "$pad_rps (padasip FilterRLS, numpy.loadtxt)" "$(ratio "$ours_rps" "$pad_rps") (ours ÷ peer)"
-  else
-    row "RLS on a ${DURATION_S} s recording, rows/s end to end incl. CSV (median of $REPEATS)" \
-      "not available yet (no \`estimate\`)" "$pad_rps (padasip FilterRLS, numpy.loadtxt)" "—"
-  fi
-  row "padasip RLS alone (CSV load excluded), rows/s" "—" "$(field rls_rows_per_s "$pad")" "—"
+    cat "$WORK/padasip.txt" >&2
+    pad_s=$(while read -r l; do field total_s "$l"; done <"$WORK/padasip.txt" | median)
+    pad_rls_s=$(while read -r l; do field rls_s "$l"; done <"$WORK/padasip.txt" | median)
+    pad_rps=$(awk -v n="$rows" -v s="$pad_s" 'BEGIN { if (s + 0 > 0) printf "%.0f", n / s; else print "nan" }')
+    pad_rls_rps=$(awk -v n="$rows" -v s="$pad_rls_s" 'BEGIN { if (s + 0 > 0) printf "%.0f", n / s; else print "nan" }')
+    est_s=$(printf '%s\n' "${ours[@]}" | grep -v nan | median)
+    ours_rps=$(awk -v n="$rows" -v s="$est_s" 'BEGIN { if (s + 0 > 0) printf "%.0f", n / s; else print "nan" }')
+    row "RLS on a ${d} s recording ($rows rows), rows/s end to end incl. CSV (median of $ROUNDS alternating rounds; ours ${REPEATS}× a round)" \
+      "$ours_rps (hydrolens estimate, ${est_s} s)" "$pad_rps (padasip FilterRLS + numpy.loadtxt, ${pad_s} s)" \
+      "$(ratio "$ours_rps" "$pad_rps") (ours ÷ peer)"
+    row "padasip RLS alone on the ${d} s recording (CSV load excluded), rows/s" "—" "$pad_rls_rps" \
+      "$(ratio "$ours_rps" "$pad_rls_rps") (ours end to end ÷ peer's filter alone)"
+  done
 fi
 
 # (c) analysis: `hydrolens analyze` vs PySINDy, what each finds and how long it takes. PySINDy fits the speed equation
