@@ -53,7 +53,7 @@ pub enum EstimateError {
     /// A recording without the columns the replay needs, or a model without the displacement: bad input.
     #[error(transparent)]
     Replay(ReplayError),
-    #[error("{action} {path}: {source}")]
+    #[error("{action} {path}")]
     Output { action: &'static str, path: String, source: std::io::Error },
 }
 
