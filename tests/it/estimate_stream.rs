@@ -240,3 +240,16 @@ proptest! {
         assert_same_as_whole_file(dir.path(), "r.csv", text.as_bytes());
     }
 }
+
+#[test]
+fn an_output_that_cannot_be_created_is_named_once_with_its_cause() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec = dir.path().join("r.csv");
+    std::fs::write(&rec, "t_s,omega_rad_s,torque_nm\n0,1,2\n0.001,1,2\n").expect("write");
+    let out = dir.path().join("no such dir").join("est.csv");
+    let o = run_estimate(&rec, &out, "rls-sgd");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains(&format!("creating {}", out.display())), "{err}");
+    assert_eq!(err.matches("os error 2").count(), 1, "the cause once: {err}");
+}
