@@ -99,7 +99,7 @@ fn bench_estimate_file(c: &mut Criterion) {
                     let _ = std::fs::remove_file(&out);
                     estimator::try_build(&settings, &model).expect("settings")
                 },
-                |mut est| hydrolens::replay_file::estimate_file(&path, &model, "model", est.as_mut(), &out),
+                |est| hydrolens::replay_file::estimate_file(&path, &model, "model", est.as_ref(), &out),
                 criterion::BatchSize::PerIteration,
             )
         });

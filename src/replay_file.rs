@@ -14,7 +14,8 @@
 //! its order: the recording's (first bad line), then the replay's (no torque or speed column, no displacement),
 //! then the output file's. The estimates are written under a temporary name beside the output (`.NAME.PID.tmp`)
 //! and renamed to it when everything is done, so on any error the output path is left as it was and the temporary
-//! file is removed. A path that is not a regular file, such as `/dev/null`, is written directly.
+//! file is removed. A path that is there and is not a regular file (`/dev/null`, a pipe, a symbolic link such as
+//! `/dev/stdout`) is written directly, and the careful way only: what went out cannot be taken back.
 //!
 //! The replay takes `torque_nm` only if it holds a value somewhere, else the pressures (and `omega_rad_s` before
 //! `theta_rad` likewise). When both are in the header, the file is first read until the column shows a value,
@@ -57,13 +58,14 @@ pub enum EstimateError {
     Output { action: &'static str, path: String, source: std::io::Error },
 }
 
-/// Replays the recording at `recording` through `estimator` into an estimates CSV at `out` ([`COLUMNS`], one row
-/// per recorded row); `model_origin` names the model in messages. Returns the number of rows.
+/// Replays the recording at `recording` through a copy of `estimator` (its state is where the replay starts)
+/// into an estimates CSV at `out` ([`COLUMNS`], one row per recorded row); `model_origin` names the model in
+/// messages. Returns the number of rows.
 pub fn estimate_file(
     recording: &Path,
     model: &PlantModel,
     model_origin: &str,
-    estimator: &mut dyn Estimator,
+    estimator: &dyn Estimator,
     out: &Path,
 ) -> Result<u64, EstimateError> {
     estimate_file_in_chunks(recording, model, model_origin, estimator, out, CHUNK_BYTES)
@@ -75,15 +77,25 @@ pub fn estimate_file_in_chunks(
     recording: &Path,
     model: &PlantModel,
     model_origin: &str,
-    estimator: &mut dyn Estimator,
+    estimator: &dyn Estimator,
     out: &Path,
     chunk_bytes: usize,
 ) -> Result<u64, EstimateError> {
-    let mut copy = estimator.boxed_clone();
-    match estimate_fast(recording, model, model_origin, copy.as_mut(), out, chunk_bytes) {
-        Some(done) => done,
-        None => estimate_careful(recording, model, model_origin, estimator, out),
+    // what is written in place cannot be taken back, and the fast way may have to start over
+    if !written_in_place(out)
+        && let Some(done) =
+            estimate_fast(recording, model, model_origin, estimator.boxed_clone().as_mut(), out, chunk_bytes)
+    {
+        return done;
     }
+    estimate_careful(recording, model, model_origin, estimator.boxed_clone().as_mut(), out)
+}
+
+/// Whether the estimates go straight to `out` rather than to a temporary file renamed over it: for anything that
+/// is there and is not a regular file, such as `/dev/null`, a pipe, or a symbolic link (`/dev/stdout` is one, to
+/// whatever standard output is: renaming over it would replace the link).
+fn written_in_place(out: &Path) -> bool {
+    std::fs::symlink_metadata(out).is_ok_and(|m| !m.is_file())
 }
 
 /// The recording's reader with the replay's columns selected, and the replay's plan.
@@ -439,7 +451,7 @@ fn holds_values(recording: &Path, columns: &[&str]) -> Vec<bool> {
 /// [`Output::commit`]. The first write error is kept and reported there.
 struct Output {
     file: File,
-    /// The temporary file, or `None` when writing directly to `path` (not a regular file).
+    /// The temporary file, or `None` when writing directly to `path` (see [`written_in_place`]) or once renamed.
     temp: Option<PathBuf>,
     path: PathBuf,
     error: Option<std::io::Error>,
@@ -448,7 +460,7 @@ struct Output {
 impl Output {
     /// Creates the file and writes the header row.
     fn create(path: &Path) -> Result<Output, EstimateError> {
-        let special = std::fs::metadata(path).is_ok_and(|m| !m.is_file());
+        let special = written_in_place(path);
         let temp = match path.file_name() {
             Some(name) if !special => {
                 let mut temp_name = std::ffi::OsString::from(".");
@@ -476,23 +488,34 @@ impl Output {
         }
     }
 
-    /// Renames the temporary file to the final path, or reports the first write error.
+    /// Renames the temporary file to the final path, or reports the first write error (and removes the file).
     fn commit(mut self) -> Result<(), EstimateError> {
         let done = match (self.error.take(), &self.temp) {
             (Some(e), _) => Err(e),
             (None, Some(temp)) => std::fs::rename(temp, &self.path),
             (None, None) => Ok(()),
         };
-        done.map_err(|source| {
-            let path = self.path.display().to_string();
-            self.discard();
-            EstimateError::Output { action: "writing", path, source }
-        })
+        match done {
+            Ok(()) => {
+                self.temp = None;
+                Ok(())
+            }
+            Err(source) => {
+                Err(EstimateError::Output { action: "writing", path: self.path.display().to_string(), source })
+            }
+        }
     }
 
-    /// Removes the temporary file.
+    /// Removes the temporary file (as dropping it does).
     fn discard(self) {
-        if let Some(temp) = &self.temp {
+        drop(self);
+    }
+}
+
+impl Drop for Output {
+    /// Removes the temporary file unless it was renamed into place: on an error, and on a panic.
+    fn drop(&mut self) {
+        if let Some(temp) = self.temp.take() {
             let _ = std::fs::remove_file(temp);
         }
     }
@@ -581,11 +604,31 @@ mod tests {
             assert!(estimate_fast(&rec, &model, "model", estimator(Method::RlsSgd).as_mut(), &out, 4096).is_none());
             assert!(!out.exists(), "{name}: the fast way leaves nothing behind");
             let expected = careful(&rec, &dir.path().join("careful.csv"), Method::RlsSgd).expect("valid");
-            let mut est = estimator(Method::RlsSgd);
-            estimate_file_in_chunks(&rec, &model, "model", est.as_mut(), &out, 4096).expect("valid");
+            let est = estimator(Method::RlsSgd);
+            estimate_file_in_chunks(&rec, &model, "model", est.as_ref(), &out, 4096).expect("valid");
             assert!(std::fs::read(&out).expect("output") == expected, "{name}: not the careful way's output");
             std::fs::remove_file(&out).expect("remove");
         }
+    }
+
+    #[test]
+    fn the_temporary_file_goes_unless_renamed_into_place() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let out = dir.path().join("est.csv");
+        std::fs::write(&out, "before").expect("write");
+        let o = Output::create(&out).expect("create");
+        assert_eq!(files_in(dir.path()).len(), 2, "a temporary file beside the output");
+        drop(o); // as on an error or a panic
+        assert_eq!(files_in(dir.path()), ["est.csv"]);
+        assert_eq!(std::fs::read(&out).expect("output"), b"before");
+        let mut o = Output::create(&out).expect("create");
+        o.write(b"0,1,2,3,4\n");
+        o.commit().expect("commit");
+        assert_eq!(files_in(dir.path()), ["est.csv"]);
+        assert!(std::fs::read_to_string(&out).expect("output").starts_with("t_s,"));
+        // written in place: no temporary file
+        assert!(written_in_place(Path::new("/dev/null")) && !written_in_place(&out));
+        assert!(!written_in_place(&dir.path().join("not there yet.csv")));
     }
 
     #[test]
@@ -604,8 +647,8 @@ mod tests {
             let out = dir.path().join("est.csv");
             std::fs::write(&out, "before").expect("write");
             for chunk_bytes in [1, 30, 4096] {
-                let mut est = estimator(Method::Kalman);
-                let err = estimate_file_in_chunks(&rec, &model, "model", est.as_mut(), &out, chunk_bytes)
+                let est = estimator(Method::Kalman);
+                let err = estimate_file_in_chunks(&rec, &model, "model", est.as_ref(), &out, chunk_bytes)
                     .expect_err("bad input")
                     .to_string();
                 for p in parts {

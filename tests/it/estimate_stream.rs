@@ -56,9 +56,9 @@ fn assert_same_as_whole_file(dir: &Path, name: &str, text: &[u8]) {
         let origin = model_path().display().to_string();
         let settings =
             EstimatorSettings { method, ..EstimatorSettings::from_model(&model, &origin).expect("settings") };
-        let mut est = estimator::try_build(&settings, &model).expect("estimator");
+        let est = estimator::try_build(&settings, &model).expect("estimator");
         let small = dir.join(format!("small-{flag}-{name}"));
-        hydrolens::replay_file::estimate_file_in_chunks(&rec, &model, &origin, est.as_mut(), &small, 4096)
+        hydrolens::replay_file::estimate_file_in_chunks(&rec, &model, &origin, est.as_ref(), &small, 4096)
             .expect("valid");
         assert!(std::fs::read(&small).expect("output") == expected, "{name} {flag}: differs in chunks of 4 KiB");
     }
@@ -252,4 +252,62 @@ fn an_output_that_cannot_be_created_is_named_once_with_its_cause() {
     assert_eq!(o.status.code(), Some(1), "{err}");
     assert!(err.contains(&format!("creating {}", out.display())), "{err}");
     assert_eq!(err.matches("os error 2").count(), 1, "the cause once: {err}");
+}
+
+/// A 12 s test-stand recording with `nan` in `f_set_hz` (a column the replay only checks) at row 10 000: the fast
+/// way turns it down after it has estimated and written thousands of rows, and the file is read again.
+fn late_fallback_recording(dir: &Path) -> PathBuf {
+    let text = csv_of(&test_stand(12.0));
+    let f_set = text.lines().next().expect("header").split(',').position(|c| c == "f_set_hz").expect("f_set_hz");
+    let text = map_cells(&text, "\n", |r, c, v| if r == 10_000 && c == f_set { "nan".into() } else { v.into() });
+    let rec = dir.join("late.csv");
+    std::fs::write(&rec, text).expect("write");
+    rec
+}
+
+#[test]
+fn outputs_written_in_place_get_every_row_once() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec = late_fallback_recording(dir.path());
+    let expected = whole_file_estimate(&rec, Method::RlsSgd);
+    // standard output, a pipe here
+    let o = run_estimate(&rec, Path::new("/dev/stdout"), "rls-sgd");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(o.stdout == expected, "/dev/stdout: {} bytes, expected {}", o.stdout.len(), expected.len());
+    // a named pipe, read as it is written
+    let fifo = dir.path().join("fifo");
+    assert!(Command::new("mkfifo").arg(&fifo).status().expect("mkfifo").success());
+    let mut child = Command::new(support::bin())
+        .arg("estimate")
+        .arg(&rec)
+        .args(["--model".as_ref(), model_path().as_os_str(), "--out".as_ref(), fifo.as_os_str()])
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("run hydrolens");
+    let reader = std::thread::spawn({
+        let fifo = fifo.clone();
+        move || std::fs::read(fifo).expect("read the pipe")
+    });
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            break status;
+        }
+        if std::time::Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = std::fs::File::options().write(true).open(&fifo); // let the reader see the end
+            panic!("estimate into a named pipe did not finish in 60 s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    assert!(status.success());
+    assert!(reader.join().expect("reader") == expected, "the named pipe got other bytes than the estimates once");
+    // a symbolic link stays a link, to the estimates
+    let real = dir.path().join("real.csv");
+    std::fs::write(&real, "old").expect("write");
+    let link = dir.path().join("link.csv");
+    std::os::unix::fs::symlink(&real, &link).expect("symlink");
+    assert!(run_estimate(&rec, &link, "rls-sgd").status.success());
+    assert!(std::fs::symlink_metadata(&link).expect("link").file_type().is_symlink());
+    assert!(std::fs::read(&real).expect("real") == expected);
 }
