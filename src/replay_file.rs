@@ -110,7 +110,7 @@ fn open_planned(recording: &Path) -> Result<(StreamReader<File>, Plan), Estimate
 /// Where the replay is, in the fast way: taken by one thread at a time, chunk after chunk.
 struct Estimating<'e> {
     replayer: Replayer<'e>,
-    /// `t_s` of the last row replayed.
+    /// `t_s` of the last row replayed (−∞ before the first).
     last_t: f64,
 }
 
@@ -138,7 +138,6 @@ fn estimate_fast(
         // an output error waits until the recording and the replay are known to be good
         writing: Turns::new(Output::create(out)),
         stop: AtomicBool::new(false),
-        rows: AtomicU64::new(0),
     };
     std::thread::scope(|s| {
         s.spawn(|| work(&shared));
@@ -146,23 +145,25 @@ fn estimate_fast(
     });
     let estimating = shared.estimating.into_inner();
     let output = shared.writing.into_inner();
-    if shared.stop.into_inner() || shared.rows.into_inner() == 0 {
-        // not for the fast way (or no rows, which the careful way names)
-        if let Ok(o) = output {
-            o.discard();
-        }
+    if shared.stop.into_inner() || estimating.last_t == f64::NEG_INFINITY {
+        // not for the fast way (or no rows, which the careful way names); dropping the output removes its file
         return None;
     }
-    Some(match (estimating.replayer.finish(), output) {
-        (Err(e), output) => {
-            if let Ok(o) = output {
-                o.discard();
-            }
-            Err(EstimateError::Replay(e))
-        }
-        (Ok(_), Err(e)) => Err(e),
-        (Ok(rows), Ok(o)) => o.commit().map(|()| rows),
-    })
+    Some(conclude(None, estimating.replayer.finish(), output))
+}
+
+/// The outcome, errors in the order the whole-file path reports them: the recording's, the replay's, the output's.
+/// The estimates are renamed into place only when all is well; otherwise the temporary file goes with `output`.
+fn conclude(
+    recording: Option<RecordingError>,
+    replay: Result<u64, ReplayError>,
+    output: Result<Output, EstimateError>,
+) -> Result<u64, EstimateError> {
+    if let Some(e) = recording {
+        return Err(EstimateError::Recording(e));
+    }
+    let rows = replay.map_err(EstimateError::Replay)?;
+    output?.commit().map(|()| rows)
 }
 
 /// What the two threads of the fast way share.
@@ -175,7 +176,6 @@ struct Shared<'e, R> {
     writing: Turns<Result<Output, EstimateError>>,
     /// Set when a chunk is not for the fast way (or a thread panicked): every thread stops.
     stop: AtomicBool,
-    rows: AtomicU64,
 }
 
 impl<R> Shared<'_, R> {
@@ -235,7 +235,6 @@ fn work<R: std::io::Read>(shared: &Shared<'_, R>) {
             Some(false) => return shared.stop(),
             None => return,
         }
-        shared.rows.fetch_add(batch.len() as u64, Ordering::Relaxed);
         text.clear();
         for (t, e) in &estimates {
             rows.push(&mut text, *t, e);
@@ -414,16 +413,7 @@ fn estimate_careful(
         (recording_error, output)
     });
 
-    let failed = match (recording_error, replayer.finish(), output) {
-        (Some(e), _, output) => (EstimateError::Recording(e), output.ok()),
-        (None, Err(e), output) => (EstimateError::Replay(e), output.ok()),
-        (None, Ok(_), Err(e)) => (e, None),
-        (None, Ok(rows), Ok(o)) => return o.commit().map(|()| rows),
-    };
-    if let (_, Some(o)) = failed {
-        o.discard();
-    }
-    Err(failed.0)
+    conclude(recording_error, replayer.finish(), output)
 }
 
 /// For each column, whether it holds a finite value somewhere in the file. Reads only as far as it needs to (the
@@ -504,11 +494,6 @@ impl Output {
                 Err(EstimateError::Output { action: "writing", path: self.path.display().to_string(), source })
             }
         }
-    }
-
-    /// Removes the temporary file (as dropping it does).
-    fn discard(self) {
-        drop(self);
     }
 }
 

@@ -260,9 +260,7 @@ impl<R: Read> StreamReader<R> {
             self.input = Input::Csv(Box::new(CsvInput::new(lines, from, number, false)));
         }
     }
-}
 
-impl<R: Read> StreamReader<R> {
     /// The rest of the file as chunks of whole lines that [`ChunkParser::parse`] reads on the fast path, on as many
     /// threads as there are chunks, or `None` when the csv crate reads this file (quotes in the header). Call it
     /// right after [`StreamReader::select`], before any row is read.
