@@ -30,7 +30,9 @@ use std::time::{Duration, Instant};
 
 use crate::estimator::{Estimate, Estimator, Plan, ReplayError, Replayer};
 use crate::plant::PlantModel;
-use crate::recording::{Batch, Chunk, ChunkParser, ChunkSource, RecordingError, StreamReader, push_value};
+use crate::recording::{
+    Batch, Chunk, ChunkParser, ChunkSource, RecordingError, StreamReader, TimeText, push_parsed_value, push_value,
+};
 
 /// The columns of an estimates file.
 pub const COLUMNS: [&str; 5] = ["t_s", "omega_hat_rad_s", "load_hat_nm", "inertia_hat_kg_m2", "viscous_hat_nm_s_rad"];
@@ -202,6 +204,7 @@ fn work<R: std::io::Read>(shared: &Shared<'_, R>) {
     let _stop_on_panic = StopOnPanic(shared);
     let mut chunk = Chunk::default();
     let mut batch = Batch::default();
+    let mut times: Vec<TimeText> = Vec::new();
     let mut estimates: Vec<(f64, Estimate)> = Vec::new();
     let mut text = Vec::new();
     let mut rows = RowFormatter::default();
@@ -218,7 +221,7 @@ fn work<R: std::io::Read>(shared: &Shared<'_, R>) {
                 Err(_) => return shared.stop(),
             }
         };
-        if !shared.parser.parse(chunk.bytes(), &mut batch) {
+        if !shared.parser.parse(chunk.bytes(), &mut batch, &mut times) {
             return shared.stop();
         }
         let in_order = shared.estimating.take(k, &shared.stop, |e| {
@@ -236,8 +239,11 @@ fn work<R: std::io::Read>(shared: &Shared<'_, R>) {
             None => return,
         }
         text.clear();
-        for (t, e) in &estimates {
-            rows.push(&mut text, *t, e);
+        // one estimate a row (none if the replay is sure to fail): `t_s` is copied from the recording where it can be
+        let times = if times.len() == estimates.len() { times.as_slice() } else { &[] };
+        for (k, (t, e)) in estimates.iter().enumerate() {
+            let t_text = times.get(k).map_or(&[][..], |text| text.in_lines(chunk.bytes()));
+            rows.push(&mut text, *t, t_text, e);
         }
         let written = shared.writing.take(k, &shared.stop, |output| {
             if let Ok(o) = output {
@@ -305,7 +311,8 @@ impl<T> Turns<T> {
     }
 }
 
-/// Formats rows of estimates as the estimates file has them. J and B, which the RLS changes once a block and the
+/// Formats rows of estimates as the estimates file has them. `t_s` is copied from the recording's text where that is
+/// what formatting it would give ([`push_parsed_value`]). J and B, which the RLS changes once a block and the
 /// Kalman filter never, are formatted once and copied while they stay the same (the same bits, the same text).
 #[derive(Default)]
 struct RowFormatter {
@@ -315,8 +322,11 @@ struct RowFormatter {
 }
 
 impl RowFormatter {
-    fn push(&mut self, text: &mut Vec<u8>, t: f64, e: &Estimate) {
-        for v in [t, e.omega_hat_rad_s, e.load_hat_nm] {
+    /// One row; `t_text` is the recording's text of `t` (or empty).
+    fn push(&mut self, text: &mut Vec<u8>, t: f64, t_text: &[u8], e: &Estimate) {
+        push_parsed_value(text, t, t_text);
+        text.push(b',');
+        for v in [e.omega_hat_rad_s, e.load_hat_nm] {
             push_value(text, v);
             text.push(b',');
         }
@@ -398,7 +408,7 @@ fn estimate_careful(
                     break;
                 }
             };
-            replayer.push(&batch.t_s, &batch.columns, |t, e| rows.push(&mut text, t, e));
+            replayer.push(&batch.t_s, &batch.columns, |t, e| rows.push(&mut text, t, &[], e));
             if text.len() >= TEXT_BYTES {
                 let spare = spare_text_rx.try_recv().unwrap_or_else(|_| Vec::with_capacity(TEXT_BYTES + 1024));
                 let _ = text_tx.send(std::mem::replace(&mut text, spare));
@@ -559,6 +569,46 @@ mod tests {
             }
         }
         assert_eq!(files_in(dir.path()), ["careful.csv", "fast.csv", "r.csv"]);
+    }
+
+    #[test]
+    fn times_written_in_any_form_come_out_as_the_careful_way_formats_them() {
+        // `t_s` as people write it: padded, with an exponent, a sign, trailing or leading zeros, more digits than needed;
+        // the fast way copies a time's text only where it is what formatting would give
+        let text = stand_csv(0.5);
+        let forms = |k: usize, t: &str| -> String {
+            let v: f64 = t.parse().expect("a time");
+            match k % 8 {
+                0 => format!(" {t} "),
+                1 => format!("{v:e}"),
+                2 => format!("+{t}"),
+                3 => format!("{v:.6}"),
+                4 => format!("{v:.20}"),
+                5 => format!("0{t}"),
+                _ => t.to_string(),
+            }
+        };
+        let rewritten: String = text
+            .lines()
+            .enumerate()
+            .map(|(k, line)| match (k, line.split_once(',')) {
+                (1.., Some((t, rest))) => format!("{},{rest}\n", forms(k, t)),
+                _ => format!("{line}\n"),
+            })
+            .collect();
+        let dir = tempfile::tempdir().expect("tmp");
+        let rec = dir.path().join("r.csv");
+        std::fs::write(&rec, rewritten).expect("write");
+        let model = PlantModel::reference();
+        let expected = careful(&rec, &dir.path().join("careful.csv"), Method::RlsSgd).expect("valid");
+        let out = dir.path().join("fast.csv");
+        let done = estimate_fast(&rec, &model, "model", estimator(Method::RlsSgd).as_mut(), &out, 4096);
+        done.expect("the fast way takes these").expect("valid");
+        let got = String::from_utf8(std::fs::read(&out).expect("output")).expect("ASCII");
+        assert!(got.as_bytes() == expected, "the fast way's output differs");
+        // the forms are in the file, and the times come out formatted
+        let times: Vec<&str> = got.lines().skip(1).map(|l| l.split(',').next().expect("t_s")).collect();
+        assert_eq!(times[1..9], ["0.001", "0.002", "0.003", "0.004", "0.005", "0.006", "0.007", "0.008"]);
     }
 
     #[test]

@@ -5,8 +5,8 @@ pub mod stream;
 mod write;
 
 pub use read::{RecordingError, load, parse};
-pub use stream::{Batch, Chunk, ChunkParser, ChunkSource, StreamReader};
-pub use write::{RotatingWriter, RowWriter, format_value, push_value, write_csv};
+pub use stream::{Batch, Chunk, ChunkParser, ChunkSource, StreamReader, TimeText};
+pub use write::{RotatingWriter, RowWriter, format_value, push_parsed_value, push_value, write_csv};
 
 /// The columns the contract names; anything else in a file is kept but reported once as unknown.
 pub const KNOWN_COLUMNS: [&str; 14] = [

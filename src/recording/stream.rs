@@ -223,7 +223,7 @@ impl<R: Read> StreamReader<R> {
                     if is_blank(line) {
                         continue;
                     }
-                    if let Some(t) = fast_row(line, &self.roles, batch) {
+                    if let Some((t, _)) = fast_row(line, &self.roles, batch) {
                         (t, number)
                     } else {
                         batch.truncate_to_rows();
@@ -344,23 +344,27 @@ pub struct ChunkParser {
 }
 
 impl ChunkParser {
-    /// Replaces `batch`'s content with the rows of `lines` (whole lines, blank ones skipped): `false` if a line is
-    /// not for the fast path (quotes, a bad or unusual cell such as `nan`, a ragged row) or `t_s` is not finite and
-    /// increasing within the chunk. The file must then be read by [`StreamReader::read_batch`], which gives its
-    /// values or the error with its line and column. Rows of different chunks are not compared.
-    pub fn parse(&self, lines: &[u8], batch: &mut Batch) -> bool {
+    /// Replaces `batch`'s content with the rows of `lines` (whole lines, blank ones skipped), and `times` with where
+    /// each row's `t_s` text is in `lines`: `false` if a line is not for the fast path (quotes, a bad or unusual
+    /// cell such as `nan`, a ragged row) or `t_s` is not finite and increasing within the chunk. The file must then
+    /// be read by [`StreamReader::read_batch`], which gives its values or the error with its line and column. Rows
+    /// of different chunks are not compared.
+    pub fn parse(&self, lines: &[u8], batch: &mut Batch, times: &mut Vec<TimeText>) -> bool {
         batch.reset(self.selected);
+        times.clear();
         let mut last_t = f64::NEG_INFINITY;
         let mut start = 0;
         for end in memchr::memchr_iter(b'\n', lines).chain(std::iter::once(lines.len())) {
             let line = &lines[start..end];
+            let line_start = start;
             start = end + 1;
             if is_blank(line) {
                 continue;
             }
             match fast_row(line, &self.roles, batch) {
-                Some(t) if t.is_finite() && t > last_t => {
+                Some((t, text)) if t.is_finite() && t > last_t => {
                     batch.t_s.push(t);
+                    times.push(text.shifted(line_start));
                     last_t = t;
                 }
                 _ => {
@@ -370,6 +374,36 @@ impl ChunkParser {
             }
         }
         true
+    }
+}
+
+/// Where a row's `t_s` text is, as a range of bytes, so that it can be copied rather than formatted again (see
+/// [`crate::recording::push_parsed_value`]); empty where it is not known.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct TimeText {
+    start: u32,
+    len: u32,
+}
+
+impl TimeText {
+    const NONE: TimeText = TimeText { start: 0, len: 0 };
+
+    fn at(start: usize, end: usize) -> TimeText {
+        match (u32::try_from(start), u32::try_from(end - start)) {
+            (Ok(start), Ok(len)) => TimeText { start, len },
+            _ => TimeText::NONE,
+        }
+    }
+
+    /// The same text in a buffer where the line starts at `line_start`.
+    fn shifted(self, line_start: usize) -> TimeText {
+        TimeText::at(self.start as usize + line_start, self.start as usize + line_start + self.len as usize)
+    }
+
+    /// The text in `lines`, the buffer it was found in (empty if it is not known).
+    pub fn in_lines(self, lines: &[u8]) -> &[u8] {
+        let start = self.start as usize;
+        lines.get(start..start + self.len as usize).unwrap_or_default()
     }
 }
 
@@ -388,19 +422,20 @@ fn needs_csv(line: &[u8]) -> bool {
     memchr::memchr(b'"', line).is_some() || memchr::memchr(b'\r', &line[..line.len().saturating_sub(1)]).is_some()
 }
 
-/// One line on the fast path into `batch`: `t_s`, or `None` for a line that needs [`careful_row`] (the batch may
-/// then hold part of the row: see [`Batch::truncate_to_rows`]).
+/// One line on the fast path into `batch`: `t_s` and where its text is in the line, or `None` for a line that needs
+/// [`careful_row`] (the batch may then hold part of the row: see [`Batch::truncate_to_rows`]).
 #[inline]
-fn fast_row(line: &[u8], roles: &[Role], batch: &mut Batch) -> Option<f64> {
+fn fast_row(line: &[u8], roles: &[Role], batch: &mut Batch) -> Option<(f64, TimeText)> {
     let last = roles.len() - 1;
     let mut i = 0;
-    let mut t = f64::NAN;
+    let mut t = (f64::NAN, TimeText::NONE);
     for (c, &role) in roles.iter().enumerate() {
         let end = match role {
             Role::Check => checked_cell_end(line, i)?,
             Role::Time => {
-                let (v, end) = number_cell(line, i)?;
-                t = v;
+                let start = cell_start(line, i);
+                let (v, end) = number_cell(line, start)?;
+                t = (v, TimeText::at(start, end));
                 end
             }
             Role::Slot(slot) => {
@@ -774,14 +809,20 @@ mod tests {
         let (mut source, parser) = r.into_chunks()?;
         let mut columns = vec![Vec::new(); others.len() + 1];
         let (mut chunk, mut batch, mut all) = (Chunk::default(), Batch::default(), Vec::new());
+        let mut times = Vec::new();
         let mut turned_down = false;
         while source.next_chunk(&mut chunk, want).expect("in memory") {
             assert!(!all.is_empty() || !chunk.bytes().is_empty());
             assert!(all.is_empty() || all.ends_with(b"\n"), "a chunk ends a line, but for the file's last");
             all.extend_from_slice(chunk.bytes());
-            if turned_down || !parser.parse(chunk.bytes(), &mut batch) {
+            if turned_down || !parser.parse(chunk.bytes(), &mut batch, &mut times) {
                 turned_down = true;
                 continue;
+            }
+            assert_eq!(times.len(), batch.len());
+            for (t, text) in batch.t_s.iter().zip(&times) {
+                let text = std::str::from_utf8(text.in_lines(chunk.bytes())).expect("ASCII");
+                assert_eq!(text.trim_matches([' ', '\t', '\r']).parse::<f64>().ok(), Some(*t), "{text:?}");
             }
             if batch.t_s.first().is_some_and(|t| columns[0].last().is_some_and(|last| t <= last)) {
                 turned_down = true;
@@ -845,7 +886,7 @@ mod tests {
             let (mut source, parser) = r.into_chunks().expect("no quotes");
             let (mut chunk, mut batch) = (Chunk::default(), Batch::default());
             source.next_chunk(&mut chunk, 64).expect("in memory");
-            parser.parse(chunk.bytes(), &mut batch)
+            parser.parse(chunk.bytes(), &mut batch, &mut Vec::new())
         };
         for text in ["t_s,x\n0,nan\n", "t_s,x\n0,-inf\n"] {
             assert!(taken(text, &[1]));
