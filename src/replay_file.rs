@@ -241,8 +241,9 @@ fn work<R: std::io::Read>(shared: &Shared<'_, R>) {
         text.clear();
         // one estimate a row (none if the replay is sure to fail): `t_s` is copied from the recording where it can be
         let times = if times.len() == estimates.len() { times.as_slice() } else { &[] };
-        for (k, (t, e)) in estimates.iter().enumerate() {
-            let t_text = times.get(k).map_or(&[][..], |text| text.in_lines(chunk.bytes()));
+        for (row, (t, e)) in estimates.iter().enumerate() {
+            debug_assert!(times.is_empty() || batch.t_s[row].to_bits() == t.to_bits(), "an estimate a row, in order");
+            let t_text = times.get(row).map_or(&[][..], |text| text.in_lines(chunk.bytes()));
             rows.push(&mut text, *t, t_text, e);
         }
         let written = shared.writing.take(k, &shared.stop, |output| {
@@ -596,16 +597,32 @@ mod tests {
                 _ => format!("{line}\n"),
             })
             .collect();
+        // and the same with `t_s` as the last column, padded, in a file with CRLF line ends
+        let last_crlf: String = rewritten
+            .lines()
+            .map(|line| {
+                let (t, rest) = line.split_once(',').expect("cells");
+                format!("{rest},{t}  \r\n")
+            })
+            .collect();
         let dir = tempfile::tempdir().expect("tmp");
-        let rec = dir.path().join("r.csv");
-        std::fs::write(&rec, rewritten).expect("write");
         let model = PlantModel::reference();
-        let expected = careful(&rec, &dir.path().join("careful.csv"), Method::RlsSgd).expect("valid");
-        let out = dir.path().join("fast.csv");
-        let done = estimate_fast(&rec, &model, "model", estimator(Method::RlsSgd).as_mut(), &out, 4096);
-        done.expect("the fast way takes these").expect("valid");
-        let got = String::from_utf8(std::fs::read(&out).expect("output")).expect("ASCII");
-        assert!(got.as_bytes() == expected, "the fast way's output differs");
+        let mut outputs = Vec::new();
+        for (name, text) in [("r.csv", rewritten), ("last_crlf.csv", last_crlf)] {
+            let rec = dir.path().join(name);
+            std::fs::write(&rec, text).expect("write");
+            let expected = careful(&rec, &dir.path().join("careful.csv"), Method::RlsSgd).expect("valid");
+            let out = dir.path().join("fast.csv");
+            for chunk_bytes in [4096, CHUNK_BYTES] {
+                let done = estimate_fast(&rec, &model, "model", estimator(Method::RlsSgd).as_mut(), &out, chunk_bytes);
+                done.expect("the fast way takes these").expect("valid");
+                let got = String::from_utf8(std::fs::read(&out).expect("output")).expect("ASCII");
+                assert!(got.as_bytes() == expected, "{name}, chunks of {chunk_bytes}: the fast way's output differs");
+            }
+            outputs.push(expected);
+        }
+        assert!(outputs[0] == outputs[1], "the column order and line ends change nothing");
+        let got = String::from_utf8(outputs.swap_remove(0)).expect("ASCII");
         // the forms are in the file, and the times come out formatted
         let times: Vec<&str> = got.lines().skip(1).map(|l| l.split(',').next().expect("t_s")).collect();
         assert_eq!(times[1..9], ["0.001", "0.002", "0.003", "0.004", "0.005", "0.006", "0.007", "0.008"]);

@@ -435,7 +435,8 @@ fn fast_row(line: &[u8], roles: &[Role], batch: &mut Batch) -> Option<(f64, Time
             Role::Time => {
                 let start = cell_start(line, i);
                 let (v, end) = number_cell(line, start)?;
-                t = (v, TimeText::at(start, end));
+                // the number's text, without the blanks or carriage return that may follow it in the cell
+                t = (v, TimeText::at(start, start + line[start..end].trim_ascii_end().len()));
                 end
             }
             Role::Slot(slot) => {
@@ -822,7 +823,7 @@ mod tests {
             assert_eq!(times.len(), batch.len());
             for (t, text) in batch.t_s.iter().zip(&times) {
                 let text = std::str::from_utf8(text.in_lines(chunk.bytes())).expect("ASCII");
-                assert_eq!(text.trim_matches([' ', '\t', '\r']).parse::<f64>().ok(), Some(*t), "{text:?}");
+                assert_eq!(text.parse::<f64>().ok(), Some(*t), "{text:?}");
             }
             if batch.t_s.first().is_some_and(|t| columns[0].last().is_some_and(|last| t <= last)) {
                 turned_down = true;
