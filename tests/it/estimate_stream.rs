@@ -25,12 +25,18 @@ fn run_estimate(rec: &Path, out: &Path, method: &str) -> Output {
         .expect("run hydrolens")
 }
 
-/// What `estimate` wrote before it streamed: the whole recording loaded, replayed, and written row by row.
-fn whole_file_estimate(rec: &Path, method: Method) -> Vec<u8> {
+/// The model `run_estimate` gives, its origin, and the estimator `estimate --method` builds from it.
+fn model_and_estimator(method: Method) -> (PlantModel, String, Box<dyn estimator::Estimator>) {
     let model = PlantModel::load(&model_path()).expect("model");
     let origin = model_path().display().to_string();
     let settings = EstimatorSettings { method, ..EstimatorSettings::from_model(&model, &origin).expect("settings") };
-    let mut est = estimator::try_build(&settings, &model).expect("estimator");
+    let est = estimator::try_build(&settings, &model).expect("estimator");
+    (model, origin, est)
+}
+
+/// What `estimate` wrote before it streamed: the whole recording loaded, replayed, and written row by row.
+fn whole_file_estimate(rec: &Path, method: Method) -> Vec<u8> {
+    let (model, origin, mut est) = model_and_estimator(method);
     let r = recording::load(rec).expect("a valid recording");
     let estimates = estimator::replay(&r, &model, &origin, est.as_mut()).expect("replays");
     let mut w = RowWriter::new(Vec::new(), &hydrolens::replay_file::COLUMNS).expect("header");
@@ -52,11 +58,7 @@ fn assert_same_as_whole_file(dir: &Path, name: &str, text: &[u8]) {
         let expected = whole_file_estimate(&rec, method);
         assert!(got == expected, "{name} {flag}: the streamed output differs from the whole-file path's");
         // and in small chunks, so that the two threads of the fast way take turns many times
-        let model = PlantModel::load(&model_path()).expect("model");
-        let origin = model_path().display().to_string();
-        let settings =
-            EstimatorSettings { method, ..EstimatorSettings::from_model(&model, &origin).expect("settings") };
-        let est = estimator::try_build(&settings, &model).expect("estimator");
+        let (model, origin, est) = model_and_estimator(method);
         let small = dir.join(format!("small-{flag}-{name}"));
         hydrolens::replay_file::estimate_file_in_chunks(&rec, &model, &origin, est.as_ref(), &small, 4096)
             .expect("valid");
