@@ -2,7 +2,8 @@
 # Side-by-side timing of `hydrolens estimate` binaries (e.g. before and after a change), alternating runs so that the
 # machine's drift hits all alike. Each run writes a new file. Prints the median wall time (bash's clock) and the
 # median CPU time (`perf stat -e task-clock`, ms) of each binary. Not part of CI (README "Benchmarks").
-#   usage: bench/estimate_ab.sh REC.csv RUNS BIN...      environment: METHOD (rls-sgd), MODEL (config/plant.toml)
+#   usage: bench/estimate_ab.sh REC.csv RUNS BIN...      environment: METHOD (rls-sgd), MODEL (config/plant.toml),
+#   REPLACE=1: each run replaces the output of the run before (as re-running `estimate` does) instead of a new file
 set -euo pipefail
 REC=$1
 RUNS=$2
@@ -15,10 +16,10 @@ declare -A WALL CPU
 median() { tr ' ' '\n' | grep -v '^$' | sort -g | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
 for _ in $(seq "$RUNS"); do
   for bin in "$@"; do
-    rm -f "$OUT/est.csv"
+    [[ ${REPLACE:-0} == 1 ]] || rm -f "$OUT/est.csv"
     cpu=$(timeout 300 perf stat -x, -e task-clock "$bin" estimate "$REC" --model "$MODEL" --method "$METHOD" \
       --out "$OUT/est.csv" 2>&1 >/dev/null | grep task-clock | cut -d, -f1)
-    rm -f "$OUT/est.csv"
+    [[ ${REPLACE:-0} == 1 ]] || rm -f "$OUT/est.csv"
     t0=$EPOCHREALTIME
     timeout 300 "$bin" estimate "$REC" --model "$MODEL" --method "$METHOD" --out "$OUT/est.csv" >/dev/null 2>&1
     t1=$EPOCHREALTIME

@@ -493,7 +493,7 @@ impl Output {
     fn commit(mut self) -> Result<(), EstimateError> {
         let done = match (self.error.take(), &self.temp) {
             (Some(e), _) => Err(e),
-            (None, Some(temp)) => std::fs::rename(temp, &self.path),
+            (None, Some(temp)) => replace(temp, &self.path),
             (None, None) => Ok(()),
         };
         match done {
@@ -506,6 +506,28 @@ impl Output {
             }
         }
     }
+}
+
+/// Puts the file at `temp` in the place of `path`, in one step: `path` holds the old estimates or the new ones, never
+/// neither. A regular file already at `path` is swapped with `temp` (`RENAME_EXCHANGE`) and then removed under the
+/// temporary name, rather than renamed over: ext4 (with its default `auto_da_alloc`) starts writing the whole new
+/// file out to disk inside a rename that replaces a file, a guard for programs that do not `fsync`, and that held
+/// the run up by 60-150 ms for an hour's estimates (313 MB), a quarter of it. The estimates are not flushed either
+/// way (`estimate` does not `fsync`: the file can be made again from the recording). Anything else (no file there,
+/// a file system without the exchange) is a plain rename.
+fn replace(temp: &Path, path: &Path) -> std::io::Result<()> {
+    #[cfg(target_os = "linux")]
+    if std::fs::symlink_metadata(path).is_ok_and(|m| m.is_file()) {
+        use rustix::fs::{CWD, RenameFlags, renameat_with};
+        match renameat_with(CWD, temp, CWD, path, RenameFlags::EXCHANGE) {
+            // `temp` now names the old estimates
+            Ok(()) => return std::fs::remove_file(temp),
+            // gone meanwhile, or no exchange on this file system (EINVAL) or kernel (ENOSYS)
+            Err(rustix::io::Errno::NOENT | rustix::io::Errno::INVAL | rustix::io::Errno::NOSYS) => {}
+            Err(e) => return Err(e.into()),
+        }
+    }
+    std::fs::rename(temp, path)
 }
 
 impl Drop for Output {
@@ -681,6 +703,29 @@ mod tests {
         // written in place: no temporary file
         assert!(written_in_place(Path::new("/dev/null")) && !written_in_place(&out));
         assert!(!written_in_place(&dir.path().join("not there yet.csv")));
+    }
+
+    #[test]
+    fn replace_puts_the_new_file_in_place_of_whatever_is_there() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let (temp, out, link) = (dir.path().join(".new"), dir.path().join("est.csv"), dir.path().join("link.csv"));
+        // nothing there yet
+        std::fs::write(&temp, "first").expect("write");
+        replace(&temp, &out).expect("replace");
+        assert_eq!(std::fs::read(&out).expect("output"), b"first");
+        // a file with a second name: this name gets the new file, the other keeps the old one
+        std::fs::hard_link(&out, &link).expect("link");
+        std::fs::write(&temp, "second").expect("write");
+        replace(&temp, &out).expect("replace");
+        assert_eq!(std::fs::read(&out).expect("output"), b"second");
+        assert_eq!(std::fs::read(&link).expect("link"), b"first");
+        assert_eq!(files_in(dir.path()), ["est.csv", "link.csv"], "the old file is not left under the temporary name");
+        // a directory is not replaced, and the new file stays where it was
+        let sub = dir.path().join("sub");
+        std::fs::create_dir(&sub).expect("mkdir");
+        std::fs::write(&temp, "third").expect("write");
+        assert!(replace(&temp, &sub).is_err());
+        assert!(sub.is_dir() && temp.is_file());
     }
 
     #[test]
