@@ -26,8 +26,10 @@ use std::path::Path;
 
 use super::read::{RecordingError, cell_value, check_time, header_names};
 
-/// Bytes asked of the reader at a time; a longer line grows the buffer.
-const CHUNK_BYTES: usize = 1 << 20;
+/// Bytes asked of the reader at a time; a longer line grows the buffer. The first read holds the header and what
+/// [`StreamReader::into_chunks`] hands on: a quarter of a mebibyte keeps that first piece as long as the chunks
+/// `estimate` takes, so neither thread waits on a longer one.
+const CHUNK_BYTES: usize = 1 << 18;
 const UTF8_BOM: &[u8] = b"\xef\xbb\xbf";
 
 /// Rows of a recording, column by column: `t_s` and the columns [`StreamReader::select`] chose, in its order.
@@ -269,7 +271,12 @@ impl<R: Read> StreamReader<R> {
             Input::Lines(lines) if self.rows == 0 => Some((
                 ChunkSource {
                     reader: lines.reader,
-                    pending: lines.buf[lines.start..lines.end].to_vec(),
+                    pending: {
+                        let mut buf = lines.buf;
+                        buf.truncate(lines.end);
+                        buf
+                    },
+                    pending_start: lines.start,
                     eof: lines.eof,
                 },
                 ChunkParser { roles: self.roles, selected: self.selected },
@@ -282,8 +289,10 @@ impl<R: Read> StreamReader<R> {
 /// The rows of a recording after its header, handed out as chunks of whole lines (see [`StreamReader::into_chunks`]).
 pub struct ChunkSource<R> {
     reader: R,
-    /// Read and not yet handed out: the start of a line the last chunk did not take whole.
+    /// Read and not yet handed out, from `pending_start` on: what was read with the header, then the start of a line
+    /// the last chunk did not take whole.
     pending: Vec<u8>,
+    pending_start: usize,
     eof: bool,
 }
 
@@ -306,12 +315,23 @@ impl<R: Read> ChunkSource<R> {
     /// comes whole); `false` at the end of the file.
     pub fn next_chunk(&mut self, chunk: &mut Chunk, bytes: usize) -> std::io::Result<bool> {
         let want = bytes.max(1);
-        if chunk.buf.len() < want.max(self.pending.len()) {
-            chunk.buf.resize(want.max(self.pending.len()), 0);
+        let rest = &self.pending[self.pending_start..];
+        // more than a chunk already read: its whole lines up to the first line end at or after `want` bytes
+        let take = match rest.get(want - 1..).and_then(|tail| memchr::memchr(b'\n', tail)) {
+            Some(end) if want + end < rest.len() => want + end,
+            _ => rest.len(),
+        };
+        if chunk.buf.len() < want.max(take) {
+            chunk.buf.resize(want.max(take), 0);
         }
-        chunk.buf[..self.pending.len()].copy_from_slice(&self.pending);
-        chunk.len = self.pending.len();
+        chunk.buf[..take].copy_from_slice(&rest[..take]);
+        chunk.len = take;
+        if take < rest.len() {
+            self.pending_start += take;
+            return Ok(true);
+        }
         self.pending.clear();
+        self.pending_start = 0;
         while !self.eof {
             if chunk.len >= want
                 && let Some(last) = memchr::memrchr(b'\n', &chunk.buf[..chunk.len])
