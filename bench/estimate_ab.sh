@@ -16,6 +16,8 @@ declare -A WALL CPU
 median() { tr ' ' '\n' | grep -v '^$' | sort -g | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
 for _ in $(seq "$RUNS"); do
   for bin in "$@"; do
+    # in the page cache before each run: this guest drops file pages idle for a minute (DAMON reclaim)
+    cat "$REC" >/dev/null
     [[ ${REPLACE:-0} == 1 ]] || rm -f "$OUT/est.csv"
     cpu=$(timeout 300 perf stat -x, -e task-clock "$bin" estimate "$REC" --model "$MODEL" --method "$METHOD" \
       --out "$OUT/est.csv" 2>&1 >/dev/null | grep task-clock | cut -d, -f1)
