@@ -520,8 +520,17 @@ fn replace(temp: &Path, path: &Path) -> std::io::Result<()> {
     if std::fs::symlink_metadata(path).is_ok_and(|m| m.is_file()) {
         use rustix::fs::{CWD, RenameFlags, renameat_with};
         match renameat_with(CWD, temp, CWD, path, RenameFlags::EXCHANGE) {
-            // `temp` now names the old estimates
-            Ok(()) => return std::fs::remove_file(temp),
+            // `temp` now names the old estimates; the new ones are in place whether or not they go
+            Ok(()) => {
+                if let Err(e) = std::fs::remove_file(temp) {
+                    tracing::warn!(
+                        "the new estimates are in {}, but the old ones stay in {}: {e}",
+                        path.display(),
+                        temp.display()
+                    );
+                }
+                return Ok(());
+            }
             // gone meanwhile, or no exchange on this file system (EINVAL) or kernel (ENOSYS)
             Err(rustix::io::Errno::NOENT | rustix::io::Errno::INVAL | rustix::io::Errno::NOSYS) => {}
             Err(e) => return Err(e.into()),
