@@ -9,7 +9,7 @@
 //! does not fit it (`nan`, `inf`, or garbage) goes to `str::parse` as in `parse`, so `nan` is still accepted and
 //! `abc` still rejected with file, line and column.
 //!
-//! How: the file is read in 1 MiB chunks and cut into lines with memchr; asked-for cells are parsed with
+//! How: the file is read in 256 KiB chunks and cut into lines with memchr; asked-for cells are parsed with
 //! fast-float2 (bit for bit what `str::parse::<f64>` gives, a proptest below checks it). A line the fast path
 //! turns down (spaces other than plain ones, a bad cell, a ragged row) is read again by a careful path that applies
 //! `parse`'s checks in `parse`'s order, so the error is the one `parse` reports.
