@@ -3,7 +3,7 @@
 # machine's drift hits all alike. Each run writes a new file. Prints the median wall time (bash's clock) and the
 # median CPU time (`perf stat -e task-clock`, ms) of each binary. Not part of CI (README "Benchmarks").
 #   usage: bench/estimate_ab.sh REC.csv RUNS BIN...      environment: METHOD (rls-sgd), MODEL (config/plant.toml),
-#   REPLACE=1: each run replaces the output of the run before (as re-running `estimate` does) instead of a new file
+#   REPLACE=1: each run replaces the output of the run before, written a moment earlier, instead of a new file
 set -euo pipefail
 REC=$1
 RUNS=$2

@@ -9,6 +9,7 @@ same job end to end, and adds `save_s=… job_s=… job_rows_per_s=…` (load, f
 usage: padasip_rls.py REC.csv [REPEATS [OUT]]
 """
 
+import os
 import statistics
 import sys
 import time
@@ -43,6 +44,8 @@ def main():
         y, _, weights = f.run(d, x)
         t2 = time.perf_counter()
         if out is not None:
+            if os.path.exists(out):
+                os.remove(out)  # a new file each time, as for ours (rewriting one in place makes ext4 flush it)
             estimates = np.column_stack([t_s[1:], y, weights])
             np.savetxt(out, estimates, fmt="%.17g", delimiter=",", header="t_s,omega_hat,w_dp,w_omega", comments="")
             saves.append(time.perf_counter() - t2)

@@ -508,35 +508,49 @@ impl Output {
     }
 }
 
-/// Puts the file at `temp` in the place of `path`, in one step: `path` holds the old estimates or the new ones, never
-/// neither. A regular file already at `path` is swapped with `temp` (`RENAME_EXCHANGE`) and then removed under the
-/// temporary name, rather than renamed over: ext4 (with its default `auto_da_alloc`) starts writing the whole new
-/// file out to disk inside a rename that replaces a file, a guard for programs that do not `fsync`, and that held
-/// the run up by 60-150 ms for an hour's estimates (313 MB), a quarter of it. The estimates are not flushed either
-/// way (`estimate` does not `fsync`: the file can be made again from the recording). Anything else (no file there,
-/// a file system without the exchange) is a plain rename.
+/// Puts the file at `temp` in the place of `path`, in one step: while the machine runs, `path` holds the old
+/// estimates or the new ones, never neither. A regular file already at `path` is swapped with `temp` ([`exchange`])
+/// and then removed under the temporary name, rather than renamed over: ext4 (with its default `auto_da_alloc`)
+/// starts writing the whole new file out to disk inside a rename that replaces a file, and that held the run up by
+/// 60-150 ms for an hour's estimates (313 MB), a quarter of it. That flush is a guard for programs that do not
+/// `fsync`, and `estimate` gives it up: after a power cut in the seconds after a run, the path may hold an empty or
+/// partial file (the old one is gone); running `estimate` again makes it from the recording. Anything else (no
+/// file there, no exchange on this system) is a plain rename. A kill between the swap and the removal leaves the
+/// old estimates under the temporary name, as a kill before the rename leaves the new ones.
 fn replace(temp: &Path, path: &Path) -> std::io::Result<()> {
-    #[cfg(target_os = "linux")]
-    if std::fs::symlink_metadata(path).is_ok_and(|m| m.is_file()) {
-        use rustix::fs::{CWD, RenameFlags, renameat_with};
-        match renameat_with(CWD, temp, CWD, path, RenameFlags::EXCHANGE) {
-            // `temp` now names the old estimates; the new ones are in place whether or not they go
-            Ok(()) => {
-                if let Err(e) = std::fs::remove_file(temp) {
-                    tracing::warn!(
-                        "the new estimates are in {}, but the old ones stay in {}: {e}",
-                        path.display(),
-                        temp.display()
-                    );
-                }
-                return Ok(());
-            }
-            // gone meanwhile, or no exchange on this file system (EINVAL) or kernel (ENOSYS)
-            Err(rustix::io::Errno::NOENT | rustix::io::Errno::INVAL | rustix::io::Errno::NOSYS) => {}
-            Err(e) => return Err(e.into()),
+    if std::fs::symlink_metadata(path).is_ok_and(|m| m.is_file()) && exchange(temp, path) {
+        let swapped_out = std::fs::symlink_metadata(temp);
+        if !swapped_out.as_ref().is_ok_and(|m| m.is_file()) {
+            // something else took the path between the look and the swap: put it back, and fail as rename would
+            exchange(temp, path);
+            return Err(swapped_out.err().unwrap_or_else(|| std::io::ErrorKind::IsADirectory.into()));
         }
+        // `temp` now names the old estimates; the new ones are in place whether or not they go
+        if let Err(e) = std::fs::remove_file(temp) {
+            tracing::warn!(
+                "the new estimates are in {}, but the old ones stay in {}: {e}",
+                path.display(),
+                temp.display()
+            );
+        }
+        return Ok(());
     }
     std::fs::rename(temp, path)
+}
+
+/// Swaps the files at `a` and `b` in one step (`renameat2` with `RENAME_EXCHANGE`); `false`, and nothing changed, where
+/// that cannot be done (either one missing, a file system, kernel or sandbox without it, or not Linux).
+fn exchange(a: &Path, b: &Path) -> bool {
+    #[cfg(target_os = "linux")]
+    {
+        use rustix::fs::{CWD, RenameFlags, renameat_with};
+        renameat_with(CWD, a, CWD, b, RenameFlags::EXCHANGE).is_ok()
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = (a, b);
+        false
+    }
 }
 
 impl Drop for Output {
@@ -721,6 +735,16 @@ mod tests {
         // nothing there yet
         std::fs::write(&temp, "first").expect("write");
         replace(&temp, &out).expect("replace");
+        assert_eq!(std::fs::read(&out).expect("output"), b"first");
+        // the swap itself, where replacing a file goes through it
+        std::fs::write(&temp, "new").expect("write");
+        if cfg!(target_os = "linux") {
+            assert!(exchange(&temp, &out), "ext4, xfs, btrfs and tmpfs can swap two files");
+            assert_eq!(std::fs::read(&out).expect("output"), b"new");
+            assert_eq!(std::fs::read(&temp).expect("temp"), b"first", "the old file under the temporary name");
+            assert!(exchange(&temp, &out));
+        }
+        assert!(!exchange(&dir.path().join("missing"), &out), "nothing to swap with");
         assert_eq!(std::fs::read(&out).expect("output"), b"first");
         // a file with a second name: this name gets the new file, the other keeps the old one
         std::fs::hard_link(&out, &link).expect("link");

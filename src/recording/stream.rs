@@ -311,12 +311,14 @@ impl Chunk {
 }
 
 impl<R: Read> ChunkSource<R> {
-    /// Replaces `chunk` with the next whole lines, at least `bytes` of them unless the file ends first (a longer line
+    /// Replaces `chunk` with the next whole lines, about `bytes` of them: what was already read is cut at its first
+    /// line end at or after `bytes`, and what is read anew at its last line end once `bytes` are in (a longer line
     /// comes whole); `false` at the end of the file.
     pub fn next_chunk(&mut self, chunk: &mut Chunk, bytes: usize) -> std::io::Result<bool> {
         let want = bytes.max(1);
         let rest = &self.pending[self.pending_start..];
-        // more than a chunk already read: its whole lines up to the first line end at or after `want` bytes
+        // more than a chunk already read (with the header, when chunks are smaller than the first read, which
+        // `estimate`'s are not): its whole lines up to the first line end at or after `want` bytes
         let take = match rest.get(want - 1..).and_then(|tail| memchr::memchr(b'\n', tail)) {
             Some(end) if want + end < rest.len() => want + end,
             _ => rest.len(),
