@@ -3,7 +3,8 @@
 # table. Idempotent; every step is bounded by `timeout`. Not part of CI (README "Benchmarks").
 #   (a) Modbus: one read of 6 input registers, tokio-modbus (benches/modbus.rs) vs pymodbus, same `hydrolens sim`
 #   (b) estimation: `hydrolens estimate` vs padasip's RLS on the same 60 s and 10-minute recordings, the peer timed
-#       doing the same job (load, filter, write its estimates with numpy.savetxt) and without the writing
+#       doing the same job (load, filter, write its estimates with numpy.savetxt) and without the writing; and the
+#       estimator alone against padasip's filter alone on the same rows (benches/replay_rows.rs)
 #   (c) analysis: `hydrolens analyze` vs PySINDy, what each finds and how long it takes, on a clean recording and on
 #       one with concealed effects (dead time 30 ms + Coulomb friction 0.6 N·m, the nominal model without them);
 #       then wall time, user CPU and max RSS of both on longer concealed-effects recordings
@@ -88,6 +89,7 @@ recording() {
 say "building the release binary and the Modbus bench"
 timeout 1200 cargo build --release --locked --quiet
 if step a; then timeout 1200 cargo bench --locked --quiet --bench modbus --no-run 2>/dev/null; fi
+if step b; then timeout 1200 cargo bench --locked --quiet --bench replay_rows --no-run 2>/dev/null; fi
 
 if [ ! -x "$VENV/bin/python" ]; then
   say "creating $VENV"
@@ -146,6 +148,7 @@ if step b; then
     recording config/plant.toml "$d" "$rec"
     rows=$(($(wc -l <"$rec") - 1))
     : >"$WORK/padasip.txt"
+    : >"$WORK/replay.txt"
     ours=()
     for round in $(seq "$ROUNDS"); do
       say "padasip RLS and hydrolens estimate on $rows rows, round $round"
@@ -154,6 +157,8 @@ if step b; then
       cat "$rec" >/dev/null
       timeout 900 "$PY" bench/padasip_rls.py "$rec" 1 "$WORK/padasip_est.csv" >>"$WORK/padasip.txt"
       rm -f "$WORK/padasip_est.csv"
+      # our estimator alone on the same rows (benches/replay_rows.rs: loaded first, not timed), beside padasip's filter alone
+      timeout 300 cargo bench --locked --quiet --bench replay_rows -- "$rec" 5 2>/dev/null | grep '^replay' >>"$WORK/replay.txt" || true
       if has_command estimate; then
         # one untimed run first, as padasip_rls.py times its load and fit inside a warm process
         timeout 120 "$BIN" estimate "$rec" --model config/plant.toml --out "$WORK/est.csv" >/dev/null 2>&1 || true
@@ -181,6 +186,11 @@ if step b; then
       "$(ratio "$ours_rps" "$pad_rps") (ours ÷ peer)"
     row "padasip RLS alone on the ${d} s recording (CSV load excluded), rows/s" "—" "$pad_rls_rps" \
       "$(ratio "$ours_rps" "$pad_rls_rps") (ours end to end ÷ peer's filter alone)"
+    replay_s=$(while read -r l; do field s "$l"; done <"$WORK/replay.txt" | median)
+    replay_rps=$(awk -v n="$rows" -v s="$replay_s" 'BEGIN { if (s + 0 > 0) printf "%.0f", n / s; else print "nan" }')
+    row "the estimator alone on the ${d} s recording's rows (CSV excluded on both sides), rows/s (median of $ROUNDS alternating rounds)" \
+      "$replay_rps (RLS+SGD, benches/replay_rows.rs, one thread)" "$pad_rls_rps (padasip FilterRLS)" \
+      "$(ratio "$replay_rps" "$pad_rls_rps") (ours ÷ peer)"
   done
 fi
 
