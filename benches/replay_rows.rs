@@ -4,24 +4,22 @@
 //! writing anything; `REPEATS` times, each from the estimator's initial state. Prints
 //! `replay rows=N method=M s=… rows_per_s=… ns_per_row=…` (median wall time of the repeats).
 //!
-//! usage: `cargo bench --bench replay_rows -- REC.csv [REPEATS (5)] [METHOD (rls-sgd)] [MODEL (config/plant.toml)]`
+//! usage: `cargo bench --bench replay_rows -- [REC.csv [REPEATS (5)] [METHOD (rls-sgd)] [MODEL (config/plant.toml)]]`;
+//! without a recording (as in `cargo bench`), a test-stand run of the model, 100 k rows, simulated in memory.
 
 use std::hint::black_box;
 use std::path::Path;
 use std::time::Instant;
 
 use hydrolens::estimator::{self, EstimatorSettings, Method, Plan, Replayer};
-use hydrolens::plant::PlantModel;
+use hydrolens::plant::{PlantModel, simulate};
 
 const BATCH_ROWS: usize = 4096;
 
 fn main() {
     // cargo passes `--bench` to a bench without a harness
     let args: Vec<String> = std::env::args().skip(1).filter(|a| !a.starts_with("--")).collect();
-    let Some(rec_path) = args.first() else {
-        eprintln!("usage: cargo bench --bench replay_rows -- REC.csv [REPEATS] [METHOD] [MODEL]");
-        std::process::exit(2);
-    };
+    let rec_path = args.first().map_or("(100 k simulated rows)", String::as_str);
     let repeats: usize = args.get(1).map_or(5, |r| r.parse().expect("REPEATS: a whole number"));
     let method = match args.get(2).map_or("rls-sgd", String::as_str) {
         "kalman" => Method::Kalman,
@@ -34,7 +32,10 @@ fn main() {
         method,
         ..EstimatorSettings::from_model(&model, model_path).expect("estimator settings in the model")
     };
-    let rec = hydrolens::recording::load(Path::new(rec_path)).expect("recording");
+    let rec = match args.first() {
+        Some(path) => hydrolens::recording::load(Path::new(path)).expect("recording"),
+        None => simulate::test_stand(&model, 99_999.0 * model.sample_s(), 1, &mut |_| {}).expect("a hydraulic model"),
+    };
     let names = rec.names().to_vec();
     let plan = Plan::choose(&names, |ask| {
         ask.iter().map(|c| rec.column(c).is_some_and(|v| v.iter().any(|x| x.is_finite()))).collect()
