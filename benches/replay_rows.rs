@@ -36,10 +36,7 @@ fn main() {
         Some(path) => hydrolens::recording::load(Path::new(path)).expect("recording"),
         None => simulate::test_stand(&model, 99_999.0 * model.sample_s(), 1, &mut |_| {}).expect("a hydraulic model"),
     };
-    let names = rec.names().to_vec();
-    let plan = Plan::choose(&names, |ask| {
-        ask.iter().map(|c| rec.column(c).is_some_and(|v| v.iter().any(|x| x.is_finite()))).collect()
-    });
+    let plan = Plan::choose(rec.names(), |ask| ask.iter().map(|c| rec.present(c).is_some()).collect());
     let columns: Vec<&[f64]> = plan.columns().iter().map(|c| rec.column(c).expect("a column of the plan")).collect();
     let t_s = rec.t_s();
     let rows = t_s.len();

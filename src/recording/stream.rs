@@ -271,12 +271,13 @@ impl<R: Read> StreamReader<R> {
             Input::Lines(lines) if self.rows == 0 => Some((
                 ChunkSource {
                     reader: lines.reader,
+                    // the buffer itself, its unread part moved to the front: no second buffer to fill
                     pending: {
                         let mut buf = lines.buf;
                         buf.truncate(lines.end);
+                        buf.drain(..lines.start);
                         buf
                     },
-                    pending_start: lines.start,
                     eof: lines.eof,
                 },
                 ChunkParser { roles: self.roles, selected: self.selected },
@@ -289,10 +290,9 @@ impl<R: Read> StreamReader<R> {
 /// The rows of a recording after its header, handed out as chunks of whole lines (see [`StreamReader::into_chunks`]).
 pub struct ChunkSource<R> {
     reader: R,
-    /// Read and not yet handed out, from `pending_start` on: what was read with the header, then the start of a line
-    /// the last chunk did not take whole.
+    /// Read and not yet handed out: what was read with the header, then the start of a line the last chunk did not
+    /// take whole.
     pending: Vec<u8>,
-    pending_start: usize,
     eof: bool,
 }
 
@@ -311,29 +311,17 @@ impl Chunk {
 }
 
 impl<R: Read> ChunkSource<R> {
-    /// Replaces `chunk` with the next whole lines, about `bytes` of them: what was already read is cut at its first
-    /// line end at or after `bytes`, and what is read anew at its last line end once `bytes` are in (a longer line
-    /// comes whole); `false` at the end of the file.
+    /// Replaces `chunk` with the next whole lines, about `bytes` of them: what is left of the last read, then more,
+    /// cut at the last line end once `bytes` are in (a longer line comes whole; the rest of the first read comes
+    /// whole, which is why that read is no longer than `estimate`'s chunks); `false` at the end of the file.
     pub fn next_chunk(&mut self, chunk: &mut Chunk, bytes: usize) -> std::io::Result<bool> {
         let want = bytes.max(1);
-        let rest = &self.pending[self.pending_start..];
-        // more than a chunk already read (with the header, when chunks are smaller than the first read, which
-        // `estimate`'s are not): its whole lines up to the first line end at or after `want` bytes
-        let take = match rest.get(want - 1..).and_then(|tail| memchr::memchr(b'\n', tail)) {
-            Some(end) if want + end < rest.len() => want + end,
-            _ => rest.len(),
-        };
-        if chunk.buf.len() < want.max(take) {
-            chunk.buf.resize(want.max(take), 0);
+        if chunk.buf.len() < want.max(self.pending.len()) {
+            chunk.buf.resize(want.max(self.pending.len()), 0);
         }
-        chunk.buf[..take].copy_from_slice(&rest[..take]);
-        chunk.len = take;
-        if take < rest.len() {
-            self.pending_start += take;
-            return Ok(true);
-        }
+        chunk.buf[..self.pending.len()].copy_from_slice(&self.pending);
+        chunk.len = self.pending.len();
         self.pending.clear();
-        self.pending_start = 0;
         while !self.eof {
             if chunk.len >= want
                 && let Some(last) = memchr::memrchr(b'\n', &chunk.buf[..chunk.len])
