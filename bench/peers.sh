@@ -44,6 +44,10 @@ row() { echo "| $1 | $2 | $3 | $4 |" >>"$RESULTS"; }
 # field NAME LINE: the value of NAME=… in a result line
 field() { sed -n "s/.*[[:space:]]$1=\([^[:space:]]*\).*/\1/p" <<<"$2" | head -n1; }
 median() { sort -g | awk '{a[NR]=$1} END {if (NR == 0) print "nan"; else if (NR % 2) print a[(NR+1)/2]; else print (a[NR/2]+a[NR/2+1])/2}'; }
+# median_field NAME FILE: the median of NAME=… over the lines of FILE
+median_field() { while read -r l; do field "$1" "$l"; done <"$2" | median; }
+# per_s ROWS SECONDS: rows a second, or nan
+per_s() { awk -v n="$1" -v s="$2" 'BEGIN { if (s + 0 > 0) printf "%.0f", n / s; else print "nan" }'; }
 # seconds of wall time a command takes (its output to $WORK/last.log)
 wall_s() {
   local t0 t1
@@ -170,14 +174,14 @@ if step b; then
       fi
     done
     cat "$WORK/padasip.txt" >&2
-    pad_s=$(while read -r l; do field total_s "$l"; done <"$WORK/padasip.txt" | median)
-    pad_rls_s=$(while read -r l; do field rls_s "$l"; done <"$WORK/padasip.txt" | median)
-    pad_rps=$(awk -v n="$rows" -v s="$pad_s" 'BEGIN { if (s + 0 > 0) printf "%.0f", n / s; else print "nan" }')
-    pad_rls_rps=$(awk -v n="$rows" -v s="$pad_rls_s" 'BEGIN { if (s + 0 > 0) printf "%.0f", n / s; else print "nan" }')
-    pad_job_s=$(while read -r l; do field job_s "$l"; done <"$WORK/padasip.txt" | median)
-    pad_job_rps=$(awk -v n="$rows" -v s="$pad_job_s" 'BEGIN { if (s + 0 > 0) printf "%.0f", n / s; else print "nan" }')
+    pad_s=$(median_field total_s "$WORK/padasip.txt")
+    pad_rls_s=$(median_field rls_s "$WORK/padasip.txt")
+    pad_rps=$(per_s "$rows" "$pad_s")
+    pad_rls_rps=$(per_s "$rows" "$pad_rls_s")
+    pad_job_s=$(median_field job_s "$WORK/padasip.txt")
+    pad_job_rps=$(per_s "$rows" "$pad_job_s")
     est_s=$(printf '%s\n' "${ours[@]}" | grep -v nan | median)
-    ours_rps=$(awk -v n="$rows" -v s="$est_s" 'BEGIN { if (s + 0 > 0) printf "%.0f", n / s; else print "nan" }')
+    ours_rps=$(per_s "$rows" "$est_s")
     row "RLS on a ${d} s recording ($rows rows), the same job: read the CSV, estimate, write the estimates CSV, rows/s (median of $ROUNDS alternating rounds; ours ${REPEATS}× a round)" \
       "$ours_rps (hydrolens estimate, ${est_s} s)" "$pad_job_rps (padasip FilterRLS + numpy.loadtxt + numpy.savetxt, ${pad_job_s} s)" \
       "$(ratio "$ours_rps" "$pad_job_rps") (ours ÷ peer)"
@@ -186,8 +190,8 @@ if step b; then
       "$(ratio "$ours_rps" "$pad_rps") (ours ÷ peer)"
     row "padasip RLS alone on the ${d} s recording (CSV load excluded), rows/s" "—" "$pad_rls_rps" \
       "$(ratio "$ours_rps" "$pad_rls_rps") (ours end to end ÷ peer's filter alone)"
-    replay_s=$(while read -r l; do field s "$l"; done <"$WORK/replay.txt" | median)
-    replay_rps=$(awk -v n="$rows" -v s="$replay_s" 'BEGIN { if (s + 0 > 0) printf "%.0f", n / s; else print "nan" }')
+    replay_s=$(median_field s "$WORK/replay.txt")
+    replay_rps=$(per_s "$rows" "$replay_s")
     row "the estimator alone on the ${d} s recording's rows (CSV excluded on both sides), rows/s (median of $ROUNDS alternating rounds)" \
       "$replay_rps (RLS+SGD, benches/replay_rows.rs, one thread)" "$pad_rls_rps (padasip FilterRLS)" \
       "$(ratio "$replay_rps" "$pad_rls_rps") (ours ÷ peer)"
