@@ -1,6 +1,7 @@
 // hydrolens dashboard: a card per drive and live charts, fed by /api/history once and /api/events (SSE) after.
-// Test hooks: each card carries data-link, data-mode, data-tripped; each chart box data-points (points plotted);
-// #events data-events counts the snapshots received.
+// Test hooks: each card carries data-link (up, stale, tripped, down; unknown while the page has lost the service),
+// data-mode, data-tripped; each chart box data-points (points plotted); #events data-events counts the snapshots
+// received.
 "use strict";
 
 const WINDOW_S = 60;
@@ -122,6 +123,7 @@ function updateCard(entry, d) {
   const card = entry.card;
   const q = sel => card.querySelector(sel);
   const state = linkState(d);
+  card.classList.remove("lost");
   card.dataset.link = state;
   card.dataset.mode = d.mode;
   card.dataset.tripped = String(d.tripped);
@@ -142,6 +144,19 @@ function updateCard(entry, d) {
     st.comm_loss_trip && "COMM-LOSS TRIP"].filter(Boolean).join(", ") || "–";
   q(".counts").textContent = `${d.link.polls} / ${d.link.errors} / ${d.link.reconnects}`;
   q(".jitter").textContent = `${fmt(d.timing.jitter_p50_ms, 2)} / ${fmt(d.timing.jitter_p99_ms, 2)} ms`;
+}
+
+// The page has lost the service (its event stream broke): what the cards show is old, so every card says so and
+// greys its values until a snapshot comes again. A card left saying "up" would tell an operator the drive is fine.
+function markLost() {
+  for (const entry of drives.values()) {
+    const card = entry.card;
+    card.classList.add("lost");
+    card.dataset.link = "unknown";
+    const link = card.querySelector(".link");
+    link.textContent = "no data";
+    link.className = "badge link bad";
+  }
 }
 
 function onSnapshot(status) {
@@ -178,6 +193,7 @@ function connect() {
     ready.textContent = "disconnected";
     ready.className = "badge bad";
     ready.dataset.ready = "false";
+    markLost();
   };
 }
 

@@ -1,9 +1,17 @@
 //! The dashboard in a real headless browser (Debian `chromium`; .ci/run installs it): the charts receive live points
-//! and the drive card shows the drive's state. A missing browser fails the test.
+//! and the drive card shows the drive's state, and says so when the page loses the service. A missing browser fails
+//! the test.
 
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use tokio_util::sync::CancellationToken;
 
 use crate::support::Stack;
 
@@ -106,5 +114,105 @@ async fn dashboard_shows_live_points_and_the_drive_state() {
     if let Ok(keep) = std::env::var("HYDROLENS_SCREENSHOT") {
         std::fs::copy(&shot, keep).expect("copy the screenshot");
     }
+    stack.stop().await;
+}
+
+/// A network line between the browser and the service on 127.0.0.1 that can be cut: every connection it carries
+/// is dropped and new ones are refused, as when the control room loses the cabinet's network. It counts the
+/// server-sent snapshots it has carried to the browser.
+struct Line {
+    addr: SocketAddr,
+    snapshots: Arc<AtomicUsize>,
+    cut: CancellationToken,
+}
+
+const SNAPSHOT_FIELD: &[u8] = b"event: snapshot\n";
+
+impl Line {
+    async fn start(upstream: SocketAddr) -> Line {
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind the line");
+        let addr = listener.local_addr().expect("addr");
+        let (snapshots, cut) = (Arc::new(AtomicUsize::new(0)), CancellationToken::new());
+        let (count, stop) = (snapshots.clone(), cut.clone());
+        tokio::spawn(async move {
+            loop {
+                let client = tokio::select! {
+                    _ = stop.cancelled() => return, // the listener goes with this task: new connections are refused
+                    accepted = listener.accept() => match accepted {
+                        Ok((client, _)) => client,
+                        Err(_) => return,
+                    },
+                };
+                let Ok(server) = TcpStream::connect(upstream).await else { continue };
+                let (count, stop) = (count.clone(), stop.clone());
+                tokio::spawn(async move {
+                    tokio::select! {
+                        _ = stop.cancelled() => {} // both sockets are dropped here
+                        _ = carry(client, server, &count) => {}
+                    }
+                });
+            }
+        });
+        Line { addr, snapshots, cut }
+    }
+}
+
+/// Carries one connection both ways until either side closes it, counting the snapshot events going down.
+async fn carry(client: TcpStream, server: TcpStream, snapshots: &AtomicUsize) {
+    let (mut client_rx, mut client_tx) = client.into_split();
+    let (mut server_rx, mut server_tx) = server.into_split();
+    let up = tokio::io::copy(&mut client_rx, &mut server_tx);
+    let down = async {
+        let mut buf = vec![0u8; 64 * 1024];
+        // the last bytes of the previous read, so that a field split across two reads is still counted once
+        let mut tail: Vec<u8> = Vec::new();
+        loop {
+            let n = match server_rx.read(&mut buf).await {
+                Ok(0) | Err(_) => return,
+                Ok(n) => n,
+            };
+            if client_tx.write_all(&buf[..n]).await.is_err() {
+                return;
+            }
+            tail.extend_from_slice(&buf[..n]);
+            let found = tail.windows(SNAPSHOT_FIELD.len()).filter(|w| *w == SNAPSHOT_FIELD).count();
+            snapshots.fetch_add(found, Ordering::SeqCst);
+            let keep = tail.len().min(SNAPSHOT_FIELD.len() - 1);
+            tail.drain(..tail.len() - keep);
+        }
+    };
+    tokio::select! {
+        _ = up => {}
+        _ = down => {}
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_page_that_loses_the_service_says_so_on_every_card() {
+    let stack = Stack::start(8.0, 10, "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 35.0\n").await;
+    let upstream: SocketAddr = stack.url.trim_start_matches("http://").parse().expect("the service's address");
+    let line = Line::start(upstream).await;
+    // no close_after: the open event stream holds the browser's virtual time still until the line is cut
+    let url = format!("http://{}/", line.addr);
+    let browser = tokio::task::spawn_blocking(move || {
+        run_chromium(&url, &["--virtual-time-budget=5000", "--dump-dom"], Duration::from_secs(90))
+    });
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while line.snapshots.load(Ordering::SeqCst) < 5 {
+        assert!(Instant::now() < deadline, "the page never received 5 snapshots through the line");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    line.cut.cancel();
+    let dom = browser.await.expect("joins");
+
+    // the page took live snapshots before the cut (the last ones carried may die in the sockets' buffers with it)
+    let events: u64 = attr_after(&dom, "id=\"events\"", "data-events").and_then(|v| v.parse().ok()).expect("count");
+    assert!(events >= 1, "the page had live snapshots before the cut: {dom:.2000}");
+    assert_eq!(attr_after(&dom, "id=\"ready\"", "data-ready"), Some("false"), "{dom:.2000}");
+    assert!(dom.contains(">disconnected<"), "the header says the page lost the service");
+    assert_eq!(attr_after(&dom, "data-drive=\"pump1\"", "data-link"), Some("unknown"), "{dom:.2000}");
+    assert!(dom.contains("class=\"card lost\""), "the card greys its old values: {dom:.2000}");
+    assert!(dom.contains(">no data<"), "the card's link badge no longer says up");
+    assert!(stack.state.drives[0].snapshot().link.connected, "the drive itself was fine all along");
     stack.stop().await;
 }
