@@ -243,7 +243,7 @@ fn sweep_of_seeds_and_magnitudes() {
 /// torque offset and recovers the benchmark's IDIM-LS table.
 #[test]
 fn emps_real_data_gives_the_published_friction_model() {
-    let dir = support::root().join("../shared/data/emps");
+    let dir = support::root().join("tests/data/emps");
     let tmp = tempfile::tempdir().expect("tmp");
     let (json, fitted, report) = (tmp.path().join("a.json"), tmp.path().join("m.toml"), tmp.path().join("r.html"));
     let out = Command::new(support::bin())
