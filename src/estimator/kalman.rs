@@ -3,10 +3,14 @@
 //! `ω(k+1) = (1 − Δt·B/J)·ω(k) − Δt/J·T_L(k) + Δt/J·τ(k)`, `T_L(k+1) = T_L(k) + w`, measured `ω + v`.
 //! Process noise: the drive torque's measurement noise through Δt/J on ω, `load_rate²·Δt` on T_L; R = σ_ω².
 //! Joseph-form update, symmetrised and checked positive definite after every step.
+//!
+//! Sharper on steps: a random walk tuned for slow drifts follows a brake step slowly. A two-sided CUSUM on the
+//! normalised innovations detects an abrupt load change and widens the load's variance by `jump_load_sd_nm²`
+//! once, so the filter re-weighs the load at the next samples instead of trusting its old value.
 
 use nalgebra::{Matrix2, RowVector2, Vector2};
 
-use super::rls_sgd::condition;
+use super::rls_sgd::{JumpTest, condition};
 use super::settings::Resolved;
 use super::{Checked, Estimate, Estimator, Measurement, finite_or};
 
@@ -18,6 +22,7 @@ pub struct Kalman {
     x: Vector2<f64>,
     p: Matrix2<f64>,
     torque_nm: Option<f64>,
+    jump: JumpTest,
     /// Upper bound of trace(P): far above anything the filter reaches, so only garbage input meets it.
     max_trace: f64,
 }
@@ -31,6 +36,7 @@ impl Kalman {
             x: Vector2::new(0.0, s.initial_load_nm),
             p: Self::initial_p(&s),
             torque_nm: None,
+            jump: JumpTest::default(),
             max_trace,
         }
     }
@@ -52,7 +58,24 @@ impl Kalman {
         self.started = true;
     }
 
-    fn step(&mut self, c: Checked) {
+    /// One sample with the inertia and viscous friction to predict with (the model's, or rls-sgd's estimates);
+    /// `load_rate_scale` multiplies the load's random-walk intensity.
+    pub(crate) fn step_with(&mut self, m: &Measurement, j: f64, b: f64, load_rate_scale: f64) -> Estimate {
+        let before = self.estimate();
+        let c = Checked::new(m, self.s.max_gap_s);
+        self.step(c, j, b, load_rate_scale);
+        if let Some(t) = c.torque_nm {
+            self.torque_nm = Some(t);
+        }
+        let after = self.estimate();
+        if after != finite_or(after, before) {
+            *self = Kalman::new(self.s);
+            return before;
+        }
+        after
+    }
+
+    fn step(&mut self, c: Checked, j: f64, b: f64, load_rate_scale: f64) {
         let (Some(dt), Some(tau), true) = (c.dt_s, self.torque_nm, self.started) else {
             match c.omega_rad_s {
                 Some(w) => self.restart(w),
@@ -61,18 +84,24 @@ impl Kalman {
             }
             return;
         };
-        let j = self.s.initial_inertia_kg_m2;
-        let b = self.s.initial_viscous_nm_s_rad;
         let f = Matrix2::new(1.0 - dt * b / j, -dt / j, 0.0, 1.0);
-        let q =
-            Matrix2::new((dt / j * self.s.torque_noise_nm).powi(2), 0.0, 0.0, self.s.load_rate_nm_per_s.powi(2) * dt);
+        let q = Matrix2::new(
+            (dt / j * self.s.torque_noise_nm).powi(2),
+            0.0,
+            0.0,
+            (self.s.load_rate_nm_per_s * load_rate_scale).powi(2) * dt,
+        );
         self.x = f * self.x + Vector2::new(dt / j * tau, 0.0);
         self.p = f * self.p * f.transpose() + q;
         if let Some(w) = c.omega_rad_s {
             let r = self.s.speed_noise_rad_s.powi(2);
             let h = RowVector2::new(1.0, 0.0);
             let innovation = w - self.x[0];
-            let s = self.p[(0, 0)] + r;
+            let mut s = self.p[(0, 0)] + r;
+            if self.s.jump_load_sd_nm > 0.0 && self.jump.feed(innovation / s.sqrt(), &self.s) {
+                self.p[(1, 1)] += self.s.jump_load_sd_nm.powi(2);
+                s = self.p[(0, 0)] + r;
+            }
             let k = self.p.column(0) / s;
             self.x += k * innovation;
             let a = Matrix2::identity() - k * h;
@@ -86,18 +115,7 @@ impl Kalman {
 
 impl Estimator for Kalman {
     fn update(&mut self, m: &Measurement) -> Estimate {
-        let before = self.estimate();
-        let c = Checked::new(m, self.s.max_gap_s);
-        self.step(c);
-        if let Some(t) = c.torque_nm {
-            self.torque_nm = Some(t);
-        }
-        let after = self.estimate();
-        if after != finite_or(after, before) {
-            *self = Kalman::new(self.s);
-            return before;
-        }
-        after
+        self.step_with(m, self.s.initial_inertia_kg_m2, self.s.initial_viscous_nm_s_rad, 1.0)
     }
 
     fn boxed_clone(&self) -> Box<dyn Estimator> {
@@ -110,6 +128,8 @@ impl Estimator for Kalman {
             load_hat_nm: self.x[1],
             inertia_hat_kg_m2: self.s.initial_inertia_kg_m2,
             viscous_hat_nm_s_rad: self.s.initial_viscous_nm_s_rad,
+            inertia_sd_kg_m2: 0.0,
+            viscous_sd_nm_s_rad: 0.0,
         }
     }
 }

@@ -8,6 +8,7 @@
 //! per sample. Measurements carry Δt since the previous sample; a non-finite field is a missing value.
 //! docs/estimator.md gives the design, the measured accuracy and the settings.
 
+pub mod battery;
 mod kalman;
 mod paper;
 pub mod replay;
@@ -41,6 +42,10 @@ pub struct Estimate {
     pub load_hat_nm: f64,
     pub inertia_hat_kg_m2: f64,
     pub viscous_hat_nm_s_rad: f64,
+    /// Standard deviations of J and B as the estimator knows them (rls-sgd: from its RLS covariance). Zero where
+    /// they are not estimated but taken from the model (kalman, paper-literal).
+    pub inertia_sd_kg_m2: f64,
+    pub viscous_sd_nm_s_rad: f64,
 }
 
 /// A running estimator. Every output is finite whatever the input.
@@ -131,5 +136,7 @@ pub(crate) fn finite_or(e: Estimate, fallback: Estimate) -> Estimate {
         load_hat_nm: pick(e.load_hat_nm, fallback.load_hat_nm),
         inertia_hat_kg_m2: pick(e.inertia_hat_kg_m2, fallback.inertia_hat_kg_m2),
         viscous_hat_nm_s_rad: pick(e.viscous_hat_nm_s_rad, fallback.viscous_hat_nm_s_rad),
+        inertia_sd_kg_m2: pick(e.inertia_sd_kg_m2, fallback.inertia_sd_kg_m2),
+        viscous_sd_nm_s_rad: pick(e.viscous_sd_nm_s_rad, fallback.viscous_sd_nm_s_rad),
     }
 }

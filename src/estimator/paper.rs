@@ -105,6 +105,9 @@ impl Estimator for PaperLiteral {
             load_hat_nm: self.load_hat_nm,
             inertia_hat_kg_m2: j,
             viscous_hat_nm_s_rad: if b.is_finite() { b } else { blo },
+            // The paper's P is not a calibrated covariance (no noise weighting): no confidence is claimed.
+            inertia_sd_kg_m2: 0.0,
+            viscous_sd_nm_s_rad: 0.0,
         }
     }
 }

@@ -63,20 +63,33 @@ pub struct EstimatorSettings {
     pub eta: f64,
     /// Bandwidth of the ω̂ observer's innovation gain (rad/s): lower suppresses more noise, higher lags less.
     pub speed_bandwidth_rad_s: f64,
-    /// Length of the blocks the RLS regresses on (s): θ is slow, T_L is fast, so they do not fight.
+    /// Length of the load-cancelling windows the RLS learns from, one update per half window (s): θ is slow, T_L
+    /// is fast, so they do not fight.
     pub rls_period_s: f64,
-    /// Forgetting factor of the RLS's own load bias, per RLS update: it must follow load steps quickly.
+    /// Not used since the windowed RLS (it needs no load bias); accepted so that older model files still load.
     pub load_forgetting: f64,
-    /// Initial RLS covariance, on parameters normalised to their nominal values (paper: "large").
+    /// paper-literal: initial RLS covariance (paper: "large").
     pub initial_covariance: f64,
-    /// Upper bound on trace(P) of the RLS: no wind-up when nothing excites the plant.
+    /// paper-literal: upper bound on trace(P).
     pub max_covariance_trace: f64,
-    /// J and B forget only when the block's drive torque moves this far from its recent mean (N·m).
+    /// Not used since the windowed RLS (excitation is judged against each window's noise); accepted for older files.
     pub excitation_torque_nm: f64,
-    /// An RLS residual beyond this many σ is taken as a load change: it resets the load bias and leaves J, B alone.
+    /// A window residual beyond this many σ (noise and parameter spread) holds a load change: it is not learnt from.
     pub change_threshold: f64,
-    /// B forgets only when the block's speed moves this far from its recent mean (rad/s).
+    /// Not used since the windowed RLS; accepted for older files.
     pub excitation_speed_rad_s: f64,
+    /// rls-sgd: prior standard deviation of J₀/J (the model's J is this uncertain before any data).
+    pub inertia_prior_sd: f64,
+    /// rls-sgd: prior standard deviation of B/J relative to the model's (B is this uncertain before any data).
+    pub viscous_prior_sd: f64,
+    /// Jump test on the normalised speed innovations (CUSUM): drift per sample and alarm threshold (σ).
+    pub jump_drift: f64,
+    pub jump_threshold: f64,
+    /// rls-sgd: after a jump the load loop is this many times wider, for this long (s).
+    pub jump_boost: f64,
+    pub jump_hold_s: f64,
+    /// kalman: a detected jump widens the load's standard deviation by this much (N·m).
+    pub jump_load_sd_nm: f64,
     /// Physical range of J as factors of the model's J.
     pub inertia_bounds_factor: [f64; 2],
     /// Physical range of B (N·m·s/rad).
@@ -108,13 +121,20 @@ impl Default for EstimatorSettings {
             lambda: 0.99,
             eta: 0.05,
             speed_bandwidth_rad_s: 60.0,
-            rls_period_s: 0.04,
+            rls_period_s: 1.5,
             load_forgetting: 0.9,
             initial_covariance: 100.0,
             max_covariance_trace: 100.0,
             excitation_torque_nm: 0.5,
-            change_threshold: 4.0,
+            change_threshold: 5.0,
             excitation_speed_rad_s: 2.0,
+            inertia_prior_sd: 0.7,
+            viscous_prior_sd: 1.5,
+            jump_drift: 0.5,
+            jump_threshold: 8.0,
+            jump_boost: 2.0,
+            jump_hold_s: 0.05,
+            jump_load_sd_nm: 8.0,
             inertia_bounds_factor: [0.2, 5.0],
             viscous_bounds_nm_s_rad: None,
             max_load_nm: 1e4,
@@ -144,6 +164,13 @@ pub struct Resolved {
     pub excitation_torque_nm: f64,
     pub excitation_speed_rad_s: f64,
     pub change_threshold: f64,
+    pub inertia_prior_sd: f64,
+    pub viscous_prior_sd: f64,
+    pub jump_drift: f64,
+    pub jump_threshold: f64,
+    pub jump_boost: f64,
+    pub jump_hold_s: f64,
+    pub jump_load_sd_nm: f64,
     /// The model's nominal J and B: the scale of the normalised RLS parameters and of the bounds.
     pub nominal_inertia_kg_m2: f64,
     pub nominal_viscous_nm_s_rad: f64,
@@ -229,6 +256,13 @@ impl EstimatorSettings {
             excitation_torque_nm: nonneg("excitation_torque_nm", s.excitation_torque_nm)?,
             excitation_speed_rad_s: nonneg("excitation_speed_rad_s", s.excitation_speed_rad_s)?,
             change_threshold: pos("change_threshold", s.change_threshold)?,
+            inertia_prior_sd: pos("inertia_prior_sd", s.inertia_prior_sd)?,
+            viscous_prior_sd: pos("viscous_prior_sd", s.viscous_prior_sd)?,
+            jump_drift: nonneg("jump_drift", s.jump_drift)?,
+            jump_threshold: pos("jump_threshold", s.jump_threshold)?,
+            jump_boost: check("jump_boost", s.jump_boost, s.jump_boost >= 1.0, "≥ 1")?,
+            jump_hold_s: nonneg("jump_hold_s", s.jump_hold_s)?,
+            jump_load_sd_nm: nonneg("jump_load_sd_nm", s.jump_load_sd_nm)?,
             nominal_inertia_kg_m2: j0,
             nominal_viscous_nm_s_rad: b0,
             inertia_bounds_kg_m2: inertia_bounds,

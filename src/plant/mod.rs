@@ -5,6 +5,7 @@ pub mod effects;
 pub mod excitation;
 pub mod load;
 pub mod model;
+pub mod scenario;
 pub mod simulate;
 
 pub use dynamics::{Coefficients, Plant, PlantState};
