@@ -59,11 +59,12 @@ fn bench_estimate(c: &mut Criterion<cpu_time::Clock>) {
                     let end = (start + 4096).min(ROWS);
                     let cols: Vec<Vec<f64>> = columns.iter().map(|c| c[start..end].to_vec()).collect();
                     replayer.push(&t_s[start..end], &cols, |t, e| {
-                        for v in [t, e.omega_hat_rad_s, e.load_hat_nm, e.inertia_hat_kg_m2] {
+                        let (j, b) = (e.inertia_hat_kg_m2, e.viscous_hat_nm_s_rad);
+                        for v in [t, e.omega_hat_rad_s, e.load_hat_nm, j, b, e.inertia_sd_kg_m2] {
                             recording::push_value(&mut out, v);
                             out.push(b',');
                         }
-                        recording::push_value(&mut out, e.viscous_hat_nm_s_rad);
+                        recording::push_value(&mut out, e.viscous_sd_nm_s_rad);
                         out.push(b'\n');
                     });
                 }

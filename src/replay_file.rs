@@ -35,7 +35,15 @@ use crate::recording::{
 };
 
 /// The columns of an estimates file.
-pub const COLUMNS: [&str; 5] = ["t_s", "omega_hat_rad_s", "load_hat_nm", "inertia_hat_kg_m2", "viscous_hat_nm_s_rad"];
+pub const COLUMNS: [&str; 7] = [
+    "t_s",
+    "omega_hat_rad_s",
+    "load_hat_nm",
+    "inertia_hat_kg_m2",
+    "viscous_hat_nm_s_rad",
+    "inertia_sd_kg_m2",
+    "viscous_sd_nm_s_rad",
+];
 
 /// Rows per batch handed from the reading thread to the estimating one, and batches under way at once: enough to
 /// keep both threads busy, little enough to stay in cache (4 k rows × 4 columns × 8 bytes = 128 KiB a batch).
@@ -317,8 +325,8 @@ impl<T> Turns<T> {
 /// Kalman filter never, are formatted once and copied while they stay the same (the same bits, the same text).
 #[derive(Default)]
 struct RowFormatter {
-    tail_bits: Option<[u64; 2]>,
-    /// `J,B\n` of the row before.
+    tail_bits: Option<[u64; 4]>,
+    /// `J,B,σ_J,σ_B\n` of the row before.
     tail: Vec<u8>,
 }
 
@@ -331,12 +339,16 @@ impl RowFormatter {
             push_value(text, v);
             text.push(b',');
         }
-        let bits = [e.inertia_hat_kg_m2.to_bits(), e.viscous_hat_nm_s_rad.to_bits()];
+        let tail = [e.inertia_hat_kg_m2, e.viscous_hat_nm_s_rad, e.inertia_sd_kg_m2, e.viscous_sd_nm_s_rad];
+        let bits = tail.map(f64::to_bits);
         if self.tail_bits != Some(bits) {
             self.tail.clear();
-            push_value(&mut self.tail, e.inertia_hat_kg_m2);
-            self.tail.push(b',');
-            push_value(&mut self.tail, e.viscous_hat_nm_s_rad);
+            for (i, v) in tail.into_iter().enumerate() {
+                if i > 0 {
+                    self.tail.push(b',');
+                }
+                push_value(&mut self.tail, v);
+            }
             self.tail.push(b'\n');
             self.tail_bits = Some(bits);
         }

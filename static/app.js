@@ -33,6 +33,8 @@ function makeCard(d) {
       <dt>ω̂ estimated</dt><dd class="omega-hat"></dd>
       <dt>target</dt><dd class="target"></dd>
       <dt>T̂ load</dt><dd class="load"></dd>
+      <dt>J inertia</dt><dd class="inertia"></dd>
+      <dt>B viscous</dt><dd class="viscous"></dd>
       <dt>setpoint</dt><dd class="setpoint"></dd>
       <dt>p in / out</dt><dd class="pressures"></dd>
       <dt>status</dt><dd class="status"></dd>
@@ -119,6 +121,18 @@ function redraw(entry) {
   }
 }
 
+// J and B count as identified once their standard deviation is within these fractions of the value
+// (docs/estimator.md); a standard deviation of 0 means the method takes them from the model (kalman).
+const J_IDENTIFIED_REL_SD = 0.1;
+const B_IDENTIFIED_REL_SD = 0.3;
+
+function withConfidence(value, sd, unit, identifiedRelSd) {
+  if (value === undefined || value === null || !Number.isFinite(value)) return "–";
+  if (sd === 0) return `${fmt(value, 4)} ${unit} (from the model)`;
+  const text = `${fmt(value, 4)} ± ${fmt(sd, 4)} ${unit}`;
+  return Math.abs(sd) <= identifiedRelSd * Math.abs(value) ? text : `${text} (not identified yet)`;
+}
+
 function updateCard(entry, d) {
   const card = entry.card;
   const q = sel => card.querySelector(sel);
@@ -137,6 +151,10 @@ function updateCard(entry, d) {
   q(".omega-hat").textContent = `${fmt(e && e.omega_hat_rad_s, 2)} rad/s`;
   q(".target").textContent = d.mode === "speed" ? `${fmt(d.target_omega_rad_s, 2)} rad/s` : "–";
   q(".load").textContent = `${fmt(e && e.load_hat_nm, 2)} N·m`;
+  q(".inertia").textContent = withConfidence(e && e.inertia_hat_kg_m2, e && e.inertia_sd_kg_m2, "kg·m²",
+    J_IDENTIFIED_REL_SD);
+  q(".viscous").textContent = withConfidence(e && e.viscous_hat_nm_s_rad, e && e.viscous_sd_nm_s_rad, "N·m·s/rad",
+    B_IDENTIFIED_REL_SD);
   q(".setpoint").textContent = `${fmt(d.setpoint_hz, 2)} Hz`;
   q(".pressures").textContent = `${fmt(s && s.p_in_bar, 1)} / ${fmt(s && s.p_out_bar, 1)} bar`;
   const st = d.status;

@@ -239,6 +239,8 @@ struct HistoryBody {
     load_hat_nm: Vec<f64>,
     inertia_hat_kg_m2: Vec<f64>,
     viscous_hat_nm_s_rad: Vec<f64>,
+    inertia_sd_kg_m2: Vec<f64>,
+    viscous_sd_nm_s_rad: Vec<f64>,
     status_word: Vec<u16>,
 }
 
@@ -266,10 +268,12 @@ async fn history(
         b.load_hat_nm.push(p.load_hat_nm);
         b.inertia_hat_kg_m2.push(p.inertia_hat_kg_m2);
         b.viscous_hat_nm_s_rad.push(p.viscous_hat_nm_s_rad);
+        b.inertia_sd_kg_m2.push(p.inertia_sd_kg_m2);
+        b.viscous_sd_nm_s_rad.push(p.viscous_sd_nm_s_rad);
         b.status_word.push(p.status_word);
     }
-    // about 20 bytes a value, 11 columns
-    Ok(json_response(&b, 220 * b.t_s.len()))
+    // about 20 bytes a value, 13 columns
+    Ok(json_response(&b, 260 * b.t_s.len()))
 }
 
 /// The SSE period: about 10 Hz.

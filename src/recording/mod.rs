@@ -9,7 +9,7 @@ pub use stream::{Batch, Chunk, ChunkParser, ChunkSource, StreamReader, TimeText}
 pub use write::{RotatingWriter, RowWriter, format_value, push_parsed_value, push_value, write_csv};
 
 /// The columns the contract names; anything else in a file is kept but reported once as unknown.
-pub const KNOWN_COLUMNS: [&str; 14] = [
+pub const KNOWN_COLUMNS: [&str; 16] = [
     "t_s",
     "f_set_hz",
     "f_drive_hz",
@@ -23,6 +23,8 @@ pub const KNOWN_COLUMNS: [&str; 14] = [
     "load_hat_nm",
     "inertia_hat_kg_m2",
     "viscous_hat_nm_s_rad",
+    "inertia_sd_kg_m2",
+    "viscous_sd_nm_s_rad",
     "status_word",
 ];
 

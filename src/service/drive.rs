@@ -399,6 +399,8 @@ impl DriveLoop {
             load_hat_nm: est.load_hat_nm,
             inertia_hat_kg_m2: est.inertia_hat_kg_m2,
             viscous_hat_nm_s_rad: est.viscous_hat_nm_s_rad,
+            inertia_sd_kg_m2: est.inertia_sd_kg_m2,
+            viscous_sd_nm_s_rad: est.viscous_sd_nm_s_rad,
             status_word: sample.status_word,
         };
         self.sample = Some(point);
@@ -411,6 +413,10 @@ impl DriveLoop {
         self.metrics.omega.get_or_create(l).set(sample.omega_rad_s);
         self.metrics.omega_hat.get_or_create(l).set(est.omega_hat_rad_s);
         self.metrics.load_hat.get_or_create(l).set(est.load_hat_nm);
+        self.metrics.inertia_hat.get_or_create(l).set(est.inertia_hat_kg_m2);
+        self.metrics.inertia_sd.get_or_create(l).set(est.inertia_sd_kg_m2);
+        self.metrics.viscous_hat.get_or_create(l).set(est.viscous_hat_nm_s_rad);
+        self.metrics.viscous_sd.get_or_create(l).set(est.viscous_sd_nm_s_rad);
     }
 
     /// Writes the setpoint, control word and watchdog when something changed or the watchdog is due. Returns true

@@ -46,6 +46,11 @@ pub struct Metrics {
     pub omega: Family<DriveLabel, GaugeF>,
     pub omega_hat: Family<DriveLabel, GaugeF>,
     pub load_hat: Family<DriveLabel, GaugeF>,
+    /// J and B as estimated, and how sure the estimator is of them (standard deviations).
+    pub inertia_hat: Family<DriveLabel, GaugeF>,
+    pub inertia_sd: Family<DriveLabel, GaugeF>,
+    pub viscous_hat: Family<DriveLabel, GaugeF>,
+    pub viscous_sd: Family<DriveLabel, GaugeF>,
     pub setpoint: Family<DriveLabel, GaugeF>,
     pub target: Family<DriveLabel, GaugeF>,
 }
@@ -69,6 +74,10 @@ impl Metrics {
             omega: Family::default(),
             omega_hat: Family::default(),
             load_hat: Family::default(),
+            inertia_hat: Family::default(),
+            inertia_sd: Family::default(),
+            viscous_hat: Family::default(),
+            viscous_sd: Family::default(),
             setpoint: Family::default(),
             target: Family::default(),
         };
@@ -100,6 +109,18 @@ impl Metrics {
         r.register("omega_rad_s", "Measured shaft speed", m.omega.clone());
         r.register("omega_hat_rad_s", "Estimated shaft speed", m.omega_hat.clone());
         r.register("load_hat_nm", "Estimated load torque", m.load_hat.clone());
+        r.register("inertia_hat_kg_m2", "Estimated inertia J", m.inertia_hat.clone());
+        r.register(
+            "inertia_sd_kg_m2",
+            "Standard deviation of the estimated J (0: taken from the model)",
+            m.inertia_sd.clone(),
+        );
+        r.register("viscous_hat_nm_s_rad", "Estimated viscous friction B", m.viscous_hat.clone());
+        r.register(
+            "viscous_sd_nm_s_rad",
+            "Standard deviation of the estimated B (0: taken from the model)",
+            m.viscous_sd.clone(),
+        );
         r.register("setpoint_hz", "Last frequency setpoint written", m.setpoint.clone());
         r.register("target_omega_rad_s", "Speed target", m.target.clone());
         (m, r)

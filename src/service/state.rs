@@ -44,11 +44,14 @@ pub struct Point {
     pub load_hat_nm: f64,
     pub inertia_hat_kg_m2: f64,
     pub viscous_hat_nm_s_rad: f64,
+    /// How sure the estimator is of J and B (standard deviations; 0 where the method takes them from the model).
+    pub inertia_sd_kg_m2: f64,
+    pub viscous_sd_nm_s_rad: f64,
     pub status_word: u16,
 }
 
 /// The recording's columns, in [`Point::values`] order.
-pub const COLUMNS: [&str; 11] = [
+pub const COLUMNS: [&str; 13] = [
     "t_s",
     "f_set_hz",
     "f_drive_hz",
@@ -59,11 +62,13 @@ pub const COLUMNS: [&str; 11] = [
     "load_hat_nm",
     "inertia_hat_kg_m2",
     "viscous_hat_nm_s_rad",
+    "inertia_sd_kg_m2",
+    "viscous_sd_nm_s_rad",
     "status_word",
 ];
 
 impl Point {
-    pub fn values(&self) -> [f64; 11] {
+    pub fn values(&self) -> [f64; 13] {
         [
             self.t_s,
             self.f_set_hz,
@@ -75,6 +80,8 @@ impl Point {
             self.load_hat_nm,
             self.inertia_hat_kg_m2,
             self.viscous_hat_nm_s_rad,
+            self.inertia_sd_kg_m2,
+            self.viscous_sd_nm_s_rad,
             f64::from(self.status_word),
         ]
     }
@@ -301,6 +308,8 @@ mod tests {
             load_hat_nm: 0.0,
             inertia_hat_kg_m2: 0.0,
             viscous_hat_nm_s_rad: 0.0,
+            inertia_sd_kg_m2: 0.0,
+            viscous_sd_nm_s_rad: 0.0,
             status_word: 0,
         }
     }

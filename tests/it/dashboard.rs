@@ -77,6 +77,12 @@ fn attr_after<'a>(dom: &'a str, anchor: &str, attr: &str) -> Option<&'a str> {
     rest[from..].split('"').next()
 }
 
+/// The text after `anchor` up to the next tag.
+fn text_after<'a>(dom: &'a str, anchor: &str) -> Option<&'a str> {
+    let at = dom.find(anchor)? + anchor.len();
+    dom[at..].split('<').next()
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn dashboard_shows_live_points_and_the_drive_state() {
     let stack = Stack::start(8.0, 10, "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 35.0\n").await;
@@ -100,6 +106,11 @@ async fn dashboard_shows_live_points_and_the_drive_state() {
     let events: u64 = attr_after(&dom, "id=\"events\"", "data-events").and_then(|v| v.parse().ok()).expect("count");
     assert_eq!(events, 15, "SSE snapshots that reached the page");
     assert!(dom.contains("ready, running"), "the card shows the status word");
+    // J and B with their confidence (rls-sgd): a value ± a standard deviation, flagged while not identified
+    for (class, unit) in [("inertia", "kg·m²"), ("viscous", "N·m·s/rad")] {
+        let text = text_after(&dom, &format!("class=\"{class}\">")).unwrap_or_default();
+        assert!(text.contains('±') && text.contains(unit), "{class}: {text:?}");
+    }
 
     let shot_dir = tempfile::tempdir().expect("tmp");
     let shot = shot_dir.path().join("dashboard.png");

@@ -165,6 +165,10 @@ async fn sse_delivers_snapshots_and_metrics_are_exposed() {
             "hydrolens_loop_jitter_p99_seconds{drive=\"pump1\"}",
             "hydrolens_omega_rad_s{drive=\"pump1\"}",
             "hydrolens_load_hat_nm{drive=\"pump1\"}",
+            "hydrolens_inertia_hat_kg_m2{drive=\"pump1\"}",
+            "hydrolens_inertia_sd_kg_m2{drive=\"pump1\"}",
+            "hydrolens_viscous_hat_nm_s_rad{drive=\"pump1\"}",
+            "hydrolens_viscous_sd_nm_s_rad{drive=\"pump1\"}",
             "hydrolens_setpoint_hz{drive=\"pump1\"}",
         ] {
             assert!(m.contains(name), "metrics lack {name}:\n{m}");

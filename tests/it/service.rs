@@ -101,6 +101,47 @@ async fn at_the_default_10_ms_poll_kalman_regulates_and_estimates_near_truth() {
     tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
 }
 
+/// `sim` and `serve` over TCP at the contract's 10 ms poll, rls-sgd, a random brake program (seeded) that the
+/// service is not told, and target changes for excitation: `/api/status` carries J and B with their standard
+/// deviations, J near the simulator's truth and T̂_L following the brake.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn at_a_10_ms_poll_rls_sgd_identifies_inertia_under_a_random_brake_program() {
+    let run = async {
+        let mut plant = support::test_plant(0.0);
+        let brake = hydrolens::plant::scenario::Scenario::generate(hydrolens::plant::scenario::Family::Brake, 77, 30.0);
+        let levels: Vec<f64> = (0..8).map(|k| brake.load.torque_nm(1.0 + 2.5 * k as f64)).collect();
+        plant.load = hydrolens::plant::LoadSpec::Steps { levels_nm: levels.clone(), period_s: 2.5 };
+        let stack = Stack::start_on(plant, 10, SPEED).await;
+        for target in [30.0, 45.0, 20.0, 40.0, 25.0, 50.0, 35.0] {
+            assert_eq!(post_target(&stack, target, Some(TOKEN)).await, reqwest::StatusCode::OK);
+            tokio::time::sleep(Duration::from_millis(1700)).await;
+        }
+        let (mut load_err, n) = (0.0, 50);
+        for _ in 0..n {
+            let truth = stack.sim.lock().truth();
+            let e = stack.state.drives[0].snapshot().estimate.expect("estimates");
+            load_err += (e.load_hat_nm - truth.load_nm).abs();
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        let status = stack.status().await;
+        let e = &status["estimate"];
+        let (j, j_sd) = (e["inertia_hat_kg_m2"].as_f64().expect("J"), e["inertia_sd_kg_m2"].as_f64().expect("σ_J"));
+        let (b, b_sd) =
+            (e["viscous_hat_nm_s_rad"].as_f64().expect("B"), e["viscous_sd_nm_s_rad"].as_f64().expect("σ_B"));
+        let load_mae = load_err / n as f64;
+        eprintln!(
+            "10 ms, rls-sgd, brake levels {levels:.1?}: J {j:.4} ± {j_sd:.4} (true 0.08), B {b:.4} ± {b_sd:.4} (true 0.04), \
+             |T̂_L − T_L| {load_mae:.2} N·m"
+        );
+        assert!((j / 0.08 - 1.0).abs() <= 0.15, "J {j} ± {j_sd}");
+        assert!(j_sd > 0.0 && j_sd < 0.1 * j, "σ_J {j_sd}");
+        assert!(b_sd > 0.0, "σ_B {b_sd}");
+        assert!(load_mae < 2.0, "T̂_L mean abs error {load_mae} N·m");
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn monitor_mode_writes_nothing_and_refuses_write_routes() {
     let run = async {

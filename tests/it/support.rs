@@ -113,6 +113,12 @@ impl Stack {
         Stack::assemble(sim, modbus_addr, modbus_addr, sim_stop, sim_task, poll_ms, drive_extra).await
     }
 
+    /// A stack on any plant model (a load program, say).
+    pub async fn start_on(model: PlantModel, poll_ms: u64, drive_extra: &str) -> Stack {
+        let (sim, modbus_addr, sim_stop, sim_task) = start_sim(model, 0).await;
+        Stack::assemble(sim, modbus_addr, modbus_addr, sim_stop, sim_task, poll_ms, drive_extra).await
+    }
+
     /// As [`Stack::start`], with the service reaching the simulator through a fault-injecting proxy.
     pub async fn start_behind_proxy(
         load_nm: f64,

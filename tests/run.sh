@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# The README's test command: installs from Debian what the tests drive when it is missing (today: chromium, for the
+# dashboard test), then runs the whole suite. Extra arguments go to `cargo test` (e.g. `-- --ignored`).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+need=()
+command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || need+=(chromium)
+if [ ${#need[@]} -gt 0 ]; then
+  echo "tests/run.sh: installing ${need[*]} from Debian" >&2
+  sudo_=""
+  [ "$(id -u)" -eq 0 ] || sudo_="sudo"
+  ($sudo_ apt-get update -qq && DEBIAN_FRONTEND=noninteractive $sudo_ apt-get install -y -qq "${need[@]}" >/dev/null) \
+    || echo "tests/run.sh: could not install ${need[*]}; the tests that drive them will fail" >&2
+fi
+exec cargo test --locked "$@"
