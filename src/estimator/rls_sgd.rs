@@ -38,8 +38,12 @@ const HUBER_Z: f64 = 2.5;
 const STEP_GRID: usize = 16;
 /// A step is in the window when it lowers the residual sum of squares by this many σ² (GLR over the candidates).
 const STEP_GLR: f64 = 25.0;
+/// How fast the window scatter is learnt (per informative window).
+const OVERDISPERSION_RATE: f64 = 0.15;
 /// The speed moved in a window when the drive's torque explains this many σ² more of it than the load alone.
 const SPEED_MOVED_GLR: f64 = 100.0;
+/// What a higher power of the load polynomial must explain (σ²) to be chosen.
+const DEGREE_PENALTY: f64 = 10.0;
 /// The η whose load drift intensity is the Kalman reference's `load_rate_nm_per_s` (the paper's value).
 const PAPER_ETA: f64 = 0.05;
 
@@ -154,6 +158,11 @@ pub(crate) struct WindowRls {
     /// Outcomes of the last informative windows, newest in bit 0 (1 = rejected), and how many are recorded.
     recent: u32,
     recorded: u32,
+    /// The last informative window's estimate and variances, and how much the windows scatter beyond what their
+    /// own fits claim (per component, ≥ 1): a load the nuisance only roughly follows biases each window a little
+    /// differently, and the scatter between consecutive windows shows it whatever θ is.
+    last_window: [Option<(Vector2<f64>, Vector2<f64>)>; 2],
+    overdispersion: Vector2<f64>,
     /// Windows learnt from, rejected, and with a step found: for diagnostics.
     pub counts: [u64; 4],
     s: Resolved,
@@ -169,7 +178,19 @@ impl WindowRls {
             s.inertia_prior_sd.powi(2),
             (s.viscous_prior_sd * theta[1].max(1.0)).powi(2),
         ));
-        WindowRls { theta, p: prior, prior, j0, b0, recent: 0, recorded: 0, counts: [0; 4], s }
+        WindowRls {
+            theta,
+            p: prior,
+            prior,
+            j0,
+            b0,
+            recent: 0,
+            recorded: 0,
+            last_window: [None, None],
+            overdispersion: Vector2::new(1.0, 1.0),
+            counts: [0; 4],
+            s,
+        }
     }
 
     fn inertia_kg_m2(&self) -> f64 {
@@ -190,7 +211,7 @@ impl WindowRls {
     }
 
     /// Fits one window (rows in `w`) and learns from it.
-    fn learn(&mut self, w: &mut Window, speed_sd: f64) -> Verdict {
+    fn learn(&mut self, w: &mut Window, sequence: usize, speed_sd: f64) -> Verdict {
         let n = w.rows.len();
         let Some(last) = w.rows.last() else { return Verdict::Uninformative };
         let length = last.s;
@@ -250,7 +271,7 @@ impl WindowRls {
         for degree in 2..=4 {
             let plain = Model { degree, step: false, dynamics: true };
             if let Some((x, rss)) = plain.solve(&a, &b, yy) {
-                let pen = rss / sigma2 + STEP_GLR * (degree - 2) as f64;
+                let pen = rss / sigma2 + DEGREE_PENALTY * (degree - 2) as f64;
                 if chosen.as_ref().is_none_or(|c| pen < c.5) {
                     chosen = Some((plain, a, b, x, rss, pen));
                 }
@@ -289,7 +310,7 @@ impl WindowRls {
             if let Some((_, k)) = best {
                 let (ak, bk) = with_step(k);
                 if let Some((x, rss)) = stepped.solve(&ak, &bk, yy) {
-                    let pen = rss / sigma2 + STEP_GLR * (degree - 1) as f64;
+                    let pen = rss / sigma2 + DEGREE_PENALTY * (degree - 2) as f64 + STEP_GLR;
                     if chosen.as_ref().is_none_or(|c| pen < c.5) {
                         chosen = Some((stepped, ak, bk, x, rss, pen));
                     }
@@ -321,7 +342,8 @@ impl WindowRls {
         } else if moved <= SPEED_MOVED_GLR {
             Verdict::Uninformative
         } else {
-            self.absorb(x_theta, info / variance, informative)
+            // Each sample lies in two windows (the staggered sequences): each counts half.
+            self.absorb(x_theta, info / variance * 0.5, sequence, informative)
         };
         match verdict {
             Verdict::Accepted => self.counts[0] += 1,
@@ -336,7 +358,8 @@ impl WindowRls {
     }
 
     /// Adds a window's estimate `x` of θ with information `info` (inverse covariance), robustly.
-    fn absorb(&mut self, x: Vector2<f64>, info: Matrix2<f64>, informative: bool) -> Verdict {
+    fn absorb(&mut self, x: Vector2<f64>, info: Matrix2<f64>, sequence: usize, informative: bool) -> Verdict {
+        let info = self.deflate(x, info, sequence, informative);
         let excited = |i: usize| info[(i, i)] * self.prior[(i, i)] > 9.0;
         let f = |e: bool| if e { 1.0 / self.s.lambda.sqrt() } else { 1.0 };
         let d = Matrix2::from_diagonal(&Vector2::new(f(excited(0)), f(excited(1))));
@@ -359,6 +382,28 @@ impl WindowRls {
         self.p = bounded(p_new, &self.prior);
         self.theta = self.project(theta);
         if informative { Verdict::Accepted } else { Verdict::Uninformative }
+    }
+
+    /// The window's information divided by how much windows scatter beyond their claims (component by component,
+    /// learnt from consecutive informative windows), so that P stays honest when the load is only roughly followed.
+    fn deflate(&mut self, x: Vector2<f64>, info: Matrix2<f64>, sequence: usize, informative: bool) -> Matrix2<f64> {
+        let var = info.try_inverse().map_or(Vector2::new(f64::INFINITY, f64::INFINITY), |c| c.diagonal());
+        if informative {
+            if let Some((x0, v0)) = self.last_window[sequence] {
+                for i in 0..2 {
+                    let v = var[i] + v0[i];
+                    // only where both windows say something about the component
+                    if v.is_finite() && v > 0.0 && v < 0.25 * self.prior[(i, i)] {
+                        let z2 = ((x[i] - x0[i]).powi(2) / v).min(1e4);
+                        self.overdispersion[i] =
+                            (1.0 - OVERDISPERSION_RATE) * self.overdispersion[i] + OVERDISPERSION_RATE * z2;
+                    }
+                }
+            }
+            self.last_window[sequence] = Some((x, var));
+        }
+        let d = Matrix2::from_diagonal(&self.overdispersion.map(|b| 1.0 / b.max(1.0).sqrt()));
+        d * info * d
     }
 
     /// Counts an informative window's outcome; most of the recent ones rejected means θ is wrong.
@@ -468,13 +513,20 @@ pub struct RlsSgd {
     tracker: Kalman,
     /// The last measured speed and torque, both present, for the window integrals.
     last_pair: Option<(f64, f64)>,
-    window: Window,
+    /// Two window sequences staggered by half a window, so that every speed change lies well inside one of them.
+    windows: [Window; 2],
     rls: WindowRls,
 }
 
 impl RlsSgd {
     pub fn new(s: Resolved) -> RlsSgd {
-        RlsSgd { s, tracker: Kalman::new(s), last_pair: None, window: Window::default(), rls: WindowRls::new(s) }
+        RlsSgd {
+            s,
+            tracker: Kalman::new(s),
+            last_pair: None,
+            windows: [Window::default(), Window::default()],
+            rls: WindowRls::new(s),
+        }
     }
 
     /// The RLS covariance of θ = [J₀/J, (B/J)·J₀/B₀], for tests and diagnostics.
@@ -487,34 +539,44 @@ impl RlsSgd {
         self.rls.counts
     }
 
-    /// Adds the sample to the window, closing and learning from it when it is complete.
+    /// Adds the sample to both staggered windows, closing and learning from each that is complete.
     fn integrate(&mut self, c: &Checked) {
         let pair = c.omega_rad_s.zip(c.torque_nm);
         let (Some(dt), Some((w1, t1)), Some((w0, t0))) = (c.dt_s, pair, self.last_pair) else {
-            // A missing value or a gap breaks the window: it restarts at the next complete pair.
-            self.window.rows.clear();
+            // A missing value or a gap breaks the windows: the first restarts at the next complete pair, the
+            // second half a window later.
+            for w in &mut self.windows {
+                w.rows.clear();
+            }
             if let Some((w, _)) = pair {
-                self.window.rows.push(Row { s: 0.0, omega: w, i_torque: 0.0, i_speed: 0.0 });
+                self.windows[0].rows.push(Row { s: 0.0, omega: w, i_torque: 0.0, i_speed: 0.0 });
             }
             self.last_pair = pair;
             return;
         };
         self.last_pair = pair;
-        let Some(prev) = self.window.rows.last().copied() else {
-            self.window.rows.push(Row { s: 0.0, omega: w1, i_torque: 0.0, i_speed: 0.0 });
-            return;
-        };
-        let row = Row {
-            s: prev.s + dt,
-            omega: w1,
-            i_torque: prev.i_torque + dt * 0.5 * (t0 + t1),
-            i_speed: prev.i_speed + dt * 0.5 * (w0 + w1),
-        };
-        self.window.rows.push(row);
-        if row.s >= self.s.rls_period_s {
-            self.rls.learn(&mut self.window, self.s.speed_noise_rad_s);
-            self.window.rows.clear();
-            self.window.rows.push(Row { s: 0.0, omega: w1, i_torque: 0.0, i_speed: 0.0 });
+        let length = self.s.rls_period_s;
+        let first_age = self.windows[0].rows.last().map(|r| r.s);
+        for i in 0..2 {
+            let Some(prev) = self.windows[i].rows.last().copied() else {
+                // The second window opens when the first is half full.
+                if i == 0 || first_age.is_some_and(|age| age >= 0.5 * length) {
+                    self.windows[i].rows.push(Row { s: 0.0, omega: w1, i_torque: 0.0, i_speed: 0.0 });
+                }
+                continue;
+            };
+            let row = Row {
+                s: prev.s + dt,
+                omega: w1,
+                i_torque: prev.i_torque + dt * 0.5 * (t0 + t1),
+                i_speed: prev.i_speed + dt * 0.5 * (w0 + w1),
+            };
+            self.windows[i].rows.push(row);
+            if row.s >= length {
+                self.rls.learn(&mut self.windows[i], i, self.s.speed_noise_rad_s);
+                self.windows[i].rows.clear();
+                self.windows[i].rows.push(Row { s: 0.0, omega: w1, i_torque: 0.0, i_speed: 0.0 });
+            }
         }
     }
 }
