@@ -134,7 +134,7 @@ impl Default for EstimatorSettings {
             jump_threshold: 8.0,
             jump_boost: 2.0,
             jump_hold_s: 0.05,
-            jump_load_sd_nm: 8.0,
+            jump_load_sd_nm: 4.0,
             inertia_bounds_factor: [0.2, 5.0],
             viscous_bounds_nm_s_rad: None,
             max_load_nm: 1e4,
