@@ -85,10 +85,7 @@ pub struct EstimatorSettings {
     /// Jump test on the normalised speed innovations (CUSUM): drift per sample and alarm threshold (σ).
     pub jump_drift: f64,
     pub jump_threshold: f64,
-    /// rls-sgd: after a jump the load loop is this many times wider, for this long (s).
-    pub jump_boost: f64,
-    pub jump_hold_s: f64,
-    /// kalman: a detected jump widens the load's standard deviation by this much (N·m).
+    /// A detected jump widens the load's standard deviation by this much (N·m; kalman, and rls-sgd's tracker).
     pub jump_load_sd_nm: f64,
     /// Physical range of J as factors of the model's J.
     pub inertia_bounds_factor: [f64; 2],
@@ -132,8 +129,6 @@ impl Default for EstimatorSettings {
             viscous_prior_sd: 1.5,
             jump_drift: 0.5,
             jump_threshold: 8.0,
-            jump_boost: 2.0,
-            jump_hold_s: 0.05,
             jump_load_sd_nm: 4.0,
             inertia_bounds_factor: [0.2, 5.0],
             viscous_bounds_nm_s_rad: None,
@@ -168,8 +163,6 @@ pub struct Resolved {
     pub viscous_prior_sd: f64,
     pub jump_drift: f64,
     pub jump_threshold: f64,
-    pub jump_boost: f64,
-    pub jump_hold_s: f64,
     pub jump_load_sd_nm: f64,
     /// The model's nominal J and B: the scale of the normalised RLS parameters and of the bounds.
     pub nominal_inertia_kg_m2: f64,
@@ -260,8 +253,6 @@ impl EstimatorSettings {
             viscous_prior_sd: pos("viscous_prior_sd", s.viscous_prior_sd)?,
             jump_drift: nonneg("jump_drift", s.jump_drift)?,
             jump_threshold: pos("jump_threshold", s.jump_threshold)?,
-            jump_boost: check("jump_boost", s.jump_boost, s.jump_boost >= 1.0, "≥ 1")?,
-            jump_hold_s: nonneg("jump_hold_s", s.jump_hold_s)?,
             jump_load_sd_nm: nonneg("jump_load_sd_nm", s.jump_load_sd_nm)?,
             nominal_inertia_kg_m2: j0,
             nominal_viscous_nm_s_rad: b0,

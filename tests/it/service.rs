@@ -40,7 +40,7 @@ async fn post_target(stack: &Stack, target: f64, token: Option<&str>) -> reqwest
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn speed_mode_regulates_retargets_and_estimates_near_truth() {
     let run = async {
-        // 1 kHz: the rate rls-sgd is tuned for (the simulator samples at 1 ms)
+        // 1 kHz: every plant sample (the simulator samples at 1 ms)
         let stack = Stack::start(8.0, 1, SPEED).await;
         let t1 = settle(&stack, 40.0, Duration::from_secs(10)).await.expect("within 5 % of 40 rad/s in 10 s");
         // steady-state error and estimates over a second
@@ -76,7 +76,7 @@ async fn speed_mode_regulates_retargets_and_estimates_near_truth() {
 }
 
 /// At the default 10 ms poll the service sees every tenth plant sample. The Kalman filter (true J and B) keeps its
-/// load estimate there; rls-sgd is tuned for ~1 kHz and lets J drift at 100 Hz (docs/estimator.md, "Sample rate").
+/// load estimate there (rls-sgd at 10 ms: `at_a_10_ms_poll_rls_sgd_identifies_inertia_under_a_random_brake_program`).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn at_the_default_10_ms_poll_kalman_regulates_and_estimates_near_truth() {
     let run = async {
