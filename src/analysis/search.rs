@@ -164,7 +164,7 @@ pub fn candidate(id: &str, current: &Scored, s: &Series, search_end: usize) -> O
         "torque_offset" => terms.offset = true,
         "stribeck_friction" => terms.stribeck = true,
         _ => {
-            if s.family != Family::Hydraulic {
+            if s.family == Family::Torque {
                 return None;
             }
             let nominal_bulk = current.model.hydraulics.as_ref()?.bulk_modulus_bar;
@@ -226,13 +226,20 @@ pub fn parameter_count(id: &str) -> usize {
     if id == "stribeck_friction" { 2 } else { 1 }
 }
 
-/// The catalogue ids that apply to a family.
-pub fn applicable(family: Family) -> Vec<&'static str> {
+/// Effects of the torque balance: with the load unknown, the load absorbs them.
+pub const TORQUE_SIDE: [&str; 3] = ["coulomb_friction", "stribeck_friction", "torque_offset"];
+
+/// The catalogue ids that apply to a recording: every one to the hydraulic plant, the torque-balance ones to a
+/// torque-driven recording, the flow-balance ones with the load unknown (dead time only where the setpoint was
+/// recorded).
+pub fn applicable(s: &Series) -> Vec<&'static str> {
     EFFECT_IDS
         .iter()
         .copied()
-        .filter(|id| {
-            family == Family::Hydraulic || matches!(*id, "coulomb_friction" | "stribeck_friction" | "torque_offset")
+        .filter(|id| match s.family {
+            Family::Hydraulic => true,
+            Family::Torque => TORQUE_SIDE.contains(id),
+            Family::Flow => !TORQUE_SIDE.contains(id) && (*id != "dead_time" || s.setpoint_hz.is_some()),
         })
         .collect()
 }
