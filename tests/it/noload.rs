@@ -119,3 +119,166 @@ fn probe() {
         }
     }
 }
+
+// ---- over real TCP: `sim` with a concealed effect, `serve` recording in speed mode, `analyze` the files ----
+
+use std::path::Path;
+use std::time::Duration;
+
+use crate::support;
+
+/// How long each TCP case records (s): long enough for a validation segment with several target changes.
+const TCP_RECORD_S: u64 = 40;
+
+/// The service's config for one drive `pump1` in speed mode at `poll_ms`, files rotated every 0.3 MB (several
+/// files per run, as a long recording has).
+fn speed_mode_config(modbus: std::net::SocketAddr, dir: &Path, poll_ms: u64) -> String {
+    format!(
+        "[http]\nbind = \"127.0.0.1:0\"\n\n[recording]\ndir = {dir:?}\nmax_file_mb = 0.3\n\n[[drives]]\n\
+         name = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = {poll_ms}\ntimeout_ms = 100\n\n[drives.control]\n\
+         mode = \"speed\"\ntarget_omega_rad_s = 40.0\nmax_hz = 50.0\nramp_hz_per_s = 20.0\n",
+        dir = dir.display().to_string()
+    )
+}
+
+/// `sim` runs `truth` (the reference plant and its brake-load steps, plus a concealed effect) on 127.0.0.1:0; the
+/// service polls it every `poll_ms`, regulating the speed while the target moves through the demo program, and
+/// records for `seconds`. Everything is stopped before this returns; the recordings stay in the returned dir.
+async fn serve_a_recording(truth: PlantModel, poll_ms: u64, seconds: u64) -> tempfile::TempDir {
+    let (_sim, addr, sim_stop, sim_task) = support::start_sim(truth, 0).await;
+    let dir = tempfile::tempdir().expect("tmp");
+    let (svc, _url, shutdown, http) = support::start_service(&speed_mode_config(addr, dir.path(), poll_ms)).await;
+    let drive = svc.state.drives[0].clone();
+    let start = std::time::Instant::now();
+    while start.elapsed() < Duration::from_secs(seconds) {
+        let t = start.elapsed().as_secs_f64();
+        drive.set_target(hydrolens::service::program::demo_target_rad_s(t, 40.0, drive.max_target_omega_rad_s));
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    shutdown.cancel();
+    tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("service stops");
+    let _ = tokio::time::timeout(Duration::from_secs(10), http).await.expect("http stops");
+    sim_stop.cancel();
+    let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await.expect("simulator stops");
+    dir
+}
+
+/// `hydrolens analyze DIR --drive pump1 --model config/plant.toml` through the binary: the JSON, stderr.
+fn analyze_dir(dir: &Path) -> (serde_json::Value, String) {
+    let json = dir.join("a.json");
+    let report = dir.join("a.html");
+    let out = std::process::Command::new(support::bin())
+        .arg("analyze")
+        .arg(dir)
+        .args(["--drive", "pump1", "--model"])
+        .arg(support::root().join("config/plant.toml"))
+        .arg("--json")
+        .arg(&json)
+        .arg("--report")
+        .arg(&report)
+        .output()
+        .expect("analyze runs");
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{stderr}");
+    let html = std::fs::read_to_string(&report).expect("report");
+    assert!(html.contains("<svg") && html.contains("load unknown"), "the report draws the no-load analysis");
+    let v = serde_json::from_str(&std::fs::read_to_string(&json).expect("json")).expect("valid json");
+    (v, stderr)
+}
+
+fn effects(v: &serde_json::Value) -> Vec<String> {
+    v["findings"].as_array().expect("findings").iter().filter_map(|f| f["effect"].as_str().map(String::from)).collect()
+}
+
+/// The five TCP cases run side by side (each its own simulator, service and recording), so the test takes one
+/// recording's time.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn served_recordings_with_the_load_unknown_name_the_hidden_flow_effect() {
+    type Case = (&'static str, Box<dyn Fn(&mut PlantModel) + Send>);
+    let cases: Vec<Case> = vec![
+        ("clean", Box::new(|_| {})),
+        ("leak", Box::new(|m| m.effects.internal_leakage = Some(InternalLeakage { l_min_per_bar: 0.012 }))),
+        ("dead_time", Box::new(|m| m.effects.dead_time = Some(DeadTime { ms: 30.0 }))),
+        ("air", Box::new(|m| m.effects.entrained_air = Some(EntrainedAir { bulk_modulus_bar: 6000.0 }))),
+        ("coulomb", Box::new(|m| m.effects.coulomb_friction = Some(CoulombFriction { torque_nm: 0.8 }))),
+    ];
+    let run = async {
+        let started = std::time::Instant::now();
+        let tasks: Vec<_> = cases
+            .into_iter()
+            .map(|(name, set)| {
+                let mut truth = PlantModel::reference();
+                set(&mut truth);
+                tokio::spawn(async move {
+                    let dir = serve_a_recording(truth, 5, TCP_RECORD_S).await;
+                    let (v, stderr) = tokio::task::spawn_blocking({
+                        let path = dir.path().to_path_buf();
+                        move || analyze_dir(&path)
+                    })
+                    .await
+                    .expect("analysis thread");
+                    (name, dir, v, stderr)
+                })
+            })
+            .collect();
+        let mut results = Vec::new();
+        for t in tasks {
+            results.push(t.await.expect("case task"));
+        }
+        for (name, _dir, v, stderr) in &results {
+            let named = effects(v);
+            let param = |effect: &str, key: &str| {
+                v["findings"]
+                    .as_array()
+                    .expect("findings")
+                    .iter()
+                    .find(|f| f["effect"] == effect)
+                    .map_or(f64::NAN, |f| f["parameters"][key].as_f64().unwrap_or(f64::NAN))
+            };
+            eprintln!(
+                "TCP 5 ms {name}: named {named:?}, leak {:.5}, dead {:.2} ms, β {:.0} bar; dp {} → {}, f {} → {}",
+                param("internal_leakage", "l_min_per_bar"),
+                param("dead_time", "ms"),
+                param("entrained_air", "bulk_modulus_bar"),
+                v["baseline"]["validation"]["dp_nrmse"],
+                v["improved"]["validation"]["dp_nrmse"],
+                v["baseline"]["validation"]["f_drive_nrmse"],
+                v["improved"]["validation"]["f_drive_nrmse"],
+            );
+            assert_eq!(v["load"], "unknown", "{name}");
+            assert!(stderr.contains("files joined"), "{name}: several rotated files: {stderr}");
+            assert!(stderr.contains("load_nm"), "{name}: the note says the load is unknown: {stderr}");
+            // half a test-stand cycle at least, at 5 ms: rows from every rotated file
+            assert!(v["samples"].as_u64().expect("samples") > 150 * TCP_RECORD_S, "{name}: {}", v["samples"]);
+            let within = |effect: &str, key: &str, truth: f64| {
+                let got = param(effect, key);
+                assert!((got - truth).abs() <= 0.3 * truth, "{name}: {effect}.{key} {got}, truth {truth}");
+            };
+            match *name {
+                "clean" => assert!(named.is_empty(), "clean: {named:?}"),
+                "leak" => {
+                    assert_eq!(named.first().map(String::as_str), Some("internal_leakage"), "{named:?}");
+                    within("internal_leakage", "l_min_per_bar", 0.012);
+                }
+                "dead_time" => {
+                    assert_eq!(named, vec!["dead_time".to_string()]);
+                    within("dead_time", "ms", 30.0);
+                }
+                "air" => {
+                    assert_eq!(named, vec!["entrained_air".to_string()]);
+                    within("entrained_air", "bulk_modulus_bar", 6000.0);
+                }
+                _ => {
+                    assert!(named.iter().all(|e| !HYDRAULIC.contains(&e.as_str())), "coulomb: {named:?}");
+                    let listed = v["ambiguities"].as_array().expect("ambiguities").iter().any(|a| {
+                        a["explanation"].as_str().is_some_and(|x| x.contains("load unknown"))
+                            && a["effects"].as_array().is_some_and(|e| e.iter().any(|x| x == "coulomb_friction"))
+                    });
+                    assert!(named.iter().any(|e| e == "coulomb_friction") || listed, "{}", v["ambiguities"]);
+                }
+            }
+        }
+        eprintln!("TCP cases: {:.1} s", started.elapsed().as_secs_f64());
+    };
+    tokio::time::timeout(Duration::from_secs(TCP_RECORD_S + 100), run).await.expect("bounded");
+}
