@@ -24,6 +24,8 @@ pub struct Prediction {
     pub torque_nm: Option<Vec<f64>>,
     /// The drive model's frequency run from the setpoint (Hz), flow family with `f_drive_hz` and `f_set_hz`.
     pub f_drive_hz: Option<Vec<f64>>,
+    /// Flow family: the mean square (bar²) that the speed sensor's noise adds to this model's ΔP prediction.
+    pub dp_noise_bar2: f64,
 }
 
 /// Errors of a prediction over a range of rows.
@@ -39,6 +41,10 @@ pub struct Errors {
     /// Flow family: the drive model run from `f_set_hz` against `f_drive_hz` (where the dead time shows).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub f_drive_nrmse: Option<f64>,
+    /// Flow family: the part of `dp_nrmse²` expected from the speed noise that drives the pressure equation;
+    /// the score takes it out (see [`Series::speed_noise_f`]).
+    #[serde(skip)]
+    pub dp_noise_nrmse2: f64,
 }
 
 impl Errors {
@@ -56,7 +62,8 @@ impl Errors {
             // apart (sensor noise against 0.01 Hz quantisation), so they are combined geometrically: a relative
             // gain on either counts as such
             Family::Flow => {
-                let dp = self.dp_nrmse.unwrap_or(f64::NAN).powi(2);
+                let raw = self.dp_nrmse.unwrap_or(f64::NAN).powi(2);
+                let dp = (raw - self.dp_noise_nrmse2).max(0.01 * raw);
                 match self.f_drive_nrmse {
                     Some(f) if f.is_finite() && f > 0.0 => (dp * f.powi(2)).sqrt(),
                     _ => dp,
@@ -73,7 +80,13 @@ pub fn predict(model: &PlantModel, s: &Series, end: usize) -> Result<Prediction,
         Family::Hydraulic => {
             let c = Coefficients::from_model(model).map_err(|(key, msg)| BadInput(format!("model: `{key}` {msg}")))?;
             let (omega, dp) = free_run_hydraulic(&c, s, end);
-            Ok(Prediction { omega_rad_s: omega, dp_bar: Some(dp), torque_nm: None, f_drive_hz: None })
+            Ok(Prediction {
+                omega_rad_s: omega,
+                dp_bar: Some(dp),
+                torque_nm: None,
+                f_drive_hz: None,
+                dp_noise_bar2: 0.0,
+            })
         }
         Family::Flow => {
             let c = Coefficients::from_model(model).map_err(|(key, msg)| BadInput(format!("model: `{key}` {msg}")))?;
@@ -85,6 +98,7 @@ pub fn predict(model: &PlantModel, s: &Series, end: usize) -> Result<Prediction,
                 dp_bar: Some(dp),
                 torque_nm: None,
                 f_drive_hz: compare_f.then_some(f),
+                dp_noise_bar2: noise_in_dp_bar2(&c, s),
             })
         }
         Family::Torque => {
@@ -94,6 +108,7 @@ pub fn predict(model: &PlantModel, s: &Series, end: usize) -> Result<Prediction,
                 dp_bar: None,
                 torque_nm: Some(inverse_dynamics(&m, s, end)),
                 f_drive_hz: None,
+                dp_noise_bar2: 0.0,
             })
         }
     }
@@ -108,6 +123,15 @@ pub fn errors(p: &Prediction, s: &Series, from: usize, to: usize) -> Errors {
         (Some(sim), Some(meas)) => Some(nrmse(&sim[from..to], &meas[from..to])),
         _ => None,
     };
+    let dp_noise_nrmse2 = match &s.dp_bar {
+        Some(meas) if p.dp_noise_bar2 > 0.0 => {
+            let m = &meas[from..to];
+            let mean = m.iter().sum::<f64>() / m.len().max(1) as f64;
+            let den = m.iter().map(|v| (v - mean).powi(2)).sum::<f64>();
+            if den > 0.0 { m.len() as f64 * p.dp_noise_bar2 / den } else { 0.0 }
+        }
+        _ => 0.0,
+    };
     let (torque_nrmse, torque_relative_error) = match &p.torque_nm {
         Some(tau_hat) => {
             let tau = &s.drive_torque_f[from..to];
@@ -121,7 +145,7 @@ pub fn errors(p: &Prediction, s: &Series, from: usize, to: usize) -> Errors {
         (Some(sim), Some(meas)) => Some(nrmse(&sim[from..to], &meas[from..to])),
         _ => None,
     };
-    Errors { omega_nrmse, dp_nrmse, torque_nrmse, torque_relative_error, f_drive_nrmse }
+    Errors { omega_nrmse, dp_nrmse, torque_nrmse, torque_relative_error, f_drive_nrmse, dp_noise_nrmse2 }
 }
 
 /// Free run of the whole plant from the recorded setpoint and load. Row k is the state at t_k; the inputs of row k
@@ -262,6 +286,31 @@ fn free_run_flow(c: &Coefficients, s: &Series, end: usize) -> (Vec<f64>, Vec<f64
         }
     }
     (f_out, dp_out)
+}
+
+/// The mean square (bar²) that the low-passed speed noise adds to the ΔP a model predicts: the pressure equation,
+/// linearised (leak and slip together, `a = β/V·(C_L + k_s D_p²)`), driven by the synthetic noise of the series.
+fn noise_in_dp_bar2(c: &Coefficients, s: &Series) -> f64 {
+    let Some(noise) = s.speed_noise_f.as_deref() else { return 0.0 };
+    let beta_v = c.bulk_modulus_pa / c.volume_m3;
+    let a = beta_v * (c.leakage_si + c.slip_rad_s_per_nm * c.pump_m3_rad * c.pump_m3_rad);
+    let b = beta_v * c.motor_m3_rad;
+    if !(a > 0.0 && a.is_finite()) {
+        return 0.0;
+    }
+    let e = (-a / s.sample_hz).exp();
+    let g = b * (1.0 - e) / a;
+    // the first tenth settles the state
+    let settle = noise.len() / 10;
+    let (mut x, mut sum) = (0.0, 0.0);
+    for (k, n) in noise.iter().enumerate() {
+        x = e * x - g * n;
+        if k >= settle {
+            sum += x * x;
+        }
+    }
+    let count = (noise.len() - settle).max(1) as f64;
+    sum / count / (crate::units::PA_PER_BAR * crate::units::PA_PER_BAR)
 }
 
 /// Free run of the mechanics from the recorded drive and load torques, starting at the measured speed.

@@ -71,6 +71,11 @@ pub struct Series {
     /// Rows that follow a gap in the recording (stale cycles skipped, a link outage): the flow family's free run
     /// restarts from the measured state there.
     pub restarts: Vec<usize>,
+    /// Flow family: a synthetic stretch of the speed sensor's noise as the analysis sees it (white, of the σ
+    /// estimated from the recording, through the same low-pass). The measured speed drives the pressure equation,
+    /// so its noise reaches the predicted ΔP, less so the softer the oil or the larger the leak: without
+    /// accounting for it, the fit would prefer a softer oil for smoothing the noise (errors in variables).
+    pub speed_noise_f: Option<Vec<f64>>,
     /// Initial drive frequency and inlet pressure for the free run.
     pub f0_hz: f64,
     pub p_in0_bar: f64,
@@ -179,6 +184,8 @@ impl Series {
         let drive_torque_f = filtfilt_butter4(&drive_torque_nm, cutoff_hz, sample_hz);
         let load_f = filtfilt_butter4(&load_nm, cutoff_hz, sample_hz);
         let restarts = gaps(&t_s);
+        let speed_noise_f = (family == Family::Flow && speed_source == "omega_rad_s")
+            .then(|| synthetic_speed_noise(&omega_rad_s, &omega_f, cutoff_hz, sample_hz));
         let t_val = t_s[0] + (1.0 - validation_fraction) * span;
         let split = t_s.iter().position(|&t| t >= t_val).unwrap_or(n - 1).clamp(100, n - 50);
         Ok(Series {
@@ -203,6 +210,7 @@ impl Series {
             f_drive_hz: f_drive.filter(|_| family == Family::Flow),
             load,
             restarts,
+            speed_noise_f,
         }
         .with_sign_speed())
     }
@@ -233,6 +241,27 @@ impl Series {
     pub fn speed_scale(&self) -> f64 {
         percentile(&self.omega_f.iter().map(|w| w.abs()).collect::<Vec<_>>(), 0.95).max(1e-6)
     }
+}
+
+/// Rows of synthetic noise used to estimate how much speed noise reaches the predicted ΔP.
+const NOISE_ROWS: usize = 20_000;
+
+/// White noise of the speed sensor's σ, low-passed as the measured speed is. σ comes from what the low-pass
+/// removed, `ω − ω_f`, scaled up for the part of white noise inside the pass band.
+fn synthetic_speed_noise(omega: &[f64], omega_f: &[f64], cutoff_hz: f64, sample_hz: f64) -> Vec<f64> {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+    let d: Vec<f64> = omega.iter().zip(omega_f).map(|(a, b)| a - b).filter(|v| v.is_finite()).collect();
+    let mean = d.iter().sum::<f64>() / d.len().max(1) as f64;
+    let var = d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / d.len().max(1) as f64;
+    let passed = (2.0 * cutoff_hz / sample_hz).clamp(0.0, 0.9);
+    let sigma = (var / (1.0 - passed)).sqrt();
+    let Ok(normal) = Normal::new(0.0, sigma.max(0.0)) else { return Vec::new() };
+    // a fixed seed: the same recording gives the same analysis
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5eed_0f_a1);
+    let n = NOISE_ROWS.min(omega.len());
+    let white: Vec<f64> = (0..n).map(|_| normal.sample(&mut rng)).collect();
+    filtfilt_butter4(&white, cutoff_hz, sample_hz)
 }
 
 /// A step between rows longer than this many median steps (and than [`GAP_MIN_S`]) is a gap in the recording.

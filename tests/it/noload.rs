@@ -111,11 +111,16 @@ fn probe() {
     ];
     let polls: Vec<usize> =
         std::env::var("PROBE_POLLS").map_or(vec![5], |v| v.split(',').filter_map(|x| x.parse().ok()).collect());
+    let only = std::env::var("PROBE_CASE").unwrap_or_default();
+    let seeds: Vec<u64> =
+        std::env::var("PROBE_SEEDS").map_or(vec![3], |v| v.split(',').filter_map(|x| x.parse().ok()).collect());
     for poll in polls {
-        for (name, set) in &cases {
-            let t0 = std::time::Instant::now();
-            let a = no_load(set.as_ref(), 3, poll);
-            eprintln!("{poll} ms {name}: {} ({:.1} s)", summary(&a), t0.elapsed().as_secs_f64());
+        for (name, set) in cases.iter().filter(|c| c.0.contains(&only)) {
+            for &seed in &seeds {
+                let t0 = std::time::Instant::now();
+                let a = no_load(set.as_ref(), seed, poll);
+                eprintln!("{poll} ms {name} seed {seed}: {} ({:.1} s)", summary(&a), t0.elapsed().as_secs_f64());
+            }
         }
     }
 }
@@ -281,4 +286,176 @@ async fn served_recordings_with_the_load_unknown_name_the_hidden_flow_effect() {
         eprintln!("TCP cases: {:.1} s", started.elapsed().as_secs_f64());
     };
     tokio::time::timeout(Duration::from_secs(TCP_RECORD_S + 100), run).await.expect("bounded");
+}
+
+// ---- the no-load sweep behind docs/analysis.md's table ----
+
+/// One no-load case: the effect hidden, the parameter judged, its true value; `None` effect for clean and friction
+/// runs (which must name no flow-balance effect).
+struct Sweep {
+    label: &'static str,
+    effect: Option<&'static str>,
+    key: &'static str,
+    truth: f64,
+    set: Box<dyn Fn(&mut PlantModel) + Sync>,
+}
+
+fn sweep_cases(scale: f64) -> Vec<Sweep> {
+    let leak = 0.012 * scale;
+    let slip = 2.5 * scale;
+    let dead = 30.0 * scale;
+    let air = 7000.0 / scale;
+    let coulomb = 0.6 * scale;
+    vec![
+        Sweep {
+            label: "internal_leakage",
+            effect: Some("internal_leakage"),
+            key: "l_min_per_bar",
+            truth: leak,
+            set: Box::new(move |m| m.effects.internal_leakage = Some(InternalLeakage { l_min_per_bar: leak })),
+        },
+        Sweep {
+            label: "motor_slip",
+            effect: Some("motor_slip"),
+            key: "rpm_per_nm",
+            truth: slip,
+            set: Box::new(move |m| m.effects.motor_slip = Some(MotorSlip { rpm_per_nm: slip })),
+        },
+        Sweep {
+            label: "dead_time",
+            effect: Some("dead_time"),
+            key: "ms",
+            truth: dead,
+            set: Box::new(move |m| m.effects.dead_time = Some(DeadTime { ms: dead })),
+        },
+        Sweep {
+            label: "entrained_air",
+            effect: Some("entrained_air"),
+            key: "bulk_modulus_bar",
+            truth: air,
+            set: Box::new(move |m| m.effects.entrained_air = Some(EntrainedAir { bulk_modulus_bar: air })),
+        },
+        Sweep {
+            label: "coulomb_friction (no flow effect may be named)",
+            effect: None,
+            key: "",
+            truth: coulomb,
+            set: Box::new(move |m| m.effects.coulomb_friction = Some(CoulombFriction { torque_nm: coulomb })),
+        },
+    ]
+}
+
+/// The fitted value of `effect.key`; slip may come back as its equivalent leakage (the two are one term).
+fn fitted(a: &Analysis, effect: &str, key: &str) -> Option<f64> {
+    let direct = a.findings.iter().find(|f| f.effect == effect).map(|f| f.parameters[key]);
+    if effect == "motor_slip" && direct.is_none() {
+        let per_rpm = analysis::slip_as_leakage(&PlantModel::reference(), 1.0)?;
+        return a
+            .findings
+            .iter()
+            .find(|f| f.effect == "internal_leakage")
+            .map(|f| f.parameters["l_min_per_bar"] / per_rpm);
+    }
+    direct
+}
+
+/// Runs every case for `seeds` × magnitudes × poll rates on two threads; prints the table rows (markdown) and
+/// returns the failures.
+fn no_load_sweep(seeds: &[u64], set_name: &str) -> Vec<String> {
+    let scales = [0.7, 1.0, 1.5];
+    let polls = [1usize, 5, 10];
+    let mut jobs = Vec::new();
+    for &poll in &polls {
+        for &scale in &scales {
+            for (i, _) in sweep_cases(scale).iter().enumerate() {
+                for &seed in seeds {
+                    jobs.push((poll, scale, i, seed));
+                }
+            }
+        }
+        for &seed in seeds {
+            jobs.push((poll, 0.0, usize::MAX, seed)); // clean
+        }
+    }
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    // (poll, label, relative error or None when not named, wrongly named flow effects)
+    let results = std::sync::Mutex::new(Vec::<(usize, String, Option<f64>, Vec<String>)>::new());
+    std::thread::scope(|scope| {
+        for _ in 0..2 {
+            scope.spawn(|| {
+                loop {
+                    let j = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    let Some(&(poll, scale, i, seed)) = jobs.get(j) else { break };
+                    let (label, effect, key, truth, a) = if i == usize::MAX {
+                        ("clean".to_string(), None, "", 0.0, no_load(&|_| {}, seed, poll))
+                    } else {
+                        let c = sweep_cases(scale).swap_remove(i);
+                        let a = no_load(c.set.as_ref(), seed, poll);
+                        (c.label.to_string(), c.effect, c.key, c.truth, a)
+                    };
+                    let named = named(&a);
+                    let wrong: Vec<String> = named
+                        .iter()
+                        .filter(|e| {
+                            effect.is_none_or(|x| **e != x && !(x == "motor_slip" && **e == "internal_leakage"))
+                        })
+                        .map(|e| format!("{e} (seed {seed}, ×{scale})"))
+                        .collect();
+                    let err = effect.and_then(|e| fitted(&a, e, key)).map(|v| (v - truth) / truth);
+                    results.lock().expect("results").push((poll, label, err, wrong));
+                }
+            });
+        }
+    });
+    let results = results.into_inner().expect("results");
+    let mut failures = Vec::new();
+    eprintln!("\n{set_name} (seeds {seeds:?}, magnitudes ×0.7, ×1, ×1.5)");
+    eprintln!("| effect | poll | runs | named | median error | worst error | wrongly named |");
+    eprintln!("|---|---|---|---|---|---|---|");
+    let mut labels: Vec<String> = sweep_cases(1.0).iter().map(|c| c.label.to_string()).collect();
+    labels.push("clean".into());
+    for label in &labels {
+        for &poll in &polls {
+            let rows: Vec<_> = results.iter().filter(|r| r.0 == poll && &r.1 == label).collect();
+            let judged = !(label == "clean" || label.starts_with("coulomb"));
+            let mut errs: Vec<f64> = rows.iter().filter_map(|r| r.2).collect();
+            errs.sort_by(|a, b| a.abs().total_cmp(&b.abs()));
+            let named = errs.len();
+            let wrong: Vec<&String> = rows.iter().flat_map(|r| r.3.iter()).collect();
+            let (median, worst) = if errs.is_empty() {
+                ("—".to_string(), "—".to_string())
+            } else {
+                (format!("{:+.1} %", 100.0 * errs[errs.len() / 2]), format!("{:+.1} %", 100.0 * errs[errs.len() - 1]))
+            };
+            eprintln!(
+                "| {label} | {poll} ms | {} | {} | {median} | {worst} | {} |",
+                rows.len(),
+                if judged { format!("{named}/{}", rows.len()) } else { "—".into() },
+                wrong.len()
+            );
+            if judged && (named < rows.len() || errs.iter().any(|e| e.abs() > 0.3)) {
+                failures.push(format!("{label} at {poll} ms: named {named}/{}, errors {errs:?}", rows.len()));
+            }
+            if !wrong.is_empty() {
+                failures.push(format!("{label} at {poll} ms: wrongly named {wrong:?}"));
+            }
+        }
+    }
+    failures
+}
+
+/// The seeds the no-load method was developed on (`cargo test --release --test it -- --ignored no_load_sweep`).
+#[test]
+#[ignore]
+fn no_load_sweep_tuned_seeds() {
+    let failures = no_load_sweep(&[3, 4, 5], "tuned seeds");
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// Seeds never looked at while developing: the held-out figures of docs/analysis.md.
+#[test]
+#[ignore]
+fn no_load_sweep_held_out_seeds() {
+    let failures = no_load_sweep(&[201, 202, 203, 204, 205], "held-out seeds");
+    assert!(failures.is_empty(), "{failures:#?}");
 }
