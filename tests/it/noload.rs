@@ -82,49 +82,6 @@ pub fn named(a: &Analysis) -> Vec<&str> {
 /// The flow-balance effects the no-load analysis must find, with their key parameter.
 pub const HYDRAULIC: [&str; 4] = ["internal_leakage", "motor_slip", "dead_time", "entrained_air"];
 
-fn summary(a: &Analysis) -> String {
-    format!(
-        "load {} named {:?} params {:?} dp {:.4}->{:.4} f {:?}->{:?} amb {:?}",
-        a.load,
-        named(a),
-        a.findings.iter().map(|f| &f.parameters).collect::<Vec<_>>(),
-        a.baseline.validation.dp_nrmse.unwrap_or(f64::NAN),
-        a.improved.validation.dp_nrmse.unwrap_or(f64::NAN),
-        a.baseline.validation.f_drive_nrmse,
-        a.improved.validation.f_drive_nrmse,
-        a.ambiguities.iter().map(|x| &x.effects).collect::<Vec<_>>()
-    )
-}
-
-/// A probe for development: prints what the no-load analysis makes of a few cases.
-#[test]
-#[ignore]
-fn probe() {
-    type Set = Box<dyn Fn(&mut PlantModel) + Sync>;
-    let cases: Vec<(&str, Set)> = vec![
-        ("clean", Box::new(|_| {})),
-        ("leak 0.012", Box::new(|m| m.effects.internal_leakage = Some(InternalLeakage { l_min_per_bar: 0.012 }))),
-        ("dead 30", Box::new(|m| m.effects.dead_time = Some(DeadTime { ms: 30.0 }))),
-        ("air 7000", Box::new(|m| m.effects.entrained_air = Some(EntrainedAir { bulk_modulus_bar: 7000.0 }))),
-        ("slip 2.5", Box::new(|m| m.effects.motor_slip = Some(MotorSlip { rpm_per_nm: 2.5 }))),
-        ("coulomb 0.6", Box::new(|m| m.effects.coulomb_friction = Some(CoulombFriction { torque_nm: 0.6 }))),
-    ];
-    let polls: Vec<usize> =
-        std::env::var("PROBE_POLLS").map_or(vec![5], |v| v.split(',').filter_map(|x| x.parse().ok()).collect());
-    let only = std::env::var("PROBE_CASE").unwrap_or_default();
-    let seeds: Vec<u64> =
-        std::env::var("PROBE_SEEDS").map_or(vec![3], |v| v.split(',').filter_map(|x| x.parse().ok()).collect());
-    for poll in polls {
-        for (name, set) in cases.iter().filter(|c| c.0.contains(&only)) {
-            for &seed in &seeds {
-                let t0 = std::time::Instant::now();
-                let a = no_load(set.as_ref(), seed, poll);
-                eprintln!("{poll} ms {name} seed {seed}: {} ({:.1} s)", summary(&a), t0.elapsed().as_secs_f64());
-            }
-        }
-    }
-}
-
 // ---- over real TCP: `sim` with a concealed effect, `serve` recording in speed mode, `analyze` the files ----
 
 use std::path::Path;
@@ -458,4 +415,56 @@ fn no_load_sweep_tuned_seeds() {
 fn no_load_sweep_held_out_seeds() {
     let failures = no_load_sweep(&[201, 202, 203, 204, 205], "held-out seeds");
     assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// A monitor-mode recording (no setpoint written): the pressure equation runs from `f_drive_hz`, leakage is
+/// still found, and the dead time is said to be undeterminable rather than searched.
+#[test]
+fn without_a_setpoint_the_leak_is_found_and_the_dead_time_is_not_identified() {
+    let mut truth = PlantModel::reference();
+    truth.effects.internal_leakage = Some(InternalLeakage { l_min_per_bar: 0.012 });
+    let rec = hydrolens::plant::simulate::test_stand(&truth, RUN_S, 31, &mut |_| {}).expect("simulable");
+    let mut rec = as_the_service_records(&rec, 5, 31);
+    rec.set_column("f_set_hz", vec![f64::NAN; rec.len()]);
+    let a = analysis::analyze(&rec, &PlantModel::reference(), &Options::default(), &mut |_| {}).expect("analysable");
+    assert_eq!(named(&a), vec!["internal_leakage"], "{:#?}", a.findings);
+    let l = a.findings[0].parameters["l_min_per_bar"];
+    assert!((l - 0.012).abs() <= 0.3 * 0.012, "leak {l}");
+    assert!(a.candidates.iter().all(|c| c.effect != "dead_time"), "dead time is not searched without a setpoint");
+    assert!(a.not_identified.iter().any(|x| x.parameters.contains(&"dead_time.ms".to_string())));
+    assert!(a.not_identified.iter().any(|x| x.parameters.contains(&"inertia_kg_m2".to_string())));
+    assert!(a.baseline.validation.omega_nrmse.is_nan(), "the speed is an input here, not predicted");
+}
+
+/// `[load] kind = "unknown"` analyses with the load unknown even when a `load_nm` column is there; a torque-driven
+/// recording cannot be analysed without its load and says so naming the column.
+#[test]
+fn kind_unknown_is_the_load_unknown_and_a_torque_recording_needs_its_load() {
+    let mut truth = PlantModel::reference();
+    truth.effects.dead_time = Some(DeadTime { ms: 25.0 });
+    let rec = hydrolens::plant::simulate::test_stand(&truth, RUN_S, 32, &mut |_| {}).expect("simulable");
+    let mut nominal = PlantModel::reference();
+    nominal.load = hydrolens::plant::LoadSpec::Unknown;
+    let a = analysis::analyze(&rec, &nominal, &Options::default(), &mut |_| {}).expect("analysable");
+    assert_eq!((a.load, a.family), ("unknown", "flow"));
+    assert_eq!(named(&a), vec!["dead_time"], "{:#?}", a.findings);
+    let with_load =
+        analysis::analyze(&rec, &PlantModel::reference(), &Options::default(), &mut |_| {}).expect("analysable");
+    assert_eq!((with_load.load, with_load.family), ("recorded", "hydraulic"));
+    let torque = Recording::from_columns(
+        "t.csv",
+        vec!["t_s".into(), "torque_nm".into(), "omega_rad_s".into()],
+        vec![(0..400).map(|k| k as f64 * 1e-3).collect(), vec![1.0; 400], vec![2.0; 400]],
+    );
+    let err = analysis::analyze(&torque, &nominal, &Options::default(), &mut |_| {}).expect_err("no load");
+    assert!(err.0.contains("load_nm") && err.0.contains("unknown"), "{}", err.0);
+    // and the plant file says it in its own words
+    let m = PlantModel::parse(
+        &std::fs::read_to_string(support::root().join("config/plant.toml"))
+            .expect("plant")
+            .replace("kind = \"recorded\"", "kind = \"unknown\""),
+        "plant.toml",
+    )
+    .expect("kind = \"unknown\" is accepted");
+    assert_eq!(m.load, hydrolens::plant::LoadSpec::Unknown);
 }
