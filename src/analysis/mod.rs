@@ -537,6 +537,9 @@ fn explain(id: &str, m: &PlantModel, s: &Series, before: f64, after: f64) -> Str
     }
 }
 
+/// The two effects that are one term of the flow balance.
+const TWINS: [&str; 2] = ["internal_leakage", "motor_slip"];
+
 /// Leakage that removes the same flow as a motor slip of `rpm_per_nm` (they enter the flow balance identically:
 /// C = D_p² k_s), in L/min per bar.
 pub fn slip_as_leakage(m: &PlantModel, rpm_per_nm: f64) -> Option<f64> {
@@ -597,8 +600,10 @@ fn ambiguities(named: &[&str], ties: &[(&str, &str)], m: &PlantModel, s: &Series
             );
         }
     }
+    // leakage and slip are one term: when either is named, the pair is already reported above
+    let covered = |id: &str| has(id) || (TWINS.contains(&id) && TWINS.iter().any(|t| has(t)));
     for (a, b) in ties {
-        if !(has(a) && has(b)) {
+        if !(covered(a) && covered(b)) {
             push(
                 a,
                 b,
