@@ -473,17 +473,25 @@ struct DemoPlant<'a> {
     seed: u64,
 }
 
-/// Moves the drive's target through the demo program ([`service::program`]) every 100 ms until `stop`.
+/// Moves the drive's target through the demo program ([`service::program`]) every 100 ms until `stop`, or until
+/// a target is posted through the API (the program then leaves the target to the user).
 async fn run_demo_program(drive: std::sync::Arc<service::DriveState>, base: f64, stop: CancellationToken) {
     let start = tokio::time::Instant::now();
     let mut tick = tokio::time::interval(std::time::Duration::from_millis(100));
+    let mut last: Option<f64> = None;
     loop {
         tokio::select! {
             _ = tick.tick() => {}
             () = stop.cancelled() => break,
         }
+        if last.is_some_and(|v| v != drive.snapshot().target_omega_rad_s) {
+            tracing::info!("a target was set through the API: the demo's target program stops");
+            break;
+        }
         let t = start.elapsed().as_secs_f64();
-        drive.set_target(service::program::demo_target_rad_s(t, base, drive.max_target_omega_rad_s));
+        let target = service::program::demo_target_rad_s(t, base, drive.max_target_omega_rad_s);
+        drive.set_target(target);
+        last = Some(target);
     }
 }
 

@@ -262,16 +262,7 @@ pub fn analyze(
         let lowest = scored.iter().map(|c| c.1.validation.score(family)).fold(f64::INFINITY, f64::min);
         // Among candidates indistinguishable in score (within 0.5 %), the first in catalogue order, so that exactly
         // equivalent effects (leakage and slip) are named the same way every time.
-        let mut best = scored.iter().copied().find(|c| c.1.validation.score(family) <= lowest * 1.005);
-        // Leakage and slip are one term of the flow balance (C = D_p²·k_s): what separates their scores is only
-        // how closely each 1-D search converged, which shows more once the noise share is taken out of the flow
-        // family's score. Leakage is named for the pair whenever it came within 5 %.
-        if best.is_some_and(|b| b.0 == "motor_slip")
-            && let Some(leak) = scored.iter().copied().find(|c| c.0 == "internal_leakage")
-            && leak.1.validation.score(family) <= lowest * 1.05
-        {
-            best = Some(leak);
-        }
+        let best = scored.iter().copied().find(|c| c.1.validation.score(family) <= lowest * 1.005);
         let accept = best.filter(|(_, sc, db)| {
             let after = sc.validation.score(family);
             1.0 - (after / before).sqrt() >= opts.min_relative_drop && *db >= opts.min_delta_bic

@@ -168,6 +168,16 @@ pub fn candidate(id: &str, current: &Scored, s: &Series, search_end: usize) -> O
                 return None;
             }
             let nominal_bulk = current.model.hydraulics.as_ref()?.bulk_modulus_bar;
+            // Slip takes flow exactly as leakage does (C = D_p²·k_s): searched as leakage and converted, the two
+            // candidates score the same, and which one is named is the catalogue order's choice, not the search's
+            if id == "motor_slip" && current.model.effects.internal_leakage.is_none() {
+                let per_rpm = super::slip_as_leakage(&current.model, 1.0).filter(|v| *v > 0.0)?;
+                let (leak, _) = candidate("internal_leakage", current, s, search_end)?;
+                let extra = leak.effects.internal_leakage.map_or(0.0, |l| l.l_min_per_bar);
+                let mut m = current.model.clone();
+                m.effects.motor_slip = Some(MotorSlip { rpm_per_nm: extra / per_rpm });
+                return Some((m, terms));
+            }
             let (grid, set) = flow_grid(id, nominal_bulk)?;
             let mut cost = |x: f64| {
                 let mut m = current.model.clone();
