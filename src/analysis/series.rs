@@ -258,7 +258,7 @@ fn synthetic_speed_noise(omega: &[f64], omega_f: &[f64], cutoff_hz: f64, sample_
     let sigma = (var / (1.0 - passed)).sqrt();
     let Ok(normal) = Normal::new(0.0, sigma.max(0.0)) else { return Vec::new() };
     // a fixed seed: the same recording gives the same analysis
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5eed_0f_a1);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5eed_0fa1);
     let n = NOISE_ROWS.min(omega.len());
     let white: Vec<f64> = (0..n).map(|_| normal.sample(&mut rng)).collect();
     filtfilt_butter4(&white, cutoff_hz, sample_hz)

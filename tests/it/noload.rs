@@ -225,6 +225,9 @@ async fn served_recordings_with_the_load_unknown_name_the_hidden_flow_effect() {
                 "dead_time" => {
                     assert_eq!(named, vec!["dead_time".to_string()]);
                     within("dead_time", "ms", 30.0);
+                    // located: the drive frequency misses where the target moved
+                    let windows = v["mismatches"].as_array().expect("mismatches");
+                    assert!(windows.iter().any(|m| m["signal"] == "f_drive"), "{}", v["mismatches"]);
                 }
                 "air" => {
                     assert_eq!(named, vec!["entrained_air".to_string()]);
