@@ -160,6 +160,10 @@ pub struct Traces {
     pub effort_improved: Vec<f64>,
     /// Low-passed speed, the x axis of the residual maps.
     pub omega_f: Vec<f64>,
+    /// Flow family: the drive frequency read back and the drive model's (baseline, improved), Hz; empty otherwise.
+    pub drive_meas: Vec<f64>,
+    pub drive_baseline: Vec<f64>,
+    pub drive_improved: Vec<f64>,
 }
 
 /// The parameters of a model the analysis fits, under their contract names.
@@ -394,6 +398,9 @@ fn traces(base: &Scored, improved: &Scored, s: &Series) -> Traces {
         effort_baseline: effort(base, s),
         effort_improved: effort(improved, s),
         omega_f: s.omega_f.clone(),
+        drive_meas: s.f_drive_hz.clone().unwrap_or_default(),
+        drive_baseline: base.prediction.f_drive_hz.clone().unwrap_or_default(),
+        drive_improved: improved.prediction.f_drive_hz.clone().unwrap_or_default(),
     }
 }
 

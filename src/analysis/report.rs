@@ -220,6 +220,20 @@ pub fn html(a: &Analysis) -> String {
         false,
     ));
 
+    if !tr.drive_baseline.is_empty() {
+        out.push_str(&chart(
+            "drive frequency: read back, and the drive model run from the setpoint",
+            "t (s)",
+            "f (Hz)",
+            &[
+                ("measured", gray, decimated(&tr.t_s, &tr.drive_meas, v, n)),
+                ("nominal", red, decimated(&tr.t_s, &tr.drive_baseline, v, n)),
+                ("improved", blue, decimated(&tr.t_s, &tr.drive_improved, v, n)),
+            ],
+            false,
+        ));
+    }
+
     out.push_str(
         "<h2>Residual maps (whole recording)</h2><p>Mean residual (measured − model) in bins of the \
                   operating point: a systematic pattern is physics the model leaves out.</p>",
