@@ -156,6 +156,21 @@ fn effects(v: &serde_json::Value) -> Vec<String> {
 /// recording's time.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn served_recordings_with_the_load_unknown_name_the_hidden_flow_effect() {
+    served_cases(5).await;
+}
+
+/// The same at the other poll rates the service is run at (`cargo test --test it -- --ignored served_at`).
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+#[ignore]
+async fn served_at_1_and_10_ms() {
+    for poll_ms in [1, 10] {
+        served_cases(poll_ms).await;
+    }
+}
+
+/// Leak, dead time, air, clean and Coulomb friction served at `poll_ms`, analysed with the nominal model; every
+/// check of the issue asserted.
+async fn served_cases(poll_ms: u64) {
     type Case = (&'static str, Box<dyn Fn(&mut PlantModel) + Send>);
     let cases: Vec<Case> = vec![
         ("clean", Box::new(|_| {})),
@@ -172,7 +187,7 @@ async fn served_recordings_with_the_load_unknown_name_the_hidden_flow_effect() {
                 let mut truth = PlantModel::reference();
                 set(&mut truth);
                 tokio::spawn(async move {
-                    let dir = serve_a_recording(truth, 5, TCP_RECORD_S).await;
+                    let dir = serve_a_recording(truth, poll_ms, TCP_RECORD_S).await;
                     let (v, stderr) = tokio::task::spawn_blocking({
                         let path = dir.path().to_path_buf();
                         move || analyze_dir(&path)
@@ -198,7 +213,7 @@ async fn served_recordings_with_the_load_unknown_name_the_hidden_flow_effect() {
                     .map_or(f64::NAN, |f| f["parameters"][key].as_f64().unwrap_or(f64::NAN))
             };
             eprintln!(
-                "TCP 5 ms {name}: named {named:?}, leak {:.5}, dead {:.2} ms, β {:.0} bar; dp {} → {}, f {} → {}",
+                "TCP {poll_ms} ms {name}: named {named:?}, leak {:.5}, dead {:.2} ms, β {:.0} bar; dp {} → {}, f {} → {}",
                 param("internal_leakage", "l_min_per_bar"),
                 param("dead_time", "ms"),
                 param("entrained_air", "bulk_modulus_bar"),
@@ -210,8 +225,9 @@ async fn served_recordings_with_the_load_unknown_name_the_hidden_flow_effect() {
             assert_eq!(v["load"], "unknown", "{name}");
             assert!(stderr.contains("files joined"), "{name}: several rotated files: {stderr}");
             assert!(stderr.contains("load_nm"), "{name}: the note says the load is unknown: {stderr}");
-            // half a test-stand cycle at least, at 5 ms: rows from every rotated file
-            assert!(v["samples"].as_u64().expect("samples") > 150 * TCP_RECORD_S, "{name}: {}", v["samples"]);
+            // three quarters of the polls at least: rows from every rotated file
+            let polls = TCP_RECORD_S * 1000 / poll_ms;
+            assert!(4 * v["samples"].as_u64().expect("samples") > 3 * polls, "{name}: {}", v["samples"]);
             let within = |effect: &str, key: &str, truth: f64| {
                 let got = param(effect, key);
                 assert!((got - truth).abs() <= 0.3 * truth, "{name}: {effect}.{key} {got}, truth {truth}");
