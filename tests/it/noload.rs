@@ -544,3 +544,57 @@ fn demo_on_a_leaking_plant_then_analyze_names_the_leak() {
     eprintln!("demo --plant (35 s at 1 ms) → analyze: internal_leakage {l:.5} L/min/bar (truth 0.012)");
     assert!((l - 0.012).abs() <= 0.3 * 0.012, "leak {l}");
 }
+
+/// Several files: joined in time order; files of two service runs (overlapping `t_s`) and a directory without
+/// `--drive` are bad input, exit 2, naming what is wrong.
+#[test]
+fn analyze_joins_files_and_refuses_what_cannot_be_joined() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let mut truth = PlantModel::reference();
+    truth.effects.internal_leakage = Some(InternalLeakage { l_min_per_bar: 0.012 });
+    let rec = hydrolens::plant::simulate::test_stand(&truth, RUN_S, 33, &mut |_| {}).expect("simulable");
+    let rec = as_the_service_records(&rec, 5, 33);
+    // split in three as rotation would, written out of order
+    let n = rec.len();
+    let part = |a: usize, b: usize| {
+        let cols: Vec<Vec<f64>> = rec.names().iter().map(|c| rec.column(c).expect("col")[a..b].to_vec()).collect();
+        Recording::from_columns("part", rec.names().to_vec(), cols)
+    };
+    let files: Vec<std::path::PathBuf> = [(0, n / 3), (n / 3, 2 * n / 3), (2 * n / 3, n)]
+        .iter()
+        .enumerate()
+        .map(|(i, &(a, b))| {
+            let p = tmp.path().join(format!("pump1-{}.csv", 1000 + i));
+            let f = std::fs::File::create(&p).expect("create");
+            hydrolens::recording::write_csv(f, &part(a, b)).expect("write");
+            p
+        })
+        .collect();
+    let analyze = |args: &[&std::ffi::OsStr]| {
+        std::process::Command::new(support::bin())
+            .arg("analyze")
+            .args(args)
+            .arg("--model")
+            .arg(support::root().join("config/plant.toml"))
+            .arg("--json")
+            .arg(tmp.path().join("a.json"))
+            .output()
+            .expect("runs")
+    };
+    let out = analyze(&[files[2].as_os_str(), files[0].as_os_str(), files[1].as_os_str()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(tmp.path().join("a.json")).expect("json")).expect("valid");
+    assert_eq!(v["samples"].as_u64(), Some(n as u64));
+    assert_eq!(effects(&v), vec!["internal_leakage".to_string()]);
+    // the same file twice: overlapping time
+    let out = analyze(&[files[0].as_os_str(), files[0].as_os_str()]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("overlaps"), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = analyze(&[tmp.path().as_os_str()]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--drive"));
+    let out = analyze(&[tmp.path().as_os_str(), "--drive".as_ref(), "pump2".as_ref()]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("pump2"));
+}
