@@ -487,12 +487,44 @@ fn s_norm(x: &[f64]) -> f64 {
 /// Plain-language physics and evidence for a finding.
 fn explain(id: &str, m: &PlantModel, s: &Series, before: f64, after: f64) -> String {
     let e = &m.effects;
+    let measure = if s.family == Family::Flow {
+        "geometric mean of the ΔP and drive-frequency NRMSE, the speed noise's share taken out"
+    } else {
+        "root mean squared NRMSE"
+    };
     let gain = format!(
-        "validation error {:.3} → {:.3} (root mean squared NRMSE) on data never used for fitting",
+        "validation error {:.3} → {:.3} ({measure}) on data never used for fitting",
         before.sqrt(),
         after.sqrt()
     );
     let effort = if s.family == Family::Torque { "drive torque" } else { "ΔP" };
+    // with the load unknown the speed is measured, not predicted: the effects show in the pressure it gives
+    if s.family == Family::Flow {
+        match id {
+            "internal_leakage" => {
+                return format!(
+                    "the pump/motor leak {:.4} L/min per bar more than the model says: for the measured pump and \
+                     motor speeds the model builds more pressure than was measured, in proportion to ΔP; {gain}",
+                    e.internal_leakage.map_or(0.0, |c| c.l_min_per_bar)
+                );
+            }
+            "motor_slip" => {
+                return format!(
+                    "the induction motor slips {:.3} rpm per N·m of pump torque: the pump delivers less than the drive \
+                     frequency says, so less pressure builds than the model predicts, in proportion to ΔP; {gain}",
+                    e.motor_slip.map_or(0.0, |c| c.rpm_per_nm)
+                );
+            }
+            "dead_time" => {
+                return format!(
+                    "the drive answers the setpoint {:.1} ms later than the model: the drive frequency read back lags \
+                     the drive model run from the setpoint after every change; {gain}",
+                    e.dead_time.map_or(0.0, |c| c.ms)
+                );
+            }
+            _ => {}
+        }
+    }
     match id {
         "coulomb_friction" => format!(
             "dry friction of {:.3} N·m opposes the motion whatever the speed: the model needed that much more {effort} \

@@ -119,14 +119,15 @@ pub fn html(a: &Analysis) -> String {
          text-align:left;font-size:90%}}th{{background:#f3f3f3}}.num{{text-align:right}}</style></head><body>\
          <h1>Analysis of {src}</h1>\
          <p>{samples} samples, {family} model family, speed from <code>{speed}</code>. Fitting on the first part, \
-         validation from {vf:.2} s (never used for fitting). Free-run simulation of the nominal model (fitted J, B) \
-         and of the improved model, driven only by the recording's inputs. Load: {load}.</p>",
+         validation from {vf:.2} s (never used for fitting). Free-run simulation of the nominal model{fitted} and of \
+         the improved model, driven only by the recording's inputs. Load: {load}.</p>",
         src = escape(&a.recording),
         samples = a.samples,
         family = a.family,
         speed = a.speed_source,
         vf = a.validation_from_s,
-        load = a.load
+        load = a.load,
+        fitted = if a.load == "unknown" { "" } else { " (fitted J, B)" }
     );
     if a.load == "unknown" {
         out.push_str(
