@@ -4,7 +4,9 @@
 
 use hydrolens::analysis::{self, Analysis, Options};
 use hydrolens::plant::PlantModel;
-use hydrolens::plant::effects::{CoulombFriction, DeadTime, EntrainedAir, InternalLeakage, MotorSlip};
+use hydrolens::plant::effects::{
+    CoulombFriction, DeadTime, EntrainedAir, InternalLeakage, MotorSlip, StribeckFriction, TorqueOffset,
+};
 use hydrolens::recording::Recording;
 
 /// Length of the offline runs (s): two test-stand cycles, as the concealed-effect tests.
@@ -318,6 +320,22 @@ fn sweep_cases(scale: f64) -> Vec<Sweep> {
             truth: coulomb,
             set: Box::new(move |m| m.effects.coulomb_friction = Some(CoulombFriction { torque_nm: coulomb })),
         },
+        Sweep {
+            label: "stribeck_friction (no flow effect may be named)",
+            effect: None,
+            key: "",
+            truth: 3.0 * coulomb,
+            set: Box::new(move |m| {
+                m.effects.stribeck_friction = Some(StribeckFriction { breakaway_nm: 3.0 * coulomb, speed_rad_s: 2.5 })
+            }),
+        },
+        Sweep {
+            label: "torque_offset (no flow effect may be named)",
+            effect: None,
+            key: "",
+            truth: coulomb,
+            set: Box::new(move |m| m.effects.torque_offset = Some(TorqueOffset { torque_nm: coulomb })),
+        },
     ]
 }
 
@@ -396,7 +414,7 @@ fn no_load_sweep(seeds: &[u64], set_name: &str) -> Vec<String> {
     for label in &labels {
         for &poll in &polls {
             let rows: Vec<_> = results.iter().filter(|r| r.0 == poll && &r.1 == label).collect();
-            let judged = !(label == "clean" || label.starts_with("coulomb"));
+            let judged = !(label == "clean" || label.contains("no flow effect"));
             let mut errs: Vec<f64> = rows.iter().filter_map(|r| r.2).collect();
             errs.sort_by(|a, b| a.abs().total_cmp(&b.abs()));
             let named = errs.len();
