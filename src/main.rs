@@ -102,8 +102,9 @@ enum Command {
         /// Hold the target fixed instead of running the program.
         #[arg(long)]
         hold: bool,
-        /// The plant model the simulator runs (default: the reference plant); the service keeps the nominal
-        /// model config/plant.toml's reference values, so a leak hidden here is what `analyze` should find.
+        /// The plant model the simulator runs (default: the reference plant); the service keeps its nominal
+        /// model (the reference plant, as in config/plant.toml), so an effect hidden here is what `analyze` of
+        /// the demo's recording against config/plant.toml should find.
         #[arg(long)]
         plant: Option<PathBuf>,
         #[arg(long, default_value_t = 1)]
