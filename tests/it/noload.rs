@@ -214,6 +214,15 @@ async fn served_cases(poll_ms: u64) {
                     .find(|f| f["effect"] == effect)
                     .map_or(f64::NAN, |f| f["parameters"][key].as_f64().unwrap_or(f64::NAN))
             };
+            let windows: Vec<String> = v["mismatches"]
+                .as_array()
+                .expect("mismatches")
+                .iter()
+                .map(|m| format!("{} {}", m["signal"], m["condition"]))
+                .collect();
+            let shows: Vec<&serde_json::Value> =
+                v["findings"].as_array().expect("findings").iter().map(|f| &f["evidence"]["where_it_shows"]).collect();
+            eprintln!("TCP {poll_ms} ms {name}: shows {shows:?}; mismatch windows {windows:?}");
             eprintln!(
                 "TCP {poll_ms} ms {name}: named {named:?}, leak {:.5}, dead {:.2} ms, β {:.0} bar; dp {} → {}, f {} → {}",
                 param("internal_leakage", "l_min_per_bar"),
@@ -246,6 +255,8 @@ async fn served_cases(poll_ms: u64) {
                     // located: the drive frequency misses where the target moved
                     let windows = v["mismatches"].as_array().expect("mismatches");
                     assert!(windows.iter().any(|m| m["signal"] == "f_drive"), "{}", v["mismatches"]);
+                    let shows = v["findings"][0]["evidence"]["where_it_shows"].as_str().unwrap_or_default();
+                    assert!(shows.contains("after setpoint steps"), "{shows}");
                 }
                 "air" => {
                     assert_eq!(named, vec!["entrained_air".to_string()]);
