@@ -57,8 +57,13 @@ enum Command {
     },
     /// Find where the model and a recording disagree, name the missing physics, fit it, show the gain.
     Analyze {
-        /// The recording CSV.
-        recording: PathBuf,
+        /// The recording CSV; several files of one drive (rotated) are joined in time order; a recordings
+        /// directory with `--drive NAME` takes that drive's files of the last service run.
+        #[arg(required = true, num_args = 1..)]
+        recording: Vec<PathBuf>,
+        /// With a recordings directory: the drive whose files to analyse.
+        #[arg(long)]
+        drive: Option<String>,
         /// The nominal plant model.
         #[arg(long)]
         model: PathBuf,
@@ -91,9 +96,17 @@ enum Command {
         /// Where recordings go.
         #[arg(long, default_value = "recordings")]
         recordings: PathBuf,
-        /// Speed target (rad/s).
+        /// Speed target (rad/s): the base of the target program (0.3 to 1.3 times it, repeating every 30 s).
         #[arg(long, default_value_t = 40.0)]
         target: f64,
+        /// Hold the target fixed instead of running the program.
+        #[arg(long)]
+        hold: bool,
+        /// The plant model the simulator runs (default: the reference plant); the service keeps its nominal
+        /// model (the reference plant, as in config/plant.toml), so an effect hidden here is what `analyze` of
+        /// the demo's recording against config/plant.toml should find.
+        #[arg(long)]
+        plant: Option<PathBuf>,
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
@@ -145,11 +158,13 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Sim { model, listen, seed } => sim(&model, &listen, seed),
         Command::Simulate { model, duration, seed, out } => simulate(&model, duration, seed, &out),
         Command::Estimate { recording, model, out, flags } => estimate(&recording, &model, &out, &flags),
-        Command::Analyze { recording, model, json, report, model_out } => {
-            analyze(&recording, &model, &json, report.as_deref(), model_out.as_deref())
+        Command::Analyze { recording, drive, model, json, report, model_out } => {
+            analyze(&recording, drive.as_deref(), &model, &json, report.as_deref(), model_out.as_deref())
         }
         Command::Serve { config, http } => serve(&config, http.as_deref()),
-        Command::Demo { http, modbus, recordings, target, seed } => demo(&http, &modbus, &recordings, target, seed),
+        Command::Demo { http, modbus, recordings, target, hold, plant, seed } => {
+            demo(&http, &modbus, &recordings, DemoPlant { target, hold, plant: plant.as_deref(), seed })
+        }
     }
 }
 
@@ -281,8 +296,45 @@ fn estimate(rec_path: &Path, model_path: &Path, out: &Path, flags: &EstimateFlag
     Ok(())
 }
 
+/// The recording `analyze` reads: one file, several files of one drive joined in time order, or a directory's
+/// files of `--drive` (the last service run; earlier runs are named on stderr and left out).
+fn analysis_recording(paths: &[PathBuf], drive: Option<&str>) -> anyhow::Result<recording::Recording> {
+    let files = match (paths, drive) {
+        ([dir], Some(drive)) if dir.is_dir() => recording::drive_files(dir, drive)?,
+        ([dir], None) if dir.is_dir() => {
+            return Err(BadInput(format!(
+                "{} is a directory: name the drive whose recordings to analyse with --drive NAME",
+                dir.display()
+            ))
+            .into());
+        }
+        (_, Some(_)) => {
+            return Err(BadInput("--drive goes with a single recordings directory, not with files".into()).into());
+        }
+        (files, None) => files.to_vec(),
+    };
+    let parts = files.iter().map(|p| recording::load(p)).collect::<Result<Vec<_>, _>>()?;
+    let parts = if drive.is_some() {
+        let (run, left_out) = recording::last_run(parts);
+        if left_out > 0 {
+            eprintln!(
+                "analyze: {left_out} older file(s) of earlier service runs left out (t_s restarts with each run); \
+                 pass files to analyse them"
+            );
+        }
+        run
+    } else {
+        parts
+    };
+    if parts.len() > 1 {
+        eprintln!("analyze: {} files joined in time order", parts.len());
+    }
+    Ok(recording::join(parts)?)
+}
+
 fn analyze(
-    rec_path: &Path,
+    rec_paths: &[PathBuf],
+    drive: Option<&str>,
     model_path: &Path,
     json: &Path,
     report: Option<&Path>,
@@ -290,12 +342,21 @@ fn analyze(
 ) -> anyhow::Result<()> {
     use hydrolens::analysis;
     let model = load_model(model_path)?;
-    let rec = recording::load(rec_path)?;
+    let rec = analysis_recording(rec_paths, drive)?;
     let result = analysis::analyze(&rec, &model, &analysis::Options::default(), &mut progress("analyze"))?;
+    if result.load == "unknown" && model.load == plant::LoadSpec::Recorded {
+        eprintln!(
+            "analyze: note: {} has no `load_nm` although the model's [load] kind is \"recorded\": analysed with the \
+             load unknown (the flow balance only: leakage, slip, entrained air, dead time); friction, torque offset, \
+             J and B are not determined (see `ambiguities` and `not_identified`). `kind = \"unknown\"` says so \
+             without this note",
+            rec.source
+        );
+    }
     let text = serde_json::to_string_pretty(&result).context("serialising the analysis")?;
     std::fs::write(json, text + "\n").with_context(|| format!("writing {}", json.display()))?;
     if let Some(path) = model_out {
-        let header = format!("# Fitted by `hydrolens analyze {}` from {}\n", rec_path.display(), model_path.display());
+        let header = format!("# Fitted by `hydrolens analyze {}` from {}\n", rec.source, model_path.display());
         std::fs::write(path, header + &result.improved_model.to_toml())
             .with_context(|| format!("writing {}", path.display()))?;
     }
@@ -323,7 +384,7 @@ fn serve(config: &Path, http_override: Option<&str>) -> anyhow::Result<()> {
     }
     http_runtime()?.block_on(async move {
         let shutdown = shutdown_on_signal();
-        run_service(settings, shutdown, |url| eprintln!("hydrolens serve: dashboard on {url}")).await
+        run_service(settings, shutdown, |url, _| eprintln!("hydrolens serve: dashboard on {url}")).await
     })
 }
 
@@ -332,7 +393,7 @@ fn serve(config: &Path, http_override: Option<&str>) -> anyhow::Result<()> {
 async fn run_service(
     settings: Settings,
     shutdown: CancellationToken,
-    announce: impl FnOnce(&str),
+    announce: impl FnOnce(&str, &std::sync::Arc<service::ServiceState>),
 ) -> anyhow::Result<()> {
     let bind = settings.http.bind;
     let listener = tokio::net::TcpListener::bind(bind).await.with_context(|| format!("binding http {bind}"))?;
@@ -345,7 +406,7 @@ async fn run_service(
         shutdown: shutdown.clone(),
         status_cache: Default::default(),
     };
-    announce(&url);
+    announce(&url, &svc.state);
     // on the (lower-priority) workers, not on the thread that started the poll loops
     let served = tokio::spawn(http::serve(listener, state)).await;
     shutdown.cancel();
@@ -405,14 +466,51 @@ ramp_hz_per_s = 20.0
     )
 }
 
-fn demo(http_addr: &str, modbus_addr: &str, recordings: &Path, target: f64, seed: u64) -> anyhow::Result<()> {
+/// What the demo's simulator runs and how its target moves.
+struct DemoPlant<'a> {
+    target: f64,
+    hold: bool,
+    plant: Option<&'a Path>,
+    seed: u64,
+}
+
+/// Moves the drive's target through the demo program ([`service::program`]) every 100 ms until `stop`, or until
+/// a target is posted through the API (the program then leaves the target to the user).
+async fn run_demo_program(drive: std::sync::Arc<service::DriveState>, base: f64, stop: CancellationToken) {
+    let start = tokio::time::Instant::now();
+    let mut tick = tokio::time::interval(std::time::Duration::from_millis(100));
+    let mut last: Option<f64> = None;
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            () = stop.cancelled() => break,
+        }
+        if last.is_some_and(|v| v != drive.snapshot().target_omega_rad_s) {
+            tracing::info!("a target was set through the API: the demo's target program stops");
+            break;
+        }
+        let t = start.elapsed().as_secs_f64();
+        let target = service::program::demo_target_rad_s(t, base, drive.max_target_omega_rad_s);
+        drive.set_target(target);
+        last = Some(target);
+    }
+}
+
+fn demo(http_addr: &str, modbus_addr: &str, recordings: &Path, plant: DemoPlant<'_>) -> anyhow::Result<()> {
+    let DemoPlant { target, hold, plant: plant_path, seed } = plant;
     let http_addr = parse_addr("--http", http_addr)?;
     let modbus_addr = parse_addr("--modbus", modbus_addr)?;
     if !(target.is_finite() && (0.0..=75.0).contains(&target)) {
         return Err(BadInput(format!("--target {target}: expected rad/s in 0 ..= 75")).into());
     }
-    let simulator = Simulator::new(PlantModel::reference(), seed)
-        .map_err(|(key, msg)| anyhow::anyhow!("the reference plant: {key} {msg}"))?;
+    let (model, plant_name) = match plant_path {
+        Some(p) => (load_model(p)?, p.display().to_string()),
+        None => (PlantModel::reference(), "reference plant".to_string()),
+    };
+    let simulator = Simulator::new(model, seed).map_err(|(key, msg)| match plant_path {
+        Some(p) => anyhow::Error::new(BadInput(format!("model file {}: {key} {msg}", p.display()))),
+        None => anyhow::anyhow!("the reference plant: {key} {msg}"),
+    })?;
     let modbus_listener =
         std::net::TcpListener::bind(modbus_addr).with_context(|| format!("binding modbus {modbus_addr}"))?;
     let modbus_addr = modbus_listener.local_addr()?;
@@ -440,11 +538,22 @@ fn demo(http_addr: &str, modbus_addr: &str, recordings: &Path, target: f64, seed
         let token = demo_token();
         let text = demo_config(modbus_addr, http_addr, recordings, target, &token);
         let settings = service::config::parse(&text, "demo config", None)?;
-        let result = run_service(settings, shutdown.clone(), |url| {
-            eprintln!(
-                "hydrolens demo: plant simulator on modbus tcp://{modbus_addr} (reference plant, brake-load steps)"
-            );
-            eprintln!("hydrolens demo: speed mode, target {target} rad/s, recordings in {}", recordings.display());
+        let program_stop = shutdown.clone();
+        let result = run_service(settings, shutdown.clone(), |url, state| {
+            eprintln!("hydrolens demo: plant simulator on modbus tcp://{modbus_addr} ({plant_name}, brake-load steps)");
+            if hold {
+                eprintln!("hydrolens demo: speed mode, target {target} rad/s, recordings in {}", recordings.display());
+            } else {
+                eprintln!(
+                    "hydrolens demo: speed mode, target program around {target} rad/s (0.3 to 1.3 times, every \
+                     {} s), recordings in {}",
+                    service::program::CYCLE_S,
+                    recordings.display()
+                );
+                if let Some(drive) = state.drives.first() {
+                    tokio::spawn(run_demo_program(drive.clone(), target, program_stop));
+                }
+            }
             eprintln!("hydrolens demo: write token (for POST /api/drives/pump1/target): {token}");
             println!("dashboard: {url}/");
         })

@@ -67,10 +67,15 @@ pub struct Analysis {
     pub family: &'static str,
     /// Where the speed came from: `omega_rad_s`, or `theta_rad` differentiated after a zero-phase low-pass.
     pub speed_source: &'static str,
+    /// Where the load torque came from: `recorded` (`load_nm`), `model` (the model's `[load]` profile) or
+    /// `unknown` (the flow balance only).
+    pub load: &'static str,
     pub baseline: Summary,
     pub mismatches: Vec<Mismatch>,
     pub findings: Vec<Finding>,
     pub ambiguities: Vec<Ambiguity>,
+    /// Parameters this recording does not determine, and why (with the load unknown: J and B).
+    pub not_identified: Vec<NotIdentified>,
     pub improved: Summary,
     /// Every candidate tried, round by round: what the selection saw.
     pub candidates: Vec<CandidateScore>,
@@ -123,6 +128,13 @@ pub struct Ambiguity {
     pub explanation: String,
 }
 
+/// Parameters the recording leaves undetermined; the model keeps the nominal values.
+#[derive(Debug, Clone, Serialize)]
+pub struct NotIdentified {
+    pub parameters: Vec<String>,
+    pub reason: String,
+}
+
 /// A candidate's score in a selection round.
 #[derive(Debug, Clone, Serialize)]
 pub struct CandidateScore {
@@ -148,6 +160,10 @@ pub struct Traces {
     pub effort_improved: Vec<f64>,
     /// Low-passed speed, the x axis of the residual maps.
     pub omega_f: Vec<f64>,
+    /// Flow family: the drive frequency read back and the drive model's (baseline, improved), Hz; empty otherwise.
+    pub drive_meas: Vec<f64>,
+    pub drive_baseline: Vec<f64>,
+    pub drive_improved: Vec<f64>,
 }
 
 /// The parameters of a model the analysis fits, under their contract names.
@@ -200,13 +216,18 @@ pub fn analyze(
         stribeck: start.effects.stribeck_friction.is_some(),
     };
     start.load = crate::plant::LoadSpec::Recorded;
-    let base_model = search::fit_mechanics(&start, &s, nominal_terms).ok_or_else(|| {
-        BadInput(format!(
-            "recording {}: inertia and viscous friction cannot be fitted: the speed hardly changes on the fitting \
-             segment (it needs accelerations and several speeds)",
-            rec.source
-        ))
-    })?;
+    // with the load unknown the torque balance is not fitted: J and B keep the nominal values
+    let base_model = if family == Family::Flow {
+        start
+    } else {
+        search::fit_mechanics(&start, &s, nominal_terms).ok_or_else(|| {
+            BadInput(format!(
+                "recording {}: inertia and viscous friction cannot be fitted: the speed hardly changes on the \
+                 fitting segment (it needs accelerations and several speeds)",
+                rec.source
+            ))
+        })?
+    };
     let baseline = Scored::evaluate(base_model, nominal_terms, &s)?;
     progress(0.05);
 
@@ -214,7 +235,7 @@ pub fn analyze(
     let n_bic = s.split as f64 / 10.0;
     let mut current = baseline.clone();
     let mut remaining: Vec<&'static str> =
-        search::applicable(family).into_iter().filter(|id| !nominal.effects.active_ids().contains(id)).collect();
+        search::applicable(&s).into_iter().filter(|id| !nominal.effects.active_ids().contains(id)).collect();
     let mut kept: Vec<(&'static str, Scored, Scored, f64)> = Vec::new(); // (id, before, after, ΔBIC)
     let mut candidates = Vec::new();
     let mut ties: Vec<(&'static str, &'static str)> = Vec::new();
@@ -290,6 +311,7 @@ pub fn analyze(
         kept.iter().map(|(id, before, after, db)| finding(id, before, after, *db, &s, &conditions)).collect();
     let named: Vec<&str> = kept.iter().map(|k| k.0).collect();
     let ambiguities = ambiguities(&named, &ties, &current.model, &s);
+    let not_identified = not_identified(&s);
 
     let traces = traces(&baseline, &current, &s);
     progress(1.0);
@@ -299,10 +321,12 @@ pub fn analyze(
         validation_from_s: s.t_s[s.split],
         family: family.name(),
         speed_source: s.speed_source,
+        load: s.load,
         baseline: summary(&baseline, &s),
         mismatches,
         findings,
         ambiguities,
+        not_identified,
         improved: summary(&current, &s),
         candidates,
         improved_model: with_nominal_load(current.model, nominal),
@@ -339,13 +363,21 @@ fn residual_signals(sc: &Scored, s: &Series) -> Vec<(&'static str, Vec<f64>)> {
                 out.push(("torque", s.drive_torque_f.iter().zip(tau).map(|(m, p)| m - p).collect()));
             }
         }
+        Family::Flow => {
+            if let (Some(meas), Some(sim)) = (&s.dp_bar, &sc.prediction.dp_bar) {
+                out.push(("dp", meas.iter().zip(sim).map(|(m, p)| m - p).collect()));
+            }
+            if let (Some(meas), Some(sim)) = (&s.f_drive_hz, &sc.prediction.f_drive_hz) {
+                out.push(("f_drive", meas.iter().zip(sim).map(|(m, p)| m - p).collect()));
+            }
+        }
     }
     out
 }
 
 fn effort(sc: &Scored, s: &Series) -> Vec<f64> {
     match s.family {
-        Family::Hydraulic => sc.prediction.dp_bar.clone().unwrap_or_default(),
+        Family::Hydraulic | Family::Flow => sc.prediction.dp_bar.clone().unwrap_or_default(),
         Family::Torque => sc.prediction.torque_nm.clone().unwrap_or_default(),
     }
 }
@@ -366,6 +398,9 @@ fn traces(base: &Scored, improved: &Scored, s: &Series) -> Traces {
         effort_baseline: effort(base, s),
         effort_improved: effort(improved, s),
         omega_f: s.omega_f.clone(),
+        drive_meas: s.f_drive_hz.clone().unwrap_or_default(),
+        drive_baseline: base.prediction.f_drive_hz.clone().unwrap_or_default(),
+        drive_improved: improved.prediction.f_drive_hz.clone().unwrap_or_default(),
     }
 }
 
@@ -452,12 +487,44 @@ fn s_norm(x: &[f64]) -> f64 {
 /// Plain-language physics and evidence for a finding.
 fn explain(id: &str, m: &PlantModel, s: &Series, before: f64, after: f64) -> String {
     let e = &m.effects;
+    let measure = if s.family == Family::Flow {
+        "geometric mean of the ΔP and drive-frequency NRMSE, the speed noise's share taken out"
+    } else {
+        "root mean squared NRMSE"
+    };
     let gain = format!(
-        "validation error {:.3} → {:.3} (root mean squared NRMSE) on data never used for fitting",
+        "validation error {:.3} → {:.3} ({measure}) on data never used for fitting",
         before.sqrt(),
         after.sqrt()
     );
-    let effort = if s.family == Family::Hydraulic { "ΔP" } else { "drive torque" };
+    let effort = if s.family == Family::Torque { "drive torque" } else { "ΔP" };
+    // with the load unknown the speed is measured, not predicted: the effects show in the pressure it gives
+    if s.family == Family::Flow {
+        match id {
+            "internal_leakage" => {
+                return format!(
+                    "the pump/motor leak {:.4} L/min per bar more than the model says: for the measured pump and \
+                     motor speeds the model builds more pressure than was measured, in proportion to ΔP; {gain}",
+                    e.internal_leakage.map_or(0.0, |c| c.l_min_per_bar)
+                );
+            }
+            "motor_slip" => {
+                return format!(
+                    "the induction motor slips {:.3} rpm per N·m of pump torque: the pump delivers less than the drive \
+                     frequency says, so less pressure builds than the model predicts, in proportion to ΔP; {gain}",
+                    e.motor_slip.map_or(0.0, |c| c.rpm_per_nm)
+                );
+            }
+            "dead_time" => {
+                return format!(
+                    "the drive answers the setpoint {:.1} ms later than the model: the drive frequency read back lags \
+                     the drive model run from the setpoint after every change; {gain}",
+                    e.dead_time.map_or(0.0, |c| c.ms)
+                );
+            }
+            _ => {}
+        }
+    }
     match id {
         "coulomb_friction" => format!(
             "dry friction of {:.3} N·m opposes the motion whatever the speed: the model needed that much more {effort} \
@@ -499,6 +566,9 @@ fn explain(id: &str, m: &PlantModel, s: &Series, before: f64, after: f64) -> Str
         _ => gain,
     }
 }
+
+/// The two effects that are one term of the flow balance.
+const TWINS: [&str; 2] = ["internal_leakage", "motor_slip"];
 
 /// Leakage that removes the same flow as a motor slip of `rpm_per_nm` (they enter the flow balance identically:
 /// C = D_p² k_s), in L/min per bar.
@@ -560,8 +630,10 @@ fn ambiguities(named: &[&str], ties: &[(&str, &str)], m: &PlantModel, s: &Series
             );
         }
     }
+    // leakage and slip are one term: when either is named, the pair is already reported above
+    let covered = |id: &str| has(id) || (TWINS.contains(&id) && TWINS.iter().any(|t| has(t)));
     for (a, b) in ties {
-        if !(has(a) && has(b)) {
+        if !(covered(a) && covered(b)) {
             push(
                 a,
                 b,
@@ -570,6 +642,41 @@ fn ambiguities(named: &[&str], ties: &[(&str, &str)], m: &PlantModel, s: &Series
                      slightly better one, but the data barely distinguish them"
                 ),
             );
+        }
+    }
+    // With the load unknown, whatever the torque balance lacks is absorbed by the load.
+    if s.family == Family::Flow {
+        out.push(Ambiguity {
+            effects: search::TORQUE_SIDE.iter().map(|e| e.to_string()).collect(),
+            explanation: "load unknown: the recording has no `load_nm`, and dry friction, low-speed friction and a \
+                          constant torque act in the torque balance beside the load, which takes up whatever they \
+                          are; they are neither named nor ruled out (a `load_nm` column, or a known load such as a \
+                          run with the load uncoupled, would separate them)"
+                .to_string(),
+        });
+    }
+    out
+}
+
+/// What the recording cannot determine. With the load unknown: J and B (the torque balance is not fitted).
+fn not_identified(s: &Series) -> Vec<NotIdentified> {
+    let mut out = Vec::new();
+    if s.family == Family::Flow {
+        out.push(NotIdentified {
+            parameters: vec!["inertia_kg_m2".into(), "viscous_nm_s_rad".into()],
+            reason: "load unknown: the torque balance D_m·ΔP = J·dω/dt + B·ω + friction + T_L has T_L as a free \
+                     signal, so B·ω cannot be told from a load that follows the speed, nor J·dω/dt from a load that \
+                     changes while the speed does; J and B keep the nominal model's values. The flow balance \
+                     (leakage, slip, bulk modulus, dead time) needs neither"
+                .into(),
+        });
+        if s.setpoint_hz.is_none() {
+            out.push(NotIdentified {
+                parameters: vec!["dead_time.ms".into()],
+                reason: "no setpoint was recorded (`f_set_hz` empty, e.g. monitor mode): the delay between command \
+                         and drive cannot be measured"
+                    .into(),
+            });
         }
     }
     out

@@ -22,6 +22,10 @@ pub struct Prediction {
     pub dp_bar: Option<Vec<f64>>,
     /// Drive torque the model needs to move as measured (inverse dynamics, N·m), torque family.
     pub torque_nm: Option<Vec<f64>>,
+    /// The drive model's frequency run from the setpoint (Hz), flow family with `f_drive_hz` and `f_set_hz`.
+    pub f_drive_hz: Option<Vec<f64>>,
+    /// Flow family: the mean square (bar²) that the speed sensor's noise adds to this model's ΔP prediction.
+    pub dp_noise_bar2: f64,
 }
 
 /// Errors of a prediction over a range of rows.
@@ -34,6 +38,13 @@ pub struct Errors {
     /// ‖τ − τ̂‖/‖τ‖, the EMPS benchmark's relative force error.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub torque_relative_error: Option<f64>,
+    /// Flow family: the drive model run from `f_set_hz` against `f_drive_hz` (where the dead time shows).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub f_drive_nrmse: Option<f64>,
+    /// Flow family: the part of `dp_nrmse²` expected from the speed noise that drives the pressure equation;
+    /// the score takes it out (see [`Series::speed_noise_f`]).
+    #[serde(skip)]
+    pub dp_noise_nrmse2: f64,
 }
 
 impl Errors {
@@ -47,6 +58,17 @@ impl Errors {
                 None => self.omega_nrmse.powi(2),
             },
             Family::Torque => self.torque_nrmse.map_or(self.omega_nrmse.powi(2), |t| t.powi(2)),
+            // the speed is an input here. ΔP and the drive frequency have noise floors two orders of magnitude
+            // apart (sensor noise against 0.01 Hz quantisation), so they are combined geometrically: a relative
+            // gain on either counts as such
+            Family::Flow => {
+                let raw = self.dp_nrmse.unwrap_or(f64::NAN).powi(2);
+                let dp = (raw - self.dp_noise_nrmse2).max(0.01 * raw);
+                match self.f_drive_nrmse {
+                    Some(f) if f.is_finite() && f > 0.0 => (dp * f.powi(2)).sqrt(),
+                    _ => dp,
+                }
+            }
         }
     }
 }
@@ -58,7 +80,26 @@ pub fn predict(model: &PlantModel, s: &Series, end: usize) -> Result<Prediction,
         Family::Hydraulic => {
             let c = Coefficients::from_model(model).map_err(|(key, msg)| BadInput(format!("model: `{key}` {msg}")))?;
             let (omega, dp) = free_run_hydraulic(&c, s, end);
-            Ok(Prediction { omega_rad_s: omega, dp_bar: Some(dp), torque_nm: None })
+            Ok(Prediction {
+                omega_rad_s: omega,
+                dp_bar: Some(dp),
+                torque_nm: None,
+                f_drive_hz: None,
+                dp_noise_bar2: 0.0,
+            })
+        }
+        Family::Flow => {
+            let c = Coefficients::from_model(model).map_err(|(key, msg)| BadInput(format!("model: `{key}` {msg}")))?;
+            let (f, dp) = free_run_flow(&c, s, end);
+            // the speed drives the flow balance: it is not predicted (NaN: no error is computed for it)
+            let compare_f = s.f_drive_hz.is_some() && s.setpoint_hz.is_some();
+            Ok(Prediction {
+                omega_rad_s: vec![f64::NAN; end],
+                dp_bar: Some(dp),
+                torque_nm: None,
+                f_drive_hz: compare_f.then_some(f),
+                dp_noise_bar2: noise_in_dp_bar2(&c, s),
+            })
         }
         Family::Torque => {
             let m = Mechanics::from_model(model);
@@ -66,6 +107,8 @@ pub fn predict(model: &PlantModel, s: &Series, end: usize) -> Result<Prediction,
                 omega_rad_s: free_run_mechanics(&m, s, end),
                 dp_bar: None,
                 torque_nm: Some(inverse_dynamics(&m, s, end)),
+                f_drive_hz: None,
+                dp_noise_bar2: 0.0,
             })
         }
     }
@@ -80,6 +123,15 @@ pub fn errors(p: &Prediction, s: &Series, from: usize, to: usize) -> Errors {
         (Some(sim), Some(meas)) => Some(nrmse(&sim[from..to], &meas[from..to])),
         _ => None,
     };
+    let dp_noise_nrmse2 = match &s.dp_bar {
+        Some(meas) if p.dp_noise_bar2 > 0.0 => {
+            let m = &meas[from..to];
+            let mean = m.iter().sum::<f64>() / m.len().max(1) as f64;
+            let den = m.iter().map(|v| (v - mean).powi(2)).sum::<f64>();
+            if den > 0.0 { m.len() as f64 * p.dp_noise_bar2 / den } else { 0.0 }
+        }
+        _ => 0.0,
+    };
     let (torque_nrmse, torque_relative_error) = match &p.torque_nm {
         Some(tau_hat) => {
             let tau = &s.drive_torque_f[from..to];
@@ -89,7 +141,11 @@ pub fn errors(p: &Prediction, s: &Series, from: usize, to: usize) -> Errors {
         }
         None => (None, None),
     };
-    Errors { omega_nrmse, dp_nrmse, torque_nrmse, torque_relative_error }
+    let f_drive_nrmse = match (&p.f_drive_hz, &s.f_drive_hz) {
+        (Some(sim), Some(meas)) => Some(nrmse(&sim[from..to], &meas[from..to])),
+        _ => None,
+    };
+    Errors { omega_nrmse, dp_nrmse, torque_nrmse, torque_relative_error, f_drive_nrmse, dp_noise_nrmse2 }
 }
 
 /// Free run of the whole plant from the recorded setpoint and load. Row k is the state at t_k; the inputs of row k
@@ -137,6 +193,124 @@ fn free_run_hydraulic(c: &Coefficients, s: &Series, end: usize) -> (Vec<f64>, Ve
         integrate(&mut x, len - first, cmd(k), load);
     }
     (omega, dp)
+}
+
+/// Free run of the flow balance with the load unknown: the drive model from the (delayed) setpoint, and the
+/// pressure equation `dp_in/dt = β/V·(D_p ω_pump − D_m ω − C_L Δp)` with ω the measured (low-passed) speed and
+/// ω_pump from `f_drive_hz` where recorded, else from the drive model. Inputs are linear between rows. After a gap
+/// the state restarts from the measured values. Returns the drive model's frequency and ΔP (bar) per row.
+fn free_run_flow(c: &Coefficients, s: &Series, end: usize) -> (Vec<f64>, Vec<f64>) {
+    let mut f_out = Vec::with_capacity(end);
+    let mut dp_out = Vec::with_capacity(end);
+    let back = c.back_pressure_pa;
+    let meas_dp = s.dp_bar.as_deref().unwrap_or(&[]);
+    let f_meas = s.f_drive_hz.as_deref();
+    let u = s.setpoint_hz.as_deref();
+    let dt_nominal = 1.0 / s.sample_hz;
+    let delay = c.dead_time_s.max(0.0);
+    let m = (delay / dt_nominal).floor() as usize;
+    let r = delay - m as f64 * dt_nominal;
+    // the command at row j: the setpoint when written, else the drive's own frequency (monitor-mode recordings)
+    let cmd = |j: isize| -> f64 {
+        let j = j.max(0) as usize;
+        let v = match (u, f_meas) {
+            (Some(u), _) => u.get(j).or(u.last()).copied().unwrap_or(0.0),
+            (None, Some(f)) => f.get(j).or(f.last()).copied().unwrap_or(0.0),
+            (None, None) => 0.0,
+        };
+        if v.is_finite() { v.clamp(0.0, c.max_hz) } else { 0.0 }
+    };
+    let beta_v = c.bulk_modulus_pa / c.volume_m3;
+    let two_pi_pp = 2.0 * std::f64::consts::PI / c.pole_pairs;
+    // dp_in/dt for pump frequency `fp`, motor speed `w`, inlet pressure `p`
+    let dpdt = |p: f64, fp: f64, w: f64| -> f64 {
+        let dp = p - back;
+        let omega_pump = two_pi_pp * fp - c.slip_rad_s_per_nm * c.pump_m3_rad * dp;
+        let d = beta_v * (c.pump_m3_rad * omega_pump - c.motor_m3_rad * w - c.leakage_si * dp);
+        if p <= 0.0 && d < 0.0 { 0.0 } else { d }
+    };
+    let dfdt = |f: f64, cmd: f64| ((cmd - f) / c.time_constant_s).clamp(-c.ramp_hz_per_s, c.ramp_hz_per_s);
+    let mut f = s.f0_hz;
+    let mut p = bar_to_pa(s.p_in0_bar).max(0.0);
+    let mut next_restart = s.restarts.iter().copied().peekable();
+    for k in 0..end {
+        if next_restart.peek() == Some(&k) {
+            next_restart.next();
+            p = (bar_to_pa(meas_dp[k]) + back).max(0.0);
+            if let Some(fm) = f_meas {
+                f = fm[k];
+            }
+        }
+        f_out.push(f);
+        dp_out.push(pa_to_bar(p - back));
+        if k + 1 == end {
+            break;
+        }
+        let len = s.t_s[k + 1] - s.t_s[k];
+        let (w0, w1) = (s.omega_f[k], s.omega_f[k + 1]);
+        let pump = f_meas.map(|fm| (fm[k], fm[k + 1]));
+        let kk = k as isize - m as isize;
+        let first = r.min(len);
+        let lerp = |a: f64, b: f64, t: f64| a + (b - a) * (t / len);
+        // the setpoint switches inside the row exactly where the delayed command does, as in the simulator
+        for (from, to, command) in [(0.0, first, cmd(kk - 1)), (first, len, cmd(kk))] {
+            if to <= from {
+                continue;
+            }
+            let steps = ((to - from) / FREE_RUN_STEP_S).ceil().max(1.0) as usize;
+            let h = (to - from) / steps as f64;
+            for i in 0..steps {
+                let ta = from + i as f64 * h;
+                let (tb, tc) = (ta + 0.5 * h, ta + h);
+                // RK4 on (f, p) with the inputs at the start, middle and end of the step
+                let fp_at = |t: f64, f_model: f64| pump.map_or(f_model, |(a, b)| lerp(a, b, t));
+                let (wa, wb, wc) = (lerp(w0, w1, ta), lerp(w0, w1, tb), lerp(w0, w1, tc));
+                let k1f = dfdt(f, command);
+                let k1p = dpdt(p, fp_at(ta, f), wa);
+                let (f2, p2) = (f + 0.5 * h * k1f, (p + 0.5 * h * k1p).max(0.0));
+                let k2f = dfdt(f2, command);
+                let k2p = dpdt(p2, fp_at(tb, f2), wb);
+                let (f3, p3) = (f + 0.5 * h * k2f, (p + 0.5 * h * k2p).max(0.0));
+                let k3f = dfdt(f3, command);
+                let k3p = dpdt(p3, fp_at(tb, f3), wb);
+                let (f4, p4) = (f + h * k3f, (p + h * k3p).max(0.0));
+                let k4f = dfdt(f4, command);
+                let k4p = dpdt(p4, fp_at(tc, f4), wc);
+                f += h / 6.0 * (k1f + 2.0 * k2f + 2.0 * k3f + k4f);
+                p = (p + h / 6.0 * (k1p + 2.0 * k2p + 2.0 * k3p + k4p)).max(0.0);
+            }
+        }
+        if !(f.is_finite() && p.is_finite()) {
+            f = 0.0;
+            p = back;
+        }
+    }
+    (f_out, dp_out)
+}
+
+/// The mean square (bar²) that the low-passed speed noise adds to the ΔP a model predicts: the pressure equation,
+/// linearised (leak and slip together, `a = β/V·(C_L + k_s D_p²)`), driven by the synthetic noise of the series.
+fn noise_in_dp_bar2(c: &Coefficients, s: &Series) -> f64 {
+    let Some(noise) = s.speed_noise_f.as_deref() else { return 0.0 };
+    let beta_v = c.bulk_modulus_pa / c.volume_m3;
+    let a = beta_v * (c.leakage_si + c.slip_rad_s_per_nm * c.pump_m3_rad * c.pump_m3_rad);
+    let b = beta_v * c.motor_m3_rad;
+    if !(a > 0.0 && a.is_finite()) {
+        return 0.0;
+    }
+    let e = (-a / s.sample_hz).exp();
+    let g = b * (1.0 - e) / a;
+    // the first tenth settles the state
+    let settle = noise.len() / 10;
+    let (mut x, mut sum) = (0.0, 0.0);
+    for (k, n) in noise.iter().enumerate() {
+        x = e * x - g * n;
+        if k >= settle {
+            sum += x * x;
+        }
+    }
+    let count = (noise.len() - settle).max(1) as f64;
+    sum / count / (crate::units::PA_PER_BAR * crate::units::PA_PER_BAR)
 }
 
 /// Free run of the mechanics from the recorded drive and load torques, starting at the measured speed.

@@ -119,29 +119,40 @@ pub fn html(a: &Analysis) -> String {
          text-align:left;font-size:90%}}th{{background:#f3f3f3}}.num{{text-align:right}}</style></head><body>\
          <h1>Analysis of {src}</h1>\
          <p>{samples} samples, {family} model family, speed from <code>{speed}</code>. Fitting on the first part, \
-         validation from {vf:.2} s (never used for fitting). Free-run simulation of the nominal model (fitted J, B) \
-         and of the improved model, driven only by the recording's inputs.</p>",
+         validation from {vf:.2} s (never used for fitting). Free-run simulation of the nominal model{fitted} and of \
+         the improved model, driven only by the recording's inputs. Load: {load}.</p>",
         src = escape(&a.recording),
         samples = a.samples,
         family = a.family,
         speed = a.speed_source,
-        vf = a.validation_from_s
+        vf = a.validation_from_s,
+        load = a.load,
+        fitted = if a.load == "unknown" { "" } else { " (fitted J, B)" }
     );
+    if a.load == "unknown" {
+        out.push_str(
+            "<p><b>The load is unknown</b> (no <code>load_nm</code>): only the flow balance is judged. The measured \
+             speed and drive frequency drive a free run of the pressure equation, and the drive model run from the \
+             setpoint is compared with the drive frequency read back. The speed is an input, not predicted.</p>",
+        );
+    }
     let _ = write!(
         out,
         "<h2>Validation error</h2><table><tr><th></th><th>ω NRMSE</th><th>ΔP NRMSE</th><th>torque NRMSE</th>\
-         <th>torque relative error</th></tr>"
+         <th>torque relative error</th><th>drive frequency NRMSE</th></tr>"
     );
-    for (name, s) in [("nominal (fitted J, B)", &a.baseline), ("improved", &a.improved)] {
+    let nominal = if a.load == "unknown" { "nominal" } else { "nominal (fitted J, B)" };
+    for (name, s) in [(nominal, &a.baseline), ("improved", &a.improved)] {
         let e = &s.validation;
         let _ = write!(
             out,
-            "<tr><td>{name}</td><td class=num>{:.4}</td><td class=num>{}</td><td class=num>{}</td>\
-             <td class=num>{}</td></tr>",
-            e.omega_nrmse,
+            "<tr><td>{name}</td><td class=num>{}</td><td class=num>{}</td><td class=num>{}</td>\
+             <td class=num>{}</td><td class=num>{}</td></tr>",
+            fmt_opt(Some(e.omega_nrmse).filter(|v| v.is_finite())),
             fmt_opt(e.dp_nrmse),
             fmt_opt(e.torque_nrmse),
-            fmt_opt(e.torque_relative_error)
+            fmt_opt(e.torque_relative_error),
+            fmt_opt(e.f_drive_nrmse)
         );
     }
     out.push_str("</table>");
@@ -178,6 +189,14 @@ pub fn html(a: &Analysis) -> String {
         out.push_str("</ul>");
     }
 
+    if !a.not_identified.is_empty() {
+        out.push_str("<h2>What this recording does not determine</h2><ul>");
+        for x in &a.not_identified {
+            let _ = write!(out, "<li><b>{}</b>: {}</li>", escape(&x.parameters.join(", ")), escape(&x.reason));
+        }
+        out.push_str("</ul>");
+    }
+
     out.push_str("<h2>Measured, nominal and improved on the validation segment</h2>");
     out.push_str(&chart(
         "speed",
@@ -201,6 +220,20 @@ pub fn html(a: &Analysis) -> String {
         ],
         false,
     ));
+
+    if !tr.drive_baseline.is_empty() {
+        out.push_str(&chart(
+            "drive frequency: read back, and the drive model run from the setpoint",
+            "t (s)",
+            "f (Hz)",
+            &[
+                ("measured", gray, decimated(&tr.t_s, &tr.drive_meas, v, n)),
+                ("nominal", red, decimated(&tr.t_s, &tr.drive_baseline, v, n)),
+                ("improved", blue, decimated(&tr.t_s, &tr.drive_improved, v, n)),
+            ],
+            false,
+        ));
+    }
 
     out.push_str(
         "<h2>Residual maps (whole recording)</h2><p>Mean residual (measured − model) in bins of the \

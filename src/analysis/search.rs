@@ -164,10 +164,20 @@ pub fn candidate(id: &str, current: &Scored, s: &Series, search_end: usize) -> O
         "torque_offset" => terms.offset = true,
         "stribeck_friction" => terms.stribeck = true,
         _ => {
-            if s.family != Family::Hydraulic {
+            if s.family == Family::Torque {
                 return None;
             }
             let nominal_bulk = current.model.hydraulics.as_ref()?.bulk_modulus_bar;
+            // Slip takes flow exactly as leakage does (C = D_p²·k_s): searched as leakage and converted, the two
+            // candidates score the same, and which one is named is the catalogue order's choice, not the search's
+            if id == "motor_slip" && current.model.effects.internal_leakage.is_none() {
+                let per_rpm = super::slip_as_leakage(&current.model, 1.0).filter(|v| *v > 0.0)?;
+                let (leak, _) = candidate("internal_leakage", current, s, search_end)?;
+                let extra = leak.effects.internal_leakage.map_or(0.0, |l| l.l_min_per_bar);
+                let mut m = current.model.clone();
+                m.effects.motor_slip = Some(MotorSlip { rpm_per_nm: extra / per_rpm });
+                return Some((m, terms));
+            }
             let (grid, set) = flow_grid(id, nominal_bulk)?;
             let mut cost = |x: f64| {
                 let mut m = current.model.clone();
@@ -226,13 +236,20 @@ pub fn parameter_count(id: &str) -> usize {
     if id == "stribeck_friction" { 2 } else { 1 }
 }
 
-/// The catalogue ids that apply to a family.
-pub fn applicable(family: Family) -> Vec<&'static str> {
+/// Effects of the torque balance: with the load unknown, the load absorbs them.
+pub const TORQUE_SIDE: [&str; 3] = ["coulomb_friction", "stribeck_friction", "torque_offset"];
+
+/// The catalogue ids that apply to a recording: every one to the hydraulic plant, the torque-balance ones to a
+/// torque-driven recording, the flow-balance ones with the load unknown (dead time only where the setpoint was
+/// recorded).
+pub fn applicable(s: &Series) -> Vec<&'static str> {
     EFFECT_IDS
         .iter()
         .copied()
-        .filter(|id| {
-            family == Family::Hydraulic || matches!(*id, "coulomb_friction" | "stribeck_friction" | "torque_offset")
+        .filter(|id| match s.family {
+            Family::Hydraulic => true,
+            Family::Torque => TORQUE_SIDE.contains(id),
+            Family::Flow => !TORQUE_SIDE.contains(id) && (*id != "dead_time" || s.setpoint_hz.is_some()),
         })
         .collect()
 }

@@ -16,6 +16,10 @@ pub enum Family {
     Hydraulic,
     /// `torque_nm` and speed (or position): free-run of the mechanics from the drive torque.
     Torque,
+    /// Pressures and speed with the load unknown (no `load_nm`, as the service records): the flow balance only.
+    /// The measured speed and `f_drive_hz` (else the drive model run from `f_set_hz`) drive a free run of the
+    /// pressure equation; the drive model run from `f_set_hz` is compared with `f_drive_hz`. No torque balance.
+    Flow,
 }
 
 impl Family {
@@ -23,6 +27,7 @@ impl Family {
         match self {
             Family::Hydraulic => "hydraulic",
             Family::Torque => "torque",
+            Family::Flow => "flow",
         }
     }
 }
@@ -55,10 +60,22 @@ pub struct Series {
     /// Load torque (N·m): `load_nm`, or the model's `[load]` profile.
     pub load_nm: Vec<f64>,
     pub load_f: Vec<f64>,
-    /// Measured p_in − p_out (bar), for the hydraulic family.
+    /// Measured p_in − p_out (bar), for the hydraulic and flow families.
     pub dp_bar: Option<Vec<f64>>,
-    /// The frequency setpoint (Hz), for the hydraulic family.
+    /// The frequency setpoint (Hz), for the hydraulic family (and the flow family when it was written).
     pub setpoint_hz: Option<Vec<f64>>,
+    /// The drive frequency read back (Hz), for the flow family when recorded.
+    pub f_drive_hz: Option<Vec<f64>>,
+    /// Where the load came from: `recorded` (`load_nm`), `model` (the model's `[load]` profile) or `unknown`.
+    pub load: &'static str,
+    /// Rows that follow a gap in the recording (stale cycles skipped, a link outage): the flow family's free run
+    /// restarts from the measured state there.
+    pub restarts: Vec<usize>,
+    /// Flow family: a synthetic stretch of the speed sensor's noise as the analysis sees it (white, of the σ
+    /// estimated from the recording, through the same low-pass). The measured speed drives the pressure equation,
+    /// so its noise reaches the predicted ΔP, less so the softer the oil or the larger the leak: without
+    /// accounting for it, the fit would prefer a softer oil for smoothing the noise (errors in variables).
+    pub speed_noise_f: Option<Vec<f64>>,
     /// Initial drive frequency and inlet pressure for the free run.
     pub f0_hz: f64,
     pub p_in0_bar: f64,
@@ -79,26 +96,47 @@ impl Series {
         }
         let t_s = rec.t_s().to_vec();
         let span = t_s[n - 1] - t_s[0];
-        let dt = span / (n - 1) as f64;
-        let sample_hz = 1.0 / dt;
+        // the median step, not the mean: a recording with gaps (skipped stale cycles) keeps its poll rate
+        let steps: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
+        let sample_hz = 1.0 / percentile(&steps, 0.5);
         let col = |name: &str| rec.present(name).map(fill_gaps);
         let need = |name: &str, why: &str| BadInput(format!("recording {src}: column `{name}` is required {why}"));
 
+        let recorded_load = col("load_nm");
+        // the load is unknown when the model says so, or when it should come from the recording and does not
+        let load_unknown = match model.load {
+            LoadSpec::Unknown => true,
+            LoadSpec::Recorded => recorded_load.is_none(),
+            _ => false,
+        };
+        let f_drive = col("f_drive_hz");
         let (family, drive_torque_nm, dp_bar, setpoint_hz, p_in0_bar, f0_hz) = if let Some(tq) = col("torque_nm") {
             (Family::Torque, tq, None, None, 0.0, 0.0)
         } else {
             let why = "(a recording without `torque_nm` is analysed as the hydraulic plant)";
             let p_in = col("p_in_bar").ok_or_else(|| need("p_in_bar", why))?;
             let p_out = col("p_out_bar").ok_or_else(|| need("p_out_bar", why))?;
-            let f_set = col("f_set_hz").ok_or_else(|| need("f_set_hz", why))?;
+            let f_set = col("f_set_hz");
+            let f_set = if load_unknown && f_drive.is_some() {
+                f_set
+            } else {
+                let why = if load_unknown {
+                    "(with the load unknown, the pump's speed comes from `f_drive_hz` or, without it, from the \
+                     drive model run from `f_set_hz`)"
+                } else {
+                    why
+                };
+                Some(f_set.ok_or_else(|| need("f_set_hz", why))?)
+            };
             let parts = model.hydraulic().map_err(|(key, msg)| {
                 BadInput(format!("model: `{key}` {msg} (the recording has pressures but no `torque_nm`)"))
             })?;
             let d_m = cm3_per_rev_to_m3_per_rad(parts.motor_displacement_cm3);
             let dp: Vec<f64> = p_in.iter().zip(&p_out).map(|(a, b)| a - b).collect();
             let torque = dp.iter().map(|d| d_m * d * 1e5).collect();
-            let f0 = col("f_drive_hz").map_or(f_set[0], |f| f[0]);
-            (Family::Hydraulic, torque, Some(dp), Some(f_set), p_in[0], f0)
+            let f0 = f_drive.as_ref().or(f_set.as_ref()).map_or(0.0, |f| f[0]);
+            let family = if load_unknown { Family::Flow } else { Family::Hydraulic };
+            (family, torque, Some(dp), f_set, p_in[0], f0)
         };
 
         let (omega_rad_s, omega_f, cutoff_hz, speed_source) = if let Some(w) = col("omega_rad_s") {
@@ -126,15 +164,28 @@ impl Series {
             cutoff_hz
         };
 
-        let load_nm = match (col("load_nm"), &model.load) {
-            (Some(l), _) => l,
-            (None, LoadSpec::Recorded) => {
-                return Err(need("load_nm", "because the model's [load] kind is \"recorded\""));
-            }
-            (None, spec) => t_s.iter().map(|&t| spec.torque_nm(t - t_s[0])).collect(),
+        let (load_nm, load) = if family == Family::Flow {
+            // the flow balance needs no load; zeros keep the vectors one per row
+            (vec![0.0; n], "unknown")
+        } else if let Some(l) = recorded_load.filter(|_| model.load != LoadSpec::Unknown) {
+            (l, "recorded")
+        } else if matches!(model.load, LoadSpec::Recorded | LoadSpec::Unknown) {
+            // only a torque-driven recording gets here: its torque balance cannot be run without the load
+            let why = if model.load == LoadSpec::Unknown {
+                "because a torque-driven recording (`torque_nm`) is explained by its torque balance, which needs \
+                 the load; the model's [load] kind is \"unknown\""
+            } else {
+                "because the model's [load] kind is \"recorded\" and the recording is torque-driven (`torque_nm`)"
+            };
+            return Err(need("load_nm", why));
+        } else {
+            (t_s.iter().map(|&t| model.load.torque_nm(t - t_s[0])).collect(), "model")
         };
         let drive_torque_f = filtfilt_butter4(&drive_torque_nm, cutoff_hz, sample_hz);
         let load_f = filtfilt_butter4(&load_nm, cutoff_hz, sample_hz);
+        let restarts = gaps(&t_s);
+        let speed_noise_f = (family == Family::Flow && speed_source == "omega_rad_s")
+            .then(|| synthetic_speed_noise(&omega_rad_s, &omega_f, cutoff_hz, sample_hz));
         let t_val = t_s[0] + (1.0 - validation_fraction) * span;
         let split = t_s.iter().position(|&t| t >= t_val).unwrap_or(n - 1).clamp(100, n - 50);
         Ok(Series {
@@ -156,6 +207,10 @@ impl Series {
             cutoff_hz,
             speed_source,
             sign_speed: SIGN_SPEED_RAD_S,
+            f_drive_hz: f_drive.filter(|_| family == Family::Flow),
+            load,
+            restarts,
+            speed_noise_f,
         }
         .with_sign_speed())
     }
@@ -186,6 +241,40 @@ impl Series {
     pub fn speed_scale(&self) -> f64 {
         percentile(&self.omega_f.iter().map(|w| w.abs()).collect::<Vec<_>>(), 0.95).max(1e-6)
     }
+}
+
+/// Rows of synthetic noise used to estimate how much speed noise reaches the predicted ΔP.
+const NOISE_ROWS: usize = 20_000;
+
+/// White noise of the speed sensor's σ, low-passed as the measured speed is. σ comes from what the low-pass
+/// removed, `ω − ω_f`, scaled up for the part of white noise inside the pass band.
+fn synthetic_speed_noise(omega: &[f64], omega_f: &[f64], cutoff_hz: f64, sample_hz: f64) -> Vec<f64> {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+    let d: Vec<f64> = omega.iter().zip(omega_f).map(|(a, b)| a - b).filter(|v| v.is_finite()).collect();
+    let mean = d.iter().sum::<f64>() / d.len().max(1) as f64;
+    let var = d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / d.len().max(1) as f64;
+    let passed = (2.0 * cutoff_hz / sample_hz).clamp(0.0, 0.9);
+    let sigma = (var / (1.0 - passed)).sqrt();
+    let Ok(normal) = Normal::new(0.0, sigma.max(0.0)) else { return Vec::new() };
+    // a fixed seed: the same recording gives the same analysis
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5eed_0fa1);
+    let n = NOISE_ROWS.min(omega.len());
+    let white: Vec<f64> = (0..n).map(|_| normal.sample(&mut rng)).collect();
+    filtfilt_butter4(&white, cutoff_hz, sample_hz)
+}
+
+/// A step between rows longer than this many median steps (and than [`GAP_MIN_S`]) is a gap in the recording.
+pub const GAP_X_MEDIAN_STEP: f64 = 5.0;
+/// The shortest gap (s): a few late polls are not a gap.
+pub const GAP_MIN_S: f64 = 0.05;
+
+/// The rows that follow a gap in the time stamps.
+pub fn gaps(t_s: &[f64]) -> Vec<usize> {
+    let steps: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
+    let median = percentile(&steps, 0.5);
+    let limit = (GAP_X_MEDIAN_STEP * median).max(GAP_MIN_S);
+    steps.iter().enumerate().filter(|(_, d)| **d > limit).map(|(k, _)| k + 1).collect()
 }
 
 /// The `q` quantile (0…1) of the finite values; 0 for none.

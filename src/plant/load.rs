@@ -3,7 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 /// `[load]`: what the load torque T_L(t) is. `recorded` means "taken from a recording" (estimate, analyze) or,
-/// for the test-stand run of `simulate`, the built-in brake-load steps.
+/// for the test-stand run of `simulate`, the built-in brake-load steps; `unknown` says that no recording has it.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize, Default)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum LoadSpec {
@@ -22,6 +22,9 @@ pub enum LoadSpec {
     /// From a recording (the `load_nm` column), or the test stand's brake program.
     #[default]
     Recorded,
+    /// Not measured (no torque transducer, as on most plants): `analyze` finds what the flow balance shows and
+    /// names nothing that the load could hide. In `simulate`/`sim`/`demo`, the test stand's brake program.
+    Unknown,
 }
 
 /// The test stand's brake: load levels (N·m) applied in turn.
@@ -50,7 +53,7 @@ impl LoadSpec {
             LoadSpec::Sine { mean_nm, amplitude_nm, period_s } => {
                 mean_nm + amplitude_nm * (2.0 * std::f64::consts::PI * t_s / period_s).sin()
             }
-            LoadSpec::Recorded => steps(&BRAKE_LEVELS_NM, BRAKE_PERIOD_S, t_s),
+            LoadSpec::Recorded | LoadSpec::Unknown => steps(&BRAKE_LEVELS_NM, BRAKE_PERIOD_S, t_s),
         }
     }
 

@@ -1,9 +1,11 @@
 //! Recordings: the contract's CSV (CONTRACT.md "Recording CSV"), read strictly and written streaming, with rotation.
 
+mod join;
 mod read;
 pub mod stream;
 mod write;
 
+pub use join::{drive_files, join, last_run};
 pub use read::{RecordingError, load, parse};
 pub use stream::{Batch, Chunk, ChunkParser, ChunkSource, StreamReader, TimeText};
 pub use write::{RotatingWriter, RowWriter, format_value, push_parsed_value, push_value, write_csv};

@@ -5,6 +5,7 @@ pub mod config;
 pub mod drive;
 pub mod estimators;
 pub mod metrics;
+pub mod program;
 pub mod recorder;
 pub mod state;
 pub mod timing;

@@ -9,6 +9,7 @@ mod faults;
 mod http;
 mod link_faults;
 mod multi;
+mod noload;
 mod plant;
 mod proxy;
 mod service;

@@ -1,0 +1,154 @@
+//! One drive's recording from several files: the service's rotated files joined in time order, or the files of one
+//! drive found in a recordings directory.
+
+use std::path::{Path, PathBuf};
+
+use super::{Recording, RecordingError};
+
+/// Joins recordings of one drive in the order of their first time stamp. Columns missing from a file are empty in
+/// its rows. Files that overlap in time (the service's `t_s` restarts with each run) are refused, naming both.
+pub fn join(mut parts: Vec<Recording>) -> Result<Recording, RecordingError> {
+    if parts.len() == 1 {
+        return Ok(parts.remove(0));
+    }
+    let Some(first) = parts.first() else {
+        return Err(RecordingError::File { path: "(none)".into(), message: "no recording given".into() });
+    };
+    let mut names: Vec<String> = first.names().to_vec();
+    parts.sort_by(|a, b| a.t_s()[0].total_cmp(&b.t_s()[0]));
+    for w in parts.windows(2) {
+        let (a, b) = (&w[0], &w[1]);
+        let (end, start) = (a.t_s()[a.len() - 1], b.t_s()[0]);
+        if start <= end {
+            return Err(RecordingError::File {
+                path: b.source.clone(),
+                message: format!(
+                    "overlaps {} in time (t_s from {start} while that file runs to {end}): the service's t_s \
+                     restarts with each run, so analyse the files of one run together",
+                    a.source
+                ),
+            });
+        }
+    }
+    for p in &parts {
+        for n in p.names() {
+            if !names.contains(n) {
+                names.push(n.clone());
+            }
+        }
+    }
+    let total: usize = parts.iter().map(Recording::len).sum();
+    let columns: Vec<Vec<f64>> = names
+        .iter()
+        .map(|n| {
+            let mut c = Vec::with_capacity(total);
+            for p in &parts {
+                match p.column(n) {
+                    Some(v) => c.extend_from_slice(v),
+                    None => c.extend(std::iter::repeat_n(f64::NAN, p.len())),
+                }
+            }
+            c
+        })
+        .collect();
+    let source = parts.iter().map(|p| p.source.as_str()).collect::<Vec<_>>().join(" + ");
+    Ok(Recording::from_columns(&source, names, columns))
+}
+
+/// The files `<drive>-<unix ms>[-<n>].csv` the service wrote for `drive` in `dir`, oldest first.
+pub fn drive_files(dir: &Path, drive: &str) -> Result<Vec<PathBuf>, RecordingError> {
+    let io = |source| RecordingError::Io { path: dir.display().to_string(), source };
+    let prefix = format!("{drive}-");
+    let mut found: Vec<(Vec<u64>, PathBuf)> = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(io)? {
+        let entry = entry.map_err(io)?;
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Some(stem) = name.strip_prefix(&prefix).and_then(|r| r.strip_suffix(".csv")) else { continue };
+        // the stamp and an optional counter, all digits: `pump1-…` never picks up `pump1-a-…`
+        let key: Option<Vec<u64>> = stem.split('-').map(|p| p.parse().ok()).collect();
+        if let Some(key) = key.filter(|k| !k.is_empty() && k.len() <= 2) {
+            found.push((key, entry.path()));
+        }
+    }
+    if found.is_empty() {
+        return Err(RecordingError::File {
+            path: dir.display().to_string(),
+            message: format!("no recording of drive `{drive}` (files named {drive}-<unix ms>.csv)"),
+        });
+    }
+    found.sort();
+    Ok(found.into_iter().map(|f| f.1).collect())
+}
+
+/// The last run among recordings of one drive given oldest first: the files after the last restart of `t_s`.
+/// Returns that run and how many files were left out.
+pub fn last_run(parts: Vec<Recording>) -> (Vec<Recording>, usize) {
+    let mut start = 0;
+    for i in 1..parts.len() {
+        let (a, b) = (&parts[i - 1], &parts[i]);
+        if b.t_s().first() <= a.t_s().last() {
+            start = i;
+        }
+    }
+    let mut parts = parts;
+    let run = parts.split_off(start);
+    (run, start)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rec(name: &str, t: &[f64], cols: &[&str]) -> Recording {
+        let mut names = vec!["t_s".to_string()];
+        let mut columns = vec![t.to_vec()];
+        for c in cols {
+            names.push(c.to_string());
+            columns.push(t.iter().map(|v| v * 10.0).collect());
+        }
+        Recording::from_columns(name, names, columns)
+    }
+
+    #[test]
+    fn joins_in_time_order_and_fills_missing_columns() {
+        let a = rec("a.csv", &[0.0, 0.1], &["omega_rad_s"]);
+        let b = rec("b.csv", &[0.2, 0.3], &["omega_rad_s", "f_set_hz"]);
+        let j = join(vec![b, a]).expect("joins");
+        assert_eq!(j.t_s(), &[0.0, 0.1, 0.2, 0.3]);
+        assert_eq!(j.column("omega_rad_s").expect("omega"), &[0.0, 1.0, 2.0, 3.0]);
+        let f = j.column("f_set_hz").expect("f_set");
+        assert!(f[0].is_nan() && f[1].is_nan() && f[2] == 2.0);
+        assert_eq!(j.source, "a.csv + b.csv");
+    }
+
+    #[test]
+    fn overlapping_files_are_refused_naming_both() {
+        let a = rec("a.csv", &[0.0, 0.5], &[]);
+        let b = rec("b.csv", &[0.2, 0.3], &[]);
+        let e = join(vec![a, b]).expect_err("overlap").to_string();
+        assert!(e.contains("a.csv") && e.contains("b.csv") && e.contains("overlaps"), "{e}");
+    }
+
+    #[test]
+    fn the_last_run_starts_where_time_restarts() {
+        let parts =
+            vec![rec("1.csv", &[0.0, 1.0], &[]), rec("2.csv", &[0.0, 1.0], &[]), rec("3.csv", &[2.0, 3.0], &[])];
+        let (run, left) = last_run(parts);
+        assert_eq!(left, 1);
+        assert_eq!(run.iter().map(|r| r.source.as_str()).collect::<Vec<_>>(), vec!["2.csv", "3.csv"]);
+    }
+
+    #[test]
+    fn finds_a_drives_files_and_nothing_else() {
+        let dir = tempfile::tempdir().expect("tmp");
+        for n in ["pump1-200.csv", "pump1-100.csv", "pump1-200-1.csv", "pump1-a-5.csv", "pump10-1.csv", "x.csv"] {
+            std::fs::write(dir.path().join(n), "t_s\n0\n").expect("write");
+        }
+        let files = drive_files(dir.path(), "pump1").expect("found");
+        let names: Vec<String> =
+            files.iter().map(|p| p.file_name().expect("name").to_string_lossy().into_owned()).collect();
+        assert_eq!(names, vec!["pump1-100.csv", "pump1-200.csv", "pump1-200-1.csv"]);
+        let e = drive_files(dir.path(), "pump2").expect_err("none").to_string();
+        assert!(e.contains("pump2"), "{e}");
+    }
+}
