@@ -449,7 +449,7 @@ dir = {recordings:?}
 name = "pump1"
 address = "{modbus}"
 unit_id = 1
-# every plant sample (the simulator runs at 1 kHz): the rate the rls-sgd estimator is tuned for
+# every plant sample (the simulator runs at 1 kHz)
 poll_ms = 1
 timeout_ms = 200
 # the poll thread ahead of everything else, where the kernel allows it (else a warning and normal priority)
