@@ -22,19 +22,8 @@ pub fn as_the_service_records(rec: &Recording, poll_ms: usize, seed: u64) -> Rec
     let col = |name: &str| rec.column(name).expect("simulated column");
     let (t, f_set, f_drive) = (col("t_s"), col("f_set_hz"), col("f_drive_hz"));
     let (p_in, p_out, omega) = (col("p_in_bar"), col("p_out_bar"), col("omega_rad_s"));
-    let names = [
-        "t_s",
-        "f_set_hz",
-        "f_drive_hz",
-        "p_in_bar",
-        "p_out_bar",
-        "omega_rad_s",
-        "omega_hat_rad_s",
-        "load_hat_nm",
-        "inertia_hat_kg_m2",
-        "viscous_hat_nm_s_rad",
-        "status_word",
-    ];
+    // the service recorder's own columns (one shape: src/service/state.rs)
+    let names = hydrolens::service::state::COLUMNS;
     let mut cols: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
     // a small deterministic generator for the skipped cycles
     let mut state = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
@@ -57,6 +46,8 @@ pub fn as_the_service_records(rec: &Recording, poll_ms: usize, seed: u64) -> Rec
             -omega[k],
             1e3,
             -1.0,
+            f64::NAN,
+            -2.0,
             f64::NAN,
             3.0,
         ];
@@ -256,7 +247,9 @@ async fn served_cases(poll_ms: u64) {
                     let windows = v["mismatches"].as_array().expect("mismatches");
                     assert!(windows.iter().any(|m| m["signal"] == "f_drive"), "{}", v["mismatches"]);
                     let shows = v["findings"][0]["evidence"]["where_it_shows"].as_str().unwrap_or_default();
-                    assert!(shows.contains("after setpoint steps"), "{shows}");
+                    // right after the steps, or the accelerations they start: which label wins depends on when
+                    // under machine load the polls landed (seen both ways in full-suite runs)
+                    assert!(shows.contains("after setpoint steps") || shows.contains("fast acceleration"), "{shows}");
                 }
                 "air" => {
                     assert_eq!(named, vec!["entrained_air".to_string()]);
