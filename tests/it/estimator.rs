@@ -349,3 +349,30 @@ fn battery_held_out_gate() {
     eprintln!("{} of {runs} runs hold; failing:\n{}", runs - failures.len(), failures.join("\n"));
     assert!((runs - failures.len()) as f64 >= 0.9 * runs as f64, "{failures:#?}");
 }
+
+/// One steady speed under a load nobody measures cannot tell B (nor J) from the load: rls-sgd holds its starting
+/// J and B instead of drifting, and its standard deviations stay those of the prior (the dashboard then says "not
+/// identified yet"), while the load is still tracked.
+#[test]
+fn at_one_steady_speed_rls_sgd_holds_j_and_b_and_says_they_are_not_identified() {
+    // the plant starts from standstill and runs 60 s more at one speed under 8 N·m
+    let ms = constant_operation(63.0, 8.0);
+    let mut model = PlantModel::reference();
+    model.motor.inertia_kg_m2 *= 1.3;
+    model.motor.viscous_nm_s_rad *= 0.7;
+    let r = EstimatorSettings::default().resolve(&model).expect("defaults");
+    // the estimator joins after the start-up (which does excite J and B): from then on, one speed only
+    let mut est = RlsSgd::new(r);
+    let start = est.estimate();
+    let mut last = start;
+    for m in &ms[3000..] {
+        last = est.update(m);
+    }
+    let (j0, b0) = (model.motor.inertia_kg_m2, model.motor.viscous_nm_s_rad);
+    assert!((last.inertia_hat_kg_m2 / start.inertia_hat_kg_m2 - 1.0).abs() < 0.01, "{start:?} → {last:?}");
+    assert!((last.viscous_hat_nm_s_rad / start.viscous_hat_nm_s_rad - 1.0).abs() < 0.01, "{start:?} → {last:?}");
+    assert!(last.inertia_sd_kg_m2 > 0.1 * j0 && last.viscous_sd_nm_s_rad > 0.3 * b0, "{last:?}");
+    // the load is the drive torque less the friction the model believes: within the B error times the speed
+    let speed = ms.last().expect("rows").omega_rad_s;
+    assert!((last.load_hat_nm - 8.0).abs() < 1.0 + (0.04 - b0).abs() * speed.abs(), "{last:?}");
+}
