@@ -681,5 +681,8 @@ mod tests {
         let e = est.estimate();
         assert!((e.inertia_hat_kg_m2 / j - 1.0).abs() < 0.03, "{e:?}");
         assert!(e.inertia_sd_kg_m2 < 0.05 * j, "{e:?}");
+        // the steps were found in the windows (fitted as steps), not read as inertia
+        let [accepted, _, _, stepped] = est.window_counts();
+        assert!(accepted > 0 && stepped > 0, "{:?}", est.window_counts());
     }
 }
