@@ -2,7 +2,9 @@
 //! against the Kalman filter told the truth, on the same rows. Prints one line a run and a table per poll period.
 //!
 //! `cargo run --release --example estimator_battery -- [set=tuned|held-out] [runs=N] [seconds=S] [polls=1,5,10]`
-//! Tuned seeds are 1…N, held-out seeds 1001…1000+N (never used while tuning). `kalman-jump=0` runs the reference
+//! `[families=brake,sine] [seed=K]`
+//! Tuned seeds are 1…N, held-out seeds 1001…1000+N (never used while tuning), `set=fresh` seeds 5001…5000+N (never
+//! looked at before their figures went into docs/estimator.md). `kalman-jump=0` runs the reference
 //! Kalman filter without its jump test (the filter before it).
 
 use hydrolens::estimator::EstimatorSettings;
@@ -13,6 +15,8 @@ fn main() {
     let mut set = "tuned".to_string();
     let mut reference = EstimatorSettings::default();
     let (mut runs, mut seconds, mut polls) = (24u64, 60.0, vec![1u32, 5, 10]);
+    let mut families: Vec<Family> = Family::ALL.to_vec();
+    let mut only_seed: Option<u64> = None;
     for arg in std::env::args().skip(1) {
         let (k, v) = arg.split_once('=').unwrap_or((arg.as_str(), ""));
         match k {
@@ -21,11 +25,19 @@ fn main() {
             "seconds" => seconds = v.parse().unwrap_or(seconds),
             "kalman-jump" => reference.jump_load_sd_nm = v.parse().unwrap_or(reference.jump_load_sd_nm),
             "polls" => polls = v.split(',').filter_map(|p| p.parse().ok()).collect(),
+            "seed" => only_seed = v.parse().ok(),
+            "families" => families = Family::ALL.into_iter().filter(|f| v.split(',').any(|n| n == f.name())).collect(),
             _ => eprintln!("ignoring {arg}"),
         }
     }
-    let first = if set == "held-out" { 1001 } else { 1 };
+    let first = match set.as_str() {
+        "held-out" => 1001,
+        "fresh" => 5001,
+        _ => 1,
+    };
     let scenarios: Vec<Scenario> = (0..runs)
+        .filter(|i| families.contains(&Family::ALL[*i as usize % Family::ALL.len()]))
+        .filter(|i| only_seed.is_none_or(|s| s == first + i))
         .map(|i| Scenario::generate(Family::ALL[i as usize % Family::ALL.len()], first + i, seconds))
         .collect();
     let jobs: Vec<(&Scenario, u32)> = scenarios.iter().flat_map(|s| polls.iter().map(move |&p| (s, p))).collect();
