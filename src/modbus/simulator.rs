@@ -167,6 +167,7 @@ impl DriveSim {
         let f_cmd = if run && self.ready() { self.setpoint_hz } else { 0.0 };
         let t = self.plant.t_s();
         self.load_nm = self.model.load.torque_nm(t);
+        self.plant.wear(&self.model);
         self.plant.advance(self.sample_s(), f_cmd, self.load_nm);
         self.sample += 1;
         if !self.faults.freeze_counter {

@@ -166,7 +166,12 @@ pub struct Plant {
     /// The last command issued (to skip queueing repeats).
     last_issued_hz: f64,
     max_substep_s: f64,
+    /// Plant time from which a wearing model's coefficients are due again.
+    next_wear_s: f64,
 }
+
+/// How often a wearing plant's coefficients are brought up to date (s of plant time).
+pub const WEAR_STEP_S: f64 = 1.0;
 
 impl Plant {
     /// At standstill: no frequency, inlet at back pressure, motor at rest.
@@ -184,6 +189,7 @@ impl Plant {
             f_cmd_hz: 0.0,
             last_issued_hz: 0.0,
             max_substep_s,
+            next_wear_s: 0.0,
         }
     }
 
@@ -197,6 +203,18 @@ impl Plant {
 
     pub fn t_s(&self) -> f64 {
         self.t_s
+    }
+
+    /// For a model with `[wear]`: once every [`WEAR_STEP_S`] of plant time, the coefficients become those of the
+    /// model as worn by now (the state is kept). Nothing for a model that does not wear.
+    pub fn wear(&mut self, model: &PlantModel) {
+        if !model.wears() || self.t_s < self.next_wear_s {
+            return;
+        }
+        if let Ok(c) = Coefficients::from_model(&model.at(self.t_s)) {
+            self.coefficients = c;
+        }
+        self.next_wear_s = self.t_s + WEAR_STEP_S;
     }
 
     /// Advances by `dt_s` with the frequency command `f_cmd_hz` issued now (the drive sees it after the dead time,

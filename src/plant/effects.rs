@@ -144,3 +144,101 @@ impl Effects {
         Ok(())
     }
 }
+
+/// How fast an effect's main parameter grows, per hour of plant time (negative: falls).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Growth {
+    pub growth_per_hour: f64,
+}
+
+/// `[wear]`: a plant that wears while it runs. Each entry names an effect of `[effects]` and moves its main
+/// parameter (the first of its table: `torque_nm`, `breakaway_nm`, `l_min_per_bar`, `ms`, `bulk_modulus_bar`,
+/// `rpm_per_nm`) by `growth_per_hour` for every hour of plant time, so that a leak can grow while a test runs.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Wear {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub coulomb_friction: Option<Growth>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stribeck_friction: Option<Growth>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub torque_offset: Option<Growth>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub internal_leakage: Option<Growth>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dead_time: Option<Growth>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub entrained_air: Option<Growth>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub motor_slip: Option<Growth>,
+}
+
+/// The least bulk modulus wear can bring the oil to (bar): a frothy oil, but still a fluid.
+const MIN_WORN_BULK_MODULUS_BAR: f64 = 100.0;
+
+impl Wear {
+    /// True when nothing wears.
+    pub fn is_none(&self) -> bool {
+        *self == Wear::default()
+    }
+
+    fn entries(&self) -> [(&'static str, Option<Growth>); 7] {
+        [
+            ("coulomb_friction", self.coulomb_friction),
+            ("stribeck_friction", self.stribeck_friction),
+            ("torque_offset", self.torque_offset),
+            ("internal_leakage", self.internal_leakage),
+            ("dead_time", self.dead_time),
+            ("entrained_air", self.entrained_air),
+            ("motor_slip", self.motor_slip),
+        ]
+    }
+
+    /// Each rate finite, and each worn effect switched on in `effects` (wear moves a parameter; it does not invent
+    /// the effect's other parameters).
+    pub fn validate(&self, effects: &Effects) -> Result<(), (String, String)> {
+        let on = effects.active_ids();
+        for (id, growth) in self.entries() {
+            let Some(g) = growth else { continue };
+            if !g.growth_per_hour.is_finite() {
+                return Err((
+                    format!("wear.{id}.growth_per_hour"),
+                    format!("must be finite, got {}", g.growth_per_hour),
+                ));
+            }
+            if !on.contains(&id) {
+                return Err((format!("wear.{id}"), format!("wears an effect that is off: add [effects.{id}]")));
+            }
+        }
+        Ok(())
+    }
+
+    /// `effects` after `hours` of plant time, each worn parameter kept in its valid range.
+    pub fn apply(&self, effects: &Effects, hours: f64) -> Effects {
+        let mut e = *effects;
+        let grown = |g: Option<Growth>, v: f64| g.map_or(v, |g| v + g.growth_per_hour * hours);
+        if let Some(x) = e.coulomb_friction.as_mut() {
+            x.torque_nm = grown(self.coulomb_friction, x.torque_nm).max(0.0);
+        }
+        if let Some(x) = e.stribeck_friction.as_mut() {
+            x.breakaway_nm = grown(self.stribeck_friction, x.breakaway_nm).max(0.0);
+        }
+        if let Some(x) = e.torque_offset.as_mut() {
+            x.torque_nm = grown(self.torque_offset, x.torque_nm);
+        }
+        if let Some(x) = e.internal_leakage.as_mut() {
+            x.l_min_per_bar = grown(self.internal_leakage, x.l_min_per_bar).max(0.0);
+        }
+        if let Some(x) = e.dead_time.as_mut() {
+            x.ms = grown(self.dead_time, x.ms).clamp(0.0, 10_000.0);
+        }
+        if let Some(x) = e.entrained_air.as_mut() {
+            x.bulk_modulus_bar = grown(self.entrained_air, x.bulk_modulus_bar).max(MIN_WORN_BULK_MODULUS_BAR);
+        }
+        if let Some(x) = e.motor_slip.as_mut() {
+            x.rpm_per_nm = grown(self.motor_slip, x.rpm_per_nm).max(0.0);
+        }
+        e
+    }
+}

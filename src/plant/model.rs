@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::effects::Effects;
+use super::effects::{Effects, Wear};
 use super::load::LoadSpec;
 
 /// `[drive]`: the frequency drive (VFD) and its induction motor.
@@ -98,6 +98,9 @@ pub struct PlantModel {
     pub load: LoadSpec,
     #[serde(default)]
     pub effects: Effects,
+    /// How the effects change while the plant runs (the simulator's plant only; a nominal model does not wear).
+    #[serde(default, skip_serializing_if = "Wear::is_none")]
+    pub wear: Wear,
     /// Estimator settings (λ, η, covariance, noise, bounds); free-form here, validated by the estimator.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub estimator: Option<toml::Table>,
@@ -229,7 +232,21 @@ impl PlantModel {
             return Err(("sensors.sample_ms".into(), format!("must be ≤ 1000, got {}", self.sensors.sample_ms)));
         }
         self.load.validate()?;
-        self.effects.validate()
+        self.effects.validate()?;
+        self.wear.validate(&self.effects)
+    }
+
+    /// True when some effect wears (`[wear]`).
+    pub fn wears(&self) -> bool {
+        !self.wear.is_none()
+    }
+
+    /// The model as it is after `t_s` seconds of plant time: each worn effect moved by its growth.
+    pub fn at(&self, t_s: f64) -> PlantModel {
+        if !self.wears() {
+            return self.clone();
+        }
+        PlantModel { effects: self.wear.apply(&self.effects, t_s / 3600.0), ..self.clone() }
     }
 }
 
@@ -247,6 +264,39 @@ mod tests {
         assert!(m.hydraulic().is_ok());
         let again = PlantModel::parse(&m.to_toml(), "round trip").expect("own output parses");
         assert_eq!(again, m);
+    }
+
+    const WORN: &str =
+        "\n[effects.internal_leakage]\nl_min_per_bar = 0.01\n\n[wear.internal_leakage]\ngrowth_per_hour = 0.36\n";
+
+    #[test]
+    fn a_wearing_effect_grows_with_plant_time_and_round_trips() {
+        let m = PlantModel::parse(&format!("{REFERENCE_TOML}{WORN}"), "worn.toml").expect("parses");
+        assert!(m.wears());
+        let leak = |t: f64| m.at(t).effects.internal_leakage.map(|l| l.l_min_per_bar);
+        assert_eq!(leak(0.0), Some(0.01));
+        assert!((leak(600.0).unwrap_or(0.0) - 0.07).abs() < 1e-12, "{:?}", leak(600.0));
+        assert_eq!(m.at(600.0).wear, m.wear, "the worn model still knows how it wears");
+        let again = PlantModel::parse(&m.to_toml(), "round trip").expect("own output parses");
+        assert_eq!(again, m);
+        // Falling parameters stop at their range.
+        let shrinking = format!("{REFERENCE_TOML}{}", WORN.replace("0.36", "-3.6"));
+        let m = PlantModel::parse(&shrinking, "worn.toml").expect("parses");
+        assert_eq!(m.at(3600.0).effects.internal_leakage.map(|l| l.l_min_per_bar), Some(0.0));
+        assert!(!PlantModel::reference().wears());
+    }
+
+    #[test]
+    fn wear_of_an_effect_that_is_off_or_not_finite_is_refused_by_key() {
+        let text = format!("{REFERENCE_TOML}\n[wear.dead_time]\ngrowth_per_hour = 10.0\n");
+        let err = PlantModel::parse(&text, "p.toml").expect_err("dead time is off").to_string();
+        assert!(err.contains("wear.dead_time") && err.contains("effects.dead_time"), "{err}");
+        let text = format!("{REFERENCE_TOML}{}", WORN.replace("0.36", "inf"));
+        let err = PlantModel::parse(&text, "p.toml").expect_err("not finite").to_string();
+        assert!(err.contains("wear.internal_leakage.growth_per_hour"), "{err}");
+        let text = format!("{REFERENCE_TOML}{}", WORN.replace("growth_per_hour", "growth_per_day"));
+        let err = PlantModel::parse(&text, "p.toml").expect_err("unknown key").to_string();
+        assert!(err.contains("growth_per_day"), "{err}");
     }
 
     #[test]

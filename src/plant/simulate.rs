@@ -114,6 +114,7 @@ pub fn run_into(
             s.f_hz,
         ];
         sink(&row).map_err(RunError::Sink)?;
+        plant.wear(model);
         plant.advance(dt, f_set, load);
         if k % report_every == 0 {
             progress(k as f64 / n as f64);
@@ -156,5 +157,35 @@ impl SensorNoise {
 
     pub fn load(&mut self) -> f64 {
         Self::draw(&mut self.rng, self.load)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_leak_that_grows_slows_the_motor_as_the_worn_model_does() {
+        // A constant setpoint and load: the motor's speed is the pump's flow less the leak, over its displacement.
+        let text = format!(
+            "{}\n[effects.internal_leakage]\nl_min_per_bar = 0.0\n\n[wear.internal_leakage]\ngrowth_per_hour = 3600.0\n",
+            crate::plant::model::REFERENCE_TOML
+        );
+        let mut worn = PlantModel::parse(&text, "worn.toml").expect("parses");
+        worn.sensors.sample_ms = 1.0;
+        let inputs = Inputs { setpoint_hz: &|_| 40.0, load_nm: &|_| 10.0 };
+        let final_speed = |m: &PlantModel| -> f64 {
+            let rec = run(m, 20.0, 1, &inputs, &mut |_| {}).expect("runs");
+            let w = rec.column("true_omega_rad_s").expect("truth");
+            w[w.len() - 500..].iter().sum::<f64>() / 500.0
+        };
+        // 3600 l/min/bar an hour is 0.001 per second: 0.02 after 20 s, as much again as the nominal leakage.
+        let mut at_end = worn.at(20.0);
+        at_end.wear = Default::default();
+        let mut clean = worn.at(0.0);
+        clean.wear = Default::default();
+        let (w_worn, w_end, w_clean) = (final_speed(&worn), final_speed(&at_end), final_speed(&clean));
+        assert!(w_clean - w_end > 2.0, "the leak must show: clean {w_clean:.2}, worn model {w_end:.2}");
+        assert!((w_worn - w_end).abs() < 0.05 * (w_clean - w_end), "worn {w_worn:.2} vs {w_end:.2}");
     }
 }
