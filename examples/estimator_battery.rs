@@ -4,7 +4,8 @@
 //! `cargo run --release --example estimator_battery -- [set=tuned|held-out] [runs=N] [seconds=S] [polls=1,5,10]`
 //! `[families=brake,sine] [seed=K]`
 //! Tuned seeds are 1…N, held-out seeds 1001…1000+N (never used while tuning), `set=fresh` seeds 5001…5000+N (never
-//! looked at before their figures went into docs/estimator.md). `kalman-jump=0` runs the reference
+//! looked at before their figures went into docs/estimator.md), `set=unseen` seeds 7001…7000+N (first run once, for the
+//! figures of the pooled B). `kalman-jump=0` runs the reference
 //! Kalman filter without its jump test (the filter before it).
 
 use hydrolens::estimator::EstimatorSettings;
@@ -33,6 +34,7 @@ fn main() {
     let first = match set.as_str() {
         "held-out" => 1001,
         "fresh" => 5001,
+        "unseen" => 7001,
         _ => 1,
     };
     let scenarios: Vec<Scenario> = (0..runs)

@@ -21,7 +21,10 @@
 //!   re-learn. J and B forget only along what a window excites (no wind-up); P stays symmetric positive definite
 //!   and never wider than the prior; θ is projected into the physical bounds, and a clamped parameter gets its
 //!   prior uncertainty back (never silently at a bound). P is the parameter covariance (residuals are weighed by
-//!   the speed noise), so `inertia_sd_kg_m2` and `viscous_sd_nm_s_rad` are standard deviations.
+//!   the speed noise), so `inertia_sd_kg_m2` is a standard deviation.
+//! - B (reported, and used by the load tracker) is the same windows' B pooled as a random-effects mean
+//!   ([`ViscousPool`]): under a smooth load the windows' B scatter far beyond what each claims, and the pool's
+//!   `viscous_sd_nm_s_rad` says so instead of trusting whichever windows came first.
 
 use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
 
@@ -147,6 +150,97 @@ pub(crate) enum Verdict {
     Rejected,
 }
 
+/// Informative windows pooled for B.
+const POOL: usize = 40;
+
+/// B from the windows as a random-effects mean (DerSimonian–Laird), robust (Huber). A window's B is biased by
+/// whatever part of the load its nuisance did not follow (a sine's curvature over a setpoint change), differently
+/// in each window; so the windows are pooled as studies of one B, each with its own variance plus a between-window
+/// variance τ² learnt from their scatter. Consistent windows (brake steps) give a tight B; scattered ones (sine
+/// loads) give their plain average with a standard deviation as wide as the scatter says, never the confident
+/// answer of whichever windows came first. The prior (the model's B) is one more, fixed, study; old windows leave
+/// the pool, so a wrong B recovers.
+#[derive(Debug, Clone)]
+struct ViscousPool {
+    prior: (f64, f64),
+    windows: [(f64, f64); POOL],
+    len: usize,
+    next: usize,
+    bounds: [f64; 2],
+    /// B and its variance.
+    estimate: (f64, f64),
+}
+
+impl ViscousPool {
+    fn new(b: f64, var: f64, bounds: [f64; 2]) -> ViscousPool {
+        ViscousPool { prior: (b, var), windows: [(0.0, 0.0); POOL], len: 0, next: 0, bounds, estimate: (b, var) }
+    }
+
+    fn add(&mut self, b: f64, var: f64) {
+        if !(b.is_finite() && var.is_finite() && var > 0.0) {
+            return;
+        }
+        self.windows[self.next] = (b, var);
+        self.next = (self.next + 1) % POOL;
+        self.len = (self.len + 1).min(POOL);
+        self.estimate = self.pool();
+    }
+
+    fn pool(&self) -> (f64, f64) {
+        let w = &self.windows[..self.len];
+        let (pb, pv) = self.prior;
+        // Start from the windows' median (weighed by their claims), so a wild window cannot pull the start.
+        let mut order: [(f64, f64); POOL] = [(0.0, 0.0); POOL];
+        order[..w.len()].copy_from_slice(w);
+        let order = &mut order[..w.len()];
+        order.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let total: f64 = order.iter().map(|&(_, v)| 1.0 / v).sum();
+        let mut acc = 0.0;
+        let mut m = order
+            .iter()
+            .find(|&&(_, v)| {
+                acc += 1.0 / v;
+                acc >= 0.5 * total
+            })
+            .map_or(pb, |&(x, _)| x);
+        // Then a random-effects mean, iteratively reweighted: Huber weights h from each window's distance to the
+        // mean in units of its variance plus the between-window variance τ² (DerSimonian–Laird over the weighted
+        // windows), and the prior as one more study.
+        let mut tau2 = 0.0;
+        let mut info = 1.0 / pv;
+        for _ in 0..6 {
+            let h = |x: f64, v: f64, t2: f64| {
+                let z = (x - m).abs() / (v + t2).sqrt();
+                if z > HUBER_Z { HUBER_Z / z } else { 1.0 }
+            };
+            let (mut sw, mut swx, mut sw2, mut sh) = (0.0, 0.0, 0.0, 0.0);
+            for &(x, v) in w {
+                let hw = h(x, v, tau2) / v;
+                sw += hw;
+                swx += hw * x;
+                sw2 += hw * hw;
+                sh += h(x, v, tau2);
+            }
+            if sw > 0.0 && sh > 1.0 {
+                let fixed = swx / sw;
+                let q: f64 = w.iter().map(|&(x, v)| h(x, v, tau2) * (x - fixed).powi(2) / v).sum();
+                tau2 = ((q - (sh - 1.0)) / (sw - sw2 / sw)).max(0.0);
+            }
+            let (mut a, mut b) = (1.0 / pv, pb / pv);
+            info = 1.0 / pv;
+            for &(x, v) in w {
+                let hw = h(x, v, tau2) / (v + tau2);
+                a += hw;
+                b += hw * x;
+                info += hw;
+            }
+            m = b / a;
+        }
+        let [lo, hi] = self.bounds;
+        if m < lo || m > hi { (m.clamp(lo, hi), pv) } else { (m, 1.0 / info) }
+    }
+}
+
 /// The robust RLS on windows. θ = [J₀/J, (B/J)·J₀/B₀]; P its covariance.
 #[derive(Debug, Clone)]
 pub(crate) struct WindowRls {
@@ -165,6 +259,7 @@ pub(crate) struct WindowRls {
     overdispersion: Vector2<f64>,
     /// Windows learnt from, rejected, and with a step found: for diagnostics.
     pub counts: [u64; 4],
+    viscous: ViscousPool,
     s: Resolved,
 }
 
@@ -189,6 +284,11 @@ impl WindowRls {
             last_window: [None, None],
             overdispersion: Vector2::new(1.0, 1.0),
             counts: [0; 4],
+            viscous: ViscousPool::new(
+                s.initial_viscous_nm_s_rad,
+                (s.viscous_prior_sd * s.initial_viscous_nm_s_rad.max(b0)).powi(2),
+                s.viscous_bounds_nm_s_rad,
+            ),
             s,
         }
     }
@@ -198,16 +298,14 @@ impl WindowRls {
     }
 
     fn viscous_nm_s_rad(&self) -> f64 {
-        self.theta[1] * self.b0 / self.theta[0]
+        self.viscous.estimate.0
     }
 
-    /// Standard deviations of J and B from P (first-order propagation).
+    /// Standard deviations of J (from P, first-order propagation) and of B (from the pool).
     fn standard_deviations(&self) -> (f64, f64) {
-        let (t0, t1) = (self.theta[0], self.theta[1]);
+        let t0 = self.theta[0];
         let gj = Vector2::new(-self.j0 / (t0 * t0), 0.0);
-        let gb = Vector2::new(-t1 * self.b0 / (t0 * t0), self.b0 / t0);
-        let sd = |g: Vector2<f64>| g.dot(&(self.p * g)).max(0.0).sqrt();
-        (sd(gj), sd(gb))
+        (gj.dot(&(self.p * gj)).max(0.0).sqrt(), self.viscous.estimate.1.sqrt())
     }
 
     /// Fits one window (rows in `w`) and learns from it.
@@ -359,6 +457,24 @@ impl WindowRls {
             // Each sample lies in two windows (the staggered sequences): each counts half.
             self.absorb(x_theta, info / variance * 0.5, sequence, informative)
         };
+        if !misfit && !impossible && moved > SPEED_MOVED_GLR {
+            // The window's own B and its variance (each window counts half, as above).
+            let full = model;
+            let fit = full.solve(&a_m, &b_m, yy).and_then(|(x, r)| Some((full.theta(&a_m, &x)?, r)));
+            if let Some(((x_b, info_b), rss_b)) = fit
+                && let Some(c) = (info_b / sigma2.max(rss_b / (n - full.parameters()) as f64) * 0.5).try_inverse()
+            {
+                let (t0, t1) = (x_b[0], x_b[1]);
+                let g = Vector2::new(-t1 * self.b0 / (t0 * t0), self.b0 / t0);
+                let (b_w, var_w) = (t1 * self.b0 / t0, g.dot(&(c * g)));
+                // A window whose B lies far outside anything physical had a load its nuisance could not follow.
+                let [blo, bhi] = self.s.viscous_bounds_nm_s_rad;
+                let sd_w = var_w.max(0.0).sqrt();
+                if (blo - 3.0 * sd_w..=bhi + 3.0 * sd_w).contains(&b_w) {
+                    self.viscous.add(b_w, var_w);
+                }
+            }
+        }
         match verdict {
             Verdict::Accepted => self.counts[0] += 1,
             Verdict::Misfit => self.counts[1] += 1,
@@ -643,6 +759,29 @@ mod tests {
         assert!(condition(bad, 100.0, 1e-10, 10.0).cholesky().is_some());
         let nan = nalgebra::Matrix3::from_element(f64::NAN);
         assert!(condition(nan, 100.0, 1e-10, 10.0).iter().all(|v| v.is_finite()));
+    }
+
+    /// Windows that agree give a B as tight as their own claims; windows that each claim ±0.002 but scatter by
+    /// ±0.05 (a load their nuisance did not follow) give their average with a standard deviation as wide as the
+    /// scatter says; the prior alone is the prior; a pool full of new windows forgets a wrong start.
+    #[test]
+    fn the_viscous_pool_is_as_sure_as_the_windows_agree() {
+        let mut agree = ViscousPool::new(0.12, 0.01, [0.0, 0.5]);
+        assert_eq!(agree.estimate, (0.12, 0.01));
+        for i in 0..20 {
+            agree.add(0.04 + 0.002 * if i % 2 == 0 { 1.0 } else { -1.0 }, 0.002f64.powi(2));
+        }
+        let (b, var) = agree.estimate;
+        assert!((b - 0.04).abs() < 1e-3 && var.sqrt() < 1e-3, "{b} ± {}", var.sqrt());
+        let mut scatter = ViscousPool::new(0.12, 0.01, [0.0, 0.5]);
+        let biases = [0.05, -0.04, 0.03, -0.06, 0.02, -0.03, 0.06, -0.05, 0.04, -0.02];
+        for bias in biases.iter().chain(biases.iter()) {
+            scatter.add(0.04 + bias, 0.002f64.powi(2));
+        }
+        let (b, var) = scatter.estimate;
+        let sd = var.sqrt();
+        assert!((b - 0.04).abs() < 2.0 * sd, "{b} ± {sd}");
+        assert!(sd > 0.005, "the scatter (±0.05 over 20 windows) says about ±0.01, got ±{sd}");
     }
 
     /// A noise-free plant with a constant load and J, B held (a prior of no spread): the corrected, normalised
