@@ -33,7 +33,11 @@ pub const KEEP_CHECKS: usize = 500;
 /// One check: when it ran (service time, s), on how much data, and what the analysis said.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Check {
+    /// The service time (s since the service started) of the window's last sample. It starts again at 0 when the
+    /// service restarts; `unix_s` orders checks across restarts.
     pub t_s: f64,
+    /// The span of data the check analysed (s): `window_s` of the config, less while the service has not yet
+    /// collected a whole window.
     pub window_s: f64,
     /// The analysis JSON's `findings`, `baseline` and `improved`, as the analysis wrote them.
     pub findings: serde_json::Value,
@@ -42,6 +46,9 @@ pub struct Check {
     /// Wall time the analysis took (s), for the metrics.
     #[serde(default)]
     pub duration_s: f64,
+    /// Wall-clock time of the check (s since the Unix epoch): the dashboard's time axis across restarts.
+    #[serde(default)]
+    pub unix_s: f64,
 }
 
 impl Check {
@@ -79,6 +86,7 @@ pub fn check(window: &Recording, nominal: &PlantModel, t_s: f64, window_s: f64) 
         baseline: json(&a.baseline),
         improved: json(&a.improved),
         duration_s: started.elapsed().as_secs_f64(),
+        unix_s: std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64()),
     })
 }
 
@@ -120,8 +128,11 @@ pub struct Alarm {
     /// The latest check's value.
     pub value: f64,
     pub limit: f64,
-    /// The check time at which it was raised.
+    /// The check time (service time, [`Check::t_s`]) at which it was raised.
     pub since_s: f64,
+    /// The same instant as wall-clock time (s since the Unix epoch), which survives a restart.
+    #[serde(default)]
+    pub since_unix_s: f64,
 }
 
 /// The checks of one drive and its alarms.
@@ -129,6 +140,8 @@ pub struct Alarm {
 pub struct Monitor {
     limits: Limits,
     checks: std::collections::VecDeque<Check>,
+    /// Beside each check: the effects in alarm once it was counted (derived, so replayed rather than stored).
+    alarmed: std::collections::VecDeque<Vec<String>>,
     alarms: BTreeMap<(String, String), Alarm>,
 }
 
@@ -155,7 +168,14 @@ impl Monitor {
                         self.alarms.remove(&key);
                     }
                     (None, Some(v)) if past(v) => {
-                        let a = Alarm { effect: key.0.clone(), parameter: key.1.clone(), value: v, limit, since_s: check.t_s };
+                        let a = Alarm {
+                            effect: key.0.clone(),
+                            parameter: key.1.clone(),
+                            value: v,
+                            limit,
+                            since_s: check.t_s,
+                            since_unix_s: check.unix_s,
+                        };
                         self.alarms.insert(key, a);
                     }
                     (None, _) => {}
@@ -163,8 +183,12 @@ impl Monitor {
             }
         }
         self.checks.push_back(check);
+        let mut alarmed: Vec<String> = self.alarms.keys().map(|(effect, _)| effect.clone()).collect();
+        alarmed.dedup();
+        self.alarmed.push_back(alarmed);
         while self.checks.len() > KEEP_CHECKS {
             self.checks.pop_front();
+            self.alarmed.pop_front();
         }
     }
 
@@ -185,12 +209,27 @@ impl Monitor {
         &self.limits
     }
 
-    /// The condition JSON of `GET /api/drives/{name}/condition`.
+    /// The condition JSON of `GET /api/drives/{name}/condition`: the contract's `drive`, `checks` (oldest first)
+    /// and `alarms`; beyond it, each check's `alarms` (the effects in alarm after it, for the dashboard's marks)
+    /// and the `limits`.
     pub fn to_json(&self, drive: &str) -> serde_json::Value {
+        let checks: Vec<serde_json::Value> = self
+            .checks
+            .iter()
+            .zip(&self.alarmed)
+            .map(|(c, alarmed)| {
+                let mut v = serde_json::to_value(c).unwrap_or(serde_json::Value::Null);
+                if let Some(o) = v.as_object_mut() {
+                    o.insert("alarms".into(), serde_json::json!(alarmed));
+                }
+                v
+            })
+            .collect();
         serde_json::json!({
             "drive": drive,
-            "checks": self.checks.iter().collect::<Vec<_>>(),
+            "checks": checks,
             "alarms": self.alarms(),
+            "limits": self.limits,
         })
     }
 }
@@ -241,7 +280,9 @@ impl Store {
                         checks.pop_front();
                     }
                 }
-                Err(e) => tracing::warn!(file = %self.path.display(), line = i + 1, error = %e, "condition history: line skipped"),
+                Err(e) => {
+                    tracing::warn!(file = %self.path.display(), line = i + 1, error = %e, "condition history: line skipped")
+                }
             }
         }
         Ok(checks.into())
@@ -264,6 +305,7 @@ mod tests {
             baseline: serde_json::Value::Null,
             improved: serde_json::Value::Null,
             duration_s: 0.0,
+            unix_s: 1.7e9 + t_s,
         }
     }
 
@@ -288,12 +330,20 @@ mod tests {
         assert_eq!((held[0].since_s, held[0].value), (180.0, 0.019));
         assert!(alarms_after(300.0, Some(0.017)).is_empty(), "0.017 is back inside by more than 10 %");
         assert_eq!(m.checks().count(), 5);
+        let json = m.to_json("pump1");
+        let marks: Vec<usize> = json["checks"]
+            .as_array()
+            .expect("checks")
+            .iter()
+            .map(|c| c["alarms"].as_array().map_or(9, Vec::len))
+            .collect();
+        assert_eq!(marks, [0, 0, 1, 1, 0], "each check says which effects were in alarm after it");
+        assert_eq!(json["checks"][0]["t_s"], 60.0, "oldest first");
     }
 
     #[test]
     fn a_bulk_modulus_alarms_below_its_limit() {
-        let limits: Limits =
-            [("entrained_air".to_string(), [("bulk_modulus_bar".to_string(), 8000.0)].into())].into();
+        let limits: Limits = [("entrained_air".to_string(), [("bulk_modulus_bar".to_string(), 8000.0)].into())].into();
         let mut m = Monitor::new(limits);
         let air = |t: f64, k: f64| Check {
             findings: serde_json::json!([{"effect": "entrained_air", "parameters": {"bulk_modulus_bar": k}}]),

@@ -78,3 +78,186 @@ fn a_clean_plant_gives_no_finding_and_no_alarm() {
     }
     assert!(m.alarms().is_empty());
 }
+
+// ---- over real TCP: `sim` (a plant that wears, or a clean one) and the service checking itself ----
+
+use std::time::Duration;
+
+use crate::support::{self, wait_for};
+
+/// Speed mode, and checks of the last `window_s` every `every_s` with a leakage limit of 0.02 l/min/bar.
+fn condition_config(window_s: f64, every_s: f64) -> String {
+    format!(
+        "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 40.0\nmax_hz = 50.0\nramp_hz_per_s = 20.0\n\n\
+         [drives.condition]\nenabled = true\nwindow_s = {window_s:?}\nevery_s = {every_s:?}\n\n\
+         [drives.condition.limits]\ninternal_leakage = {{ l_min_per_bar = 0.02 }}\n"
+    )
+}
+
+/// Moves the drive's target through the demo program, twice as fast (a 15 s cycle, so a short window holds steps
+/// up and down and a ramp), until `stop`.
+async fn move_targets(
+    drive: std::sync::Arc<hydrolens::service::DriveState>,
+    stop: tokio_util::sync::CancellationToken,
+) {
+    let start = std::time::Instant::now();
+    while !stop.is_cancelled() {
+        let t = 2.0 * start.elapsed().as_secs_f64();
+        drive.set_target(hydrolens::service::program::demo_target_rad_s(t, 40.0, drive.max_target_omega_rad_s));
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+async fn condition_json(url: &str, drive: &str) -> (reqwest::StatusCode, serde_json::Value) {
+    let r = reqwest::get(format!("{url}/api/drives/{drive}/condition")).await.expect("GET condition");
+    let status = r.status();
+    (status, r.json().await.expect("json"))
+}
+
+fn leaks(v: &serde_json::Value) -> Vec<Option<f64>> {
+    v["checks"]
+        .as_array()
+        .expect("checks")
+        .iter()
+        .map(|c| {
+            c["findings"].as_array()?.iter().find(|f| f["effect"] == "internal_leakage")?["parameters"]["l_min_per_bar"]
+                .as_f64()
+        })
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn over_tcp_a_growing_leak_shows_rising_across_checks_and_raises_its_alarm() {
+    let run = async {
+        // 3.6 l/min/bar an hour: 0.001 a second, past the 0.02 limit after 20 s of plant time
+        let stack = support::Stack::start_on(plant(3.6), 5, &condition_config(20.0, 8.0)).await;
+        let stop = tokio_util::sync::CancellationToken::new();
+        tokio::spawn(move_targets(stack.state.drives[0].clone(), stop.clone()));
+        let url = stack.url.clone();
+        let raised = wait_for(Duration::from_secs(55), || async {
+            let (_, v) = condition_json(&url, "pump1").await;
+            v["alarms"].as_array().is_some_and(|a| !a.is_empty())
+        })
+        .await;
+        stop.cancel();
+        let (status, v) = condition_json(&stack.url, "pump1").await;
+        assert_eq!(status, 200);
+        let fitted = leaks(&v);
+        let truth_now = stack.sim.lock().truth();
+        eprintln!(
+            "checks at {:?} s: leak {fitted:?}; alarms {}; plant time {:.1} s",
+            v["checks"]
+                .as_array()
+                .expect("checks")
+                .iter()
+                .map(|c| c["t_s"].as_f64().unwrap_or(f64::NAN))
+                .collect::<Vec<_>>(),
+            v["alarms"],
+            truth_now.t_s
+        );
+        assert!(raised.is_some(), "no alarm within 55 s: {v}");
+        assert!(fitted.len() >= 2, "{fitted:?}");
+        let last = fitted.last().copied().flatten().expect("the last check names the leak");
+        let first = fitted.first().copied().flatten().unwrap_or(0.0);
+        assert!(last > first, "the leak rises across checks: {fitted:?}");
+        let a = &v["alarms"][0];
+        assert_eq!((a["effect"].as_str(), a["parameter"].as_str()), (Some("internal_leakage"), Some("l_min_per_bar")));
+        assert!(a["value"].as_f64().expect("value") > 0.02 && a["limit"] == 0.02, "{a}");
+        let since = a["since_s"].as_f64().expect("since_s");
+        assert_eq!(v["checks"].as_array().expect("checks").last().expect("a check")["t_s"].as_f64(), Some(since));
+        // contract shape: every check carries the analysis JSON's parts
+        for c in v["checks"].as_array().expect("checks") {
+            for k in ["t_s", "window_s", "findings", "baseline", "improved"] {
+                assert!(!c[k].is_null(), "check without {k}: {c}");
+            }
+        }
+        let metrics = stack.metrics().await;
+        let alarm = support::metric(&metrics, "hydrolens_condition_alarm{drive=\"pump1\",effect=\"internal_leakage\"}");
+        assert_eq!(alarm, Some(1.0), "{metrics}");
+        let param = support::metric(
+            &metrics,
+            "hydrolens_condition_parameter{drive=\"pump1\",effect=\"internal_leakage\",parameter=\"l_min_per_bar\"}",
+        );
+        assert_eq!(param, Some(last));
+        let took = support::metric(&metrics, "hydrolens_condition_check_duration_seconds{drive=\"pump1\"}");
+        assert!(took.is_some_and(|s| s > 0.0 && s < 5.0), "{took:?}");
+        let (status, _) = condition_json(&stack.url, "pump9").await;
+        assert_eq!(status, 404);
+        assert!(!stack.sim.lock().truth().tripped);
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(75), run).await.expect("bounded");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn over_tcp_a_clean_plant_gives_no_finding_and_no_alarm() {
+    let run = async {
+        let stack = support::Stack::start_on(plant(0.0), 5, &condition_config(20.0, 8.0)).await;
+        let stop = tokio_util::sync::CancellationToken::new();
+        tokio::spawn(move_targets(stack.state.drives[0].clone(), stop.clone()));
+        let url = stack.url.clone();
+        let three = wait_for(Duration::from_secs(45), || async {
+            let (_, v) = condition_json(&url, "pump1").await;
+            v["checks"].as_array().is_some_and(|c| c.len() >= 3)
+        })
+        .await;
+        stop.cancel();
+        let (_, v) = condition_json(&stack.url, "pump1").await;
+        assert!(three.is_some(), "three checks within 45 s: {v}");
+        for c in v["checks"].as_array().expect("checks") {
+            assert_eq!(c["findings"], serde_json::json!([]), "check at {} s: {c}", c["t_s"]);
+        }
+        assert_eq!(v["alarms"], serde_json::json!([]));
+        let metrics = stack.metrics().await;
+        let alarm = support::metric(&metrics, "hydrolens_condition_alarm{drive=\"pump1\",effect=\"internal_leakage\"}");
+        assert_eq!(alarm, Some(0.0), "{metrics}");
+        assert!(!metrics.contains("hydrolens_condition_parameter{"), "no fitted parameter: {metrics}");
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(70), run).await.expect("bounded");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn over_tcp_a_restart_keeps_the_history_and_its_alarms() {
+    let run = async {
+        // a fast leak (0.002 a second) so that the alarm comes within the first checks
+        let stack = support::Stack::start_on(plant(7.2), 5, &condition_config(12.0, 6.0)).await;
+        let stop = tokio_util::sync::CancellationToken::new();
+        tokio::spawn(move_targets(stack.state.drives[0].clone(), stop.clone()));
+        let url = stack.url.clone();
+        let raised = wait_for(Duration::from_secs(45), || async {
+            let (_, v) = condition_json(&url, "pump1").await;
+            v["alarms"].as_array().is_some_and(|a| !a.is_empty())
+        })
+        .await;
+        stop.cancel();
+        let (_, before) = condition_json(&stack.url, "pump1").await;
+        assert!(raised.is_some(), "an alarm to keep: {before}");
+        let dir = stack.stop().await;
+        let lines = std::fs::read_to_string(dir.path().join("pump1.condition.jsonl")).expect("the history file");
+        assert_eq!(lines.lines().count(), before["checks"].as_array().expect("checks").len());
+
+        // the same recordings directory, a new simulator and service; no check is due for 300 s
+        let (_sim, addr, sim_stop, sim_task) = support::start_sim(plant(0.0), 0).await;
+        let text = support::config_text(
+            addr,
+            dir.path(),
+            5,
+            "[drives.condition]\nenabled = true\nevery_s = 300.0\n[drives.condition.limits]\n\
+             internal_leakage = { l_min_per_bar = 0.02 }\n",
+        );
+        let (svc, url, shutdown, http) = support::start_service(&text).await;
+        let (_, after) = condition_json(&url, "pump1").await;
+        assert_eq!(after["checks"], before["checks"], "the checks come back, oldest first");
+        assert_eq!(after["alarms"], before["alarms"], "and the alarms with them");
+        let metrics = reqwest::get(format!("{url}/metrics")).await.expect("GET").text().await.expect("text");
+        let alarm = support::metric(&metrics, "hydrolens_condition_alarm{drive=\"pump1\",effect=\"internal_leakage\"}");
+        assert_eq!(alarm, Some(1.0), "{metrics}");
+        shutdown.cancel();
+        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("service stops");
+        let _ = tokio::time::timeout(Duration::from_secs(10), http).await.expect("http stops");
+        sim_stop.cancel();
+        let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await.expect("simulator stops");
+    };
+    tokio::time::timeout(Duration::from_secs(75), run).await.expect("bounded");
+}
