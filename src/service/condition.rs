@@ -334,8 +334,9 @@ pub fn start(
     Ok(Some(thread))
 }
 
-/// Puts the calling thread at nice [`CONDITION_NICE`] (Linux; elsewhere nothing).
-fn lower_priority() {
+/// Puts the calling thread at nice [`CONDITION_NICE`] (Linux; elsewhere nothing). Raising a nice value needs no
+/// privilege.
+pub fn lower_priority() {
     #[cfg(target_os = "linux")]
     {
         let tid = rustix::thread::gettid();

@@ -261,3 +261,75 @@ async fn over_tcp_a_restart_keeps_the_history_and_its_alarms() {
     };
     tokio::time::timeout(Duration::from_secs(75), run).await.expect("bounded");
 }
+
+/// The dashboard in headless chromium (as tests/it/dashboard.rs) over a service whose history says the leak rose
+/// past its limit: the condition panel draws the trend, marks the checks in alarm and says when the last ran.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_dashboard_draws_the_trend_marks_the_alarm_and_says_when_the_last_check_ran() {
+    use crate::dashboard::{attr_after, run_chromium};
+    let dir = tempfile::tempdir().expect("tmp");
+    // the history as the service writes it: four checks, the leak rising past 0.02 in the last two
+    let store = condition::Store::new(dir.path(), "pump1");
+    for (k, leak) in [None, Some(0.012), Some(0.024), Some(0.031)].into_iter().enumerate() {
+        let findings = match leak {
+            Some(v) => serde_json::json!([{"effect": "internal_leakage", "parameters": {"l_min_per_bar": v}}]),
+            None => serde_json::json!([]),
+        };
+        let t_s = 60.0 * (k + 1) as f64;
+        let c = condition::Check {
+            t_s,
+            window_s: 60.0,
+            findings,
+            baseline: serde_json::json!({}),
+            improved: serde_json::json!({}),
+            duration_s: 0.4,
+            unix_s: 1.79e9 + t_s,
+        };
+        store.append(&c).expect("append");
+    }
+    let (_sim, addr, sim_stop, sim_task) = support::start_sim(plant(0.0), 0).await;
+    let text = support::config_text(
+        addr,
+        dir.path(),
+        10,
+        "[drives.condition]\nenabled = true\nevery_s = 300.0\n[drives.condition.limits]\n\
+         internal_leakage = { l_min_per_bar = 0.02 }\ndead_time = { ms = 50.0 }\n",
+    );
+    let (svc, url, shutdown, http) = support::start_service(&text).await;
+    let page = format!("{url}/?close_after=5");
+    let dom = tokio::task::spawn_blocking(move || {
+        run_chromium(&page, &["--virtual-time-budget=5000", "--dump-dom"], Duration::from_secs(60))
+    })
+    .await
+    .expect("joins");
+    let panel = "class=\"condition-panel\" data-drive=\"pump1\"";
+    assert!(dom.contains(panel), "a condition panel for pump1: {dom:.3000}");
+    assert_eq!(attr_after(&dom, panel, "data-checks"), Some("4"));
+    assert_eq!(attr_after(&dom, panel, "data-alarms"), Some("1"));
+    assert_eq!(attr_after(&dom, "class=\"last-check\"", "data-t-s"), Some("240"));
+    assert!(dom.contains("ALARM internal_leakage: l_min_per_bar = 0.03100 (limit 0.02000)"), "{dom:.3000}");
+    let leak = "data-parameter=\"internal_leakage.l_min_per_bar\"";
+    assert_eq!(attr_after(&dom, leak, "data-points"), Some("3"), "three checks named the leak");
+    assert_eq!(attr_after(&dom, leak, "data-alarm-marks"), Some("2"), "two checks left it in alarm");
+    let dead = "data-parameter=\"dead_time.ms\"";
+    assert_eq!(attr_after(&dom, dead, "data-points"), Some("0"), "a limited effect no check named: an empty trend");
+    assert_eq!(attr_after(&dom, dead, "data-alarm-marks"), Some("0"));
+    // HYDROLENS_CONDITION_SCREENSHOT=panel.png keeps a picture of the page
+    if let Ok(keep) = std::env::var("HYDROLENS_CONDITION_SCREENSHOT") {
+        let (page, arg) = (format!("{url}/?close_after=5"), format!("--screenshot={keep}"));
+        tokio::task::spawn_blocking(move || {
+            run_chromium(
+                &page,
+                &["--virtual-time-budget=5000", "--window-size=1280,1400", &arg],
+                Duration::from_secs(60),
+            )
+        })
+        .await
+        .expect("joins");
+    }
+    shutdown.cancel();
+    tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("service stops");
+    let _ = tokio::time::timeout(Duration::from_secs(10), http).await.expect("http stops");
+    sim_stop.cancel();
+    let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await.expect("simulator stops");
+}
