@@ -262,14 +262,21 @@ impl Store {
     /// (a cut last line after a crash, say) is skipped with a warning naming it: the history is advice, not a
     /// contract, and one bad line must not cost the rest.
     pub fn load(&self) -> std::io::Result<Vec<Check>> {
+        self.load_counting().map(|(checks, _)| checks)
+    }
+
+    /// As [`Store::load`], and how many lines the file holds (to know when to [`Store::rewrite`] it).
+    pub fn load_counting(&self) -> std::io::Result<(Vec<Check>, usize)> {
         let file = match std::fs::File::open(&self.path) {
             Ok(f) => f,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok((Vec::new(), 0)),
             Err(e) => return Err(e),
         };
         let mut checks = std::collections::VecDeque::new();
+        let mut lines = 0;
         for (i, line) in std::io::BufReader::new(file).lines().enumerate() {
             let line = line?;
+            lines = i + 1;
             if line.trim().is_empty() {
                 continue;
             }
@@ -285,7 +292,20 @@ impl Store {
                 }
             }
         }
-        Ok(checks.into())
+        Ok((checks.into(), lines))
+    }
+
+    /// Replaces the file with `checks` (written beside it, then renamed over it), so that it stays bounded: the
+    /// service rewrites it with the checks it keeps once it holds twice as many lines.
+    pub fn rewrite<'a>(&self, checks: impl Iterator<Item = &'a Check>) -> std::io::Result<()> {
+        let tmp = self.path.with_extension("jsonl.tmp");
+        let mut out = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+        for c in checks {
+            serde_json::to_writer(&mut out, c).map_err(std::io::Error::other)?;
+            out.write_all(b"\n")?;
+        }
+        out.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        std::fs::rename(&tmp, &self.path)
     }
 }
 
@@ -373,8 +393,13 @@ mod tests {
             .open(store.path())
             .and_then(|mut f| f.write_all(b"{\"t_s\": 180.0, \"wind"))
             .expect("cut line");
+        let (back, lines) = store.load_counting().expect("loads");
+        assert_eq!(back, vec![a.clone(), b.clone()]);
+        assert_eq!(lines, 3, "the cut line counts");
+        store.rewrite(back.iter().skip(1)).expect("rewrite");
+        assert_eq!(store.load_counting().expect("loads"), (vec![b], 1), "rewritten with what was given");
+        store.rewrite([a.clone(), check_with(120.0, Some(0.03))].iter()).expect("rewrite");
         let back = store.load().expect("loads");
-        assert_eq!(back, vec![a, b]);
         // Replaying the history gives the alarms back.
         let mut m = Monitor::new(leak_limit(0.02));
         back.into_iter().for_each(|c| m.push(c));

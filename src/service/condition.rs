@@ -186,6 +186,11 @@ impl ConditionMetrics {
 
     /// Sets the gauges from a drive's monitor after its last check.
     fn update(&self, drive: &str, monitor: &Monitor) {
+        let alarms = monitor.alarms();
+        for effect in monitor.limits().keys() {
+            let on = alarms.iter().any(|a| &a.effect == effect);
+            self.alarm.get_or_create(&EffectLabels { drive: drive.into(), effect: effect.clone() }).set(i64::from(on));
+        }
         let Some(last) = monitor.last() else { return };
         let fitted = last.parameters();
         // drop the series of effects the last check no longer names
@@ -203,11 +208,6 @@ impl ConditionMetrics {
         for (effect, parameter, value) in fitted {
             self.parameter.get_or_create(&ParameterLabels { drive: drive.into(), effect, parameter }).set(value);
         }
-        let alarms = monitor.alarms();
-        for effect in monitor.limits().keys() {
-            let on = alarms.iter().any(|a| &a.effect == effect);
-            self.alarm.get_or_create(&EffectLabels { drive: drive.into(), effect: effect.clone() }).set(i64::from(on));
-        }
         self.duration.get_or_create(&DriveLabel { drive: drive.into() }).set(last.duration_s);
     }
 }
@@ -219,14 +219,20 @@ pub struct Job {
     pub settings: ConditionSettings,
     /// None when recording is off: the history is then kept in memory only.
     pub store: Option<Store>,
+    /// Lines in the store's file: past `2 × KEEP_CHECKS` it is rewritten with the checks kept.
+    pub stored_lines: usize,
 }
 
 impl Job {
     /// Loads the drive's history from its store (the alarms replayed) and sets the metrics from it.
-    fn restore(&self, metrics: &ConditionMetrics) {
-        let Some(store) = &self.store else { return };
-        match store.load() {
-            Ok(checks) => {
+    fn restore(&mut self, metrics: &ConditionMetrics) {
+        let Some(store) = &self.store else {
+            metrics.update(&self.drive.name, &self.condition.monitor());
+            return;
+        };
+        match store.load_counting() {
+            Ok((checks, lines)) => {
+                self.stored_lines = lines;
                 let n = checks.len();
                 let mut m = self.condition.monitor();
                 checks.into_iter().for_each(|c| m.push(c));
@@ -242,7 +248,7 @@ impl Job {
     }
 
     /// Runs one check on the ring's last window; false when the ring does not hold enough data yet.
-    fn run(&self, metrics: &ConditionMetrics) -> bool {
+    fn run(&mut self, metrics: &ConditionMetrics) -> bool {
         let window_s = self.settings.window.as_secs_f64();
         let points = self.drive.history(window_s, (window_s * MAX_CHECK_HZ).ceil() as usize);
         let (Some(first), Some(last)) = (points.first().copied(), points.last().copied()) else { return false };
@@ -263,11 +269,12 @@ impl Job {
         let drive_label = DriveLabel { drive: self.drive.name.clone() };
         match condition::check(&rec, &self.settings.model, last.t_s, span) {
             Ok(c) => {
-                if let Some(store) = &self.store
-                    && let Err(e) = store.append(&c)
-                {
-                    tracing::warn!(drive = %self.drive.name, file = %store.path().display(), error = %e,
-                        "cannot append to the condition history");
+                if let Some(store) = &self.store {
+                    match store.append(&c) {
+                        Ok(()) => self.stored_lines += 1,
+                        Err(e) => tracing::warn!(drive = %self.drive.name, file = %store.path().display(),
+                            error = %e, "cannot append to the condition history"),
+                    }
                 }
                 let named: Vec<String> = c.parameters().iter().map(|(e, p, v)| format!("{e}.{p}={v:.4}")).collect();
                 tracing::info!(drive = %self.drive.name, t_s = c.t_s, window_s = span, duration_s = c.duration_s,
@@ -280,6 +287,15 @@ impl Job {
                 }
                 metrics.update(&self.drive.name, &m);
                 metrics.checks.get_or_create(&drive_label).inc();
+                if let Some(store) = &self.store
+                    && self.stored_lines > 2 * condition::KEEP_CHECKS
+                {
+                    match store.rewrite(m.checks()) {
+                        Ok(()) => self.stored_lines = m.checks().count(),
+                        Err(e) => tracing::warn!(drive = %self.drive.name, file = %store.path().display(),
+                            error = %e, "cannot rewrite the condition history"),
+                    }
+                }
             }
             Err(e) => {
                 tracing::warn!(drive = %self.drive.name, error = %e, "condition check failed");
@@ -304,7 +320,8 @@ pub fn start(
     metrics: ConditionMetrics,
     shutdown: CancellationToken,
 ) -> std::io::Result<Option<std::thread::JoinHandle<()>>> {
-    for j in &jobs {
+    let mut jobs = jobs;
+    for j in &mut jobs {
         j.restore(&metrics);
     }
     let mut jobs: Vec<(Job, Instant)> = jobs

@@ -79,6 +79,7 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
                 condition: cond.clone(),
                 settings: d.condition.clone(),
                 store: condition::store_for(settings.recording.dir.as_deref(), &d.name),
+                stored_lines: 0,
             });
         }
         conditions.push(cond);
