@@ -316,19 +316,20 @@ pub fn store_for(dir: Option<&Path>, drive: &str) -> Option<Store> {
 /// `every_s` after the start, then every `every_s`; a check that finds less than half a window of data is tried
 /// again a tenth of `every_s` later. The thread ends when `shutdown` is cancelled (after the check running then).
 pub fn start(
-    jobs: Vec<Job>,
+    mut jobs: Vec<Job>,
     metrics: ConditionMetrics,
     shutdown: CancellationToken,
 ) -> std::io::Result<Option<std::thread::JoinHandle<()>>> {
-    let mut jobs = jobs;
     for j in &mut jobs {
         j.restore(&metrics);
     }
     let mut jobs: Vec<(Job, Instant)> = jobs
         .into_iter()
         .filter(|j| j.settings.enabled)
-        .map(|j| (j.settings.every, j))
-        .map(|(e, j)| (j, Instant::now() + e))
+        .map(|j| {
+            let due = Instant::now() + j.settings.every;
+            (j, due)
+        })
         .collect();
     if jobs.is_empty() {
         return Ok(None);
