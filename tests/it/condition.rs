@@ -333,3 +333,77 @@ async fn the_dashboard_draws_the_trend_marks_the_alarm_and_says_when_the_last_ch
     sim_stop.cancel();
     let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await.expect("simulator stops");
 }
+
+/// `hydrolens serve` with a mistyped `[drives.condition]`: exit 2, the message names the file and the key.
+#[test]
+fn a_mistyped_condition_config_exits_2_naming_the_key() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let base = support::config_text("127.0.0.1:1".parse().expect("addr"), dir.path(), 10, "");
+    let cases = [
+        ("unknown.toml", "[drives.condition]\nenabled = true\nevery_minutes = 5\n", "every_minutes"),
+        ("window.toml", "[drives.condition]\nenabled = true\nwindow_s = 0.0\n", "drives[0].condition.window_s"),
+        (
+            "effect.toml",
+            "[drives.condition.limits]\nleakage = { l_min_per_bar = 0.02 }\n",
+            "drives[0].condition.limits.leakage",
+        ),
+        ("model.toml", "[drives.condition]\nmodel = \"no/such/plant.toml\"\n", "drives[0].condition.model"),
+    ];
+    for (name, extra, needle) in cases {
+        let path = dir.path().join(name);
+        std::fs::write(&path, format!("{base}{extra}")).expect("write");
+        let mut child = std::process::Command::new(support::bin())
+            .args(["serve", "--config"])
+            .arg(&path)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("serve starts");
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        let code = loop {
+            if let Some(status) = child.try_wait().expect("wait") {
+                break status.code();
+            }
+            if std::time::Instant::now() > deadline {
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!("{name}: serve accepted the config and kept running");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        let mut err = String::new();
+        std::io::Read::read_to_string(&mut child.stderr.take().expect("stderr"), &mut err).expect("stderr");
+        assert_eq!(code, Some(2), "{name}: {err}");
+        assert!(err.contains(needle) && err.contains(name), "{name}: {err}");
+    }
+}
+
+/// The contract's sizes over TCP: checks of the last 120 s every 60 s, a leak growing by 0.6 l/min/bar an hour
+/// (config/plant_wearing.toml's), the alarm within 6 minutes. Several minutes: `cargo test --test it -- --ignored
+/// condition::over_tcp_at_the_contracts_sizes`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "about 5 minutes"]
+async fn over_tcp_at_the_contracts_sizes_a_wearing_plant_raises_its_alarm() {
+    let run = async {
+        let stack = support::Stack::start_on(plant(0.6), 5, &condition_config(120.0, 60.0)).await;
+        let stop = tokio_util::sync::CancellationToken::new();
+        tokio::spawn(move_targets(stack.state.drives[0].clone(), stop.clone()));
+        let url = stack.url.clone();
+        let raised = wait_for(Duration::from_secs(360), || async {
+            tokio::time::sleep(Duration::from_secs(1)).await;
+            let (_, v) = condition_json(&url, "pump1").await;
+            v["alarms"].as_array().is_some_and(|a| !a.is_empty())
+        })
+        .await;
+        stop.cancel();
+        let (_, v) = condition_json(&stack.url, "pump1").await;
+        let fitted = leaks(&v);
+        let at: Vec<f64> = v["checks"].as_array().expect("checks").iter().filter_map(|c| c["t_s"].as_f64()).collect();
+        eprintln!("checks at {at:.0?} s: leak {fitted:?}; alarms {}", v["alarms"]);
+        assert!(raised.is_some(), "no alarm within 6 minutes: {fitted:?}");
+        let last = fitted.last().copied().flatten().expect("the last check names the leak");
+        assert!(last > fitted.first().copied().flatten().unwrap_or(0.0), "rising: {fitted:?}");
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(420), run).await.expect("bounded");
+}
