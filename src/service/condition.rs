@@ -221,6 +221,9 @@ pub struct Job {
     pub store: Option<Store>,
     /// Lines in the store's file: past `2 × KEEP_CHECKS` it is rewritten with the checks kept.
     pub stored_lines: usize,
+    /// The service time of the last sample this run's last check saw: a drive whose link is down brings no new
+    /// data, and the same window is not checked twice.
+    pub checked_up_to_s: Option<f64>,
 }
 
 impl Job {
@@ -253,6 +256,10 @@ impl Job {
         let points = self.drive.history(window_s, (window_s * MAX_CHECK_HZ).ceil() as usize);
         let (Some(first), Some(last)) = (points.first().copied(), points.last().copied()) else { return false };
         let span = last.t_s - first.t_s;
+        if self.checked_up_to_s.is_some_and(|t| last.t_s <= t) {
+            tracing::debug!(drive = %self.drive.name, "no new data since the last condition check");
+            return true;
+        }
         if span < MIN_WINDOW_FRACTION * window_s {
             tracing::debug!(drive = %self.drive.name, span_s = span, "condition check waits for more data");
             return false;
@@ -267,6 +274,7 @@ impl Job {
         let rec = Recording::from_columns(&source, COLUMNS.iter().map(|s| s.to_string()).collect(), cols);
         drop(points);
         let drive_label = DriveLabel { drive: self.drive.name.clone() };
+        self.checked_up_to_s = Some(last.t_s);
         match condition::check(&rec, &self.settings.model, last.t_s, span) {
             Ok(c) => {
                 if let Some(store) = &self.store {

@@ -80,6 +80,7 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
                 settings: d.condition.clone(),
                 store: condition::store_for(settings.recording.dir.as_deref(), &d.name),
                 stored_lines: 0,
+                checked_up_to_s: None,
             });
         }
         conditions.push(cond);

@@ -407,3 +407,32 @@ async fn over_tcp_at_the_contracts_sizes_a_wearing_plant_raises_its_alarm() {
     };
     tokio::time::timeout(Duration::from_secs(420), run).await.expect("bounded");
 }
+
+/// A drive whose simulator has gone brings no new data: no check runs again on the window already checked.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn over_tcp_a_drive_without_new_data_is_not_checked_again() {
+    let run = async {
+        let stack = support::Stack::start_on(plant(0.0), 5, &condition_config(6.0, 3.0)).await;
+        let stop = tokio_util::sync::CancellationToken::new();
+        tokio::spawn(move_targets(stack.state.drives[0].clone(), stop.clone()));
+        let url = stack.url.clone();
+        let checked = wait_for(Duration::from_secs(30), || async {
+            let (_, v) = condition_json(&url, "pump1").await;
+            v["checks"].as_array().is_some_and(|c| !c.is_empty())
+        })
+        .await;
+        assert!(checked.is_some(), "a first check within 30 s");
+        stack.sim_stop.cancel(); // the plant goes: the link drops, the ring keeps its old points
+        stop.cancel();
+        tokio::time::sleep(Duration::from_secs(4)).await; // a check running when it went has ended by now
+        let (_, before) = condition_json(&stack.url, "pump1").await;
+        tokio::time::sleep(Duration::from_secs(8)).await; // more than two periods
+        let (_, after) = condition_json(&stack.url, "pump1").await;
+        let n = |v: &serde_json::Value| v["checks"].as_array().map_or(0, Vec::len);
+        assert!(n(&before) >= 1);
+        assert_eq!(n(&after), n(&before), "no check of the same window again: {after}");
+        assert!(!stack.state.drives[0].snapshot().link.connected || stack.state.drives[0].snapshot().link.stale);
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
+}
