@@ -11,13 +11,17 @@
 //! - [`estimator`]: PURE RLS+SGD and Kalman estimators; fed Δt and samples.
 //! - [`replay_file`]: `hydrolens estimate`: a recording file streamed through an estimator into a CSV, two threads.
 //! - [`analysis`]: PURE mismatch analysis (fit, free-run residuals, effect search) + its HTML report at the edge.
+//! - [`condition`]: condition monitoring: the analysis on a drive's recent data, checks kept, alarms with a margin
+//!   against chatter (PURE), and the checks' JSON-lines history at the edge.
 //! - [`control`]: PURE control law (speed PI with load feed-forward, clamp, ramp limit, nothing on stale data).
-//! - [`service`]: the poll loops per drive (modbus → estimator → control → modbus), snapshots, history, recording.
+//! - [`service`]: the poll loops per drive (modbus → estimator → control → modbus), snapshots, history, recording,
+//!   and the low-priority thread that runs each drive's [`condition`] checks on its history.
 //! - [`http`]: the axum router over the service's shared state; never uses [`modbus`].
 //!
 //! `main.rs` wires the commands and is the only place `anyhow` lives.
 
 pub mod analysis;
+pub mod condition;
 pub mod control;
 pub mod error;
 pub mod estimator;

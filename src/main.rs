@@ -104,7 +104,8 @@ enum Command {
         hold: bool,
         /// The plant model the simulator runs (default: the reference plant); the service keeps its nominal
         /// model (the reference plant, as in config/plant.toml), so an effect hidden here is what `analyze` of
-        /// the demo's recording against config/plant.toml should find.
+        /// the demo's recording against config/plant.toml should find, and what the demo's condition checks
+        /// (every 30 s on the last 60 s) name: config/plant_wearing.toml raises a leakage alarm within minutes.
         #[arg(long)]
         plant: Option<PathBuf>,
         #[arg(long, default_value_t = 1)]
@@ -461,6 +462,18 @@ target_omega_rad_s = {target:?}
 min_hz = 0.0
 max_hz = 50.0
 ramp_hz_per_s = 20.0
+
+# the service checks its own data: short so that a newcomer sees checks (and, with a wearing --plant, an alarm)
+# within minutes; a plant in service would check every few minutes
+[drives.condition]
+enabled = true
+window_s = 60.0
+every_s = 30.0
+
+[drives.condition.limits]
+internal_leakage = {{ l_min_per_bar = 0.02 }}
+dead_time = {{ ms = 50.0 }}
+entrained_air = {{ bulk_modulus_bar = 8000.0 }}
 "#,
         recordings = recordings.display().to_string(),
     )

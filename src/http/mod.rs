@@ -21,6 +21,8 @@ use tokio_util::sync::CancellationToken;
 use crate::control::Mode;
 use crate::service::state::{DriveSnapshot, ServiceState};
 
+mod condition;
+
 /// What the handlers share.
 #[derive(Clone)]
 pub struct AppState {
@@ -100,9 +102,10 @@ impl From<QueryRejection> for ApiError {
 }
 
 /// The embedded dashboard: the binary is self-contained (demo, docker).
-const STATIC_FILES: [(&str, &str, &str); 5] = [
+const STATIC_FILES: [(&str, &str, &str); 6] = [
     ("index.html", "text/html; charset=utf-8", include_str!("../../static/index.html")),
     ("app.js", "text/javascript; charset=utf-8", include_str!("../../static/app.js")),
+    ("condition.js", "text/javascript; charset=utf-8", include_str!("../../static/condition.js")),
     ("style.css", "text/css; charset=utf-8", include_str!("../../static/style.css")),
     (
         "vendor/uPlot.iife.min.js",
@@ -118,6 +121,7 @@ pub fn router(state: AppState) -> Router {
     Router::new()
         .route("/", get(|| static_file("index.html")))
         .route("/app.js", get(|| static_file("app.js")))
+        .route("/condition.js", get(|| static_file("condition.js")))
         .route("/style.css", get(|| static_file("style.css")))
         .route("/vendor/{file}", get(|Path(f): Path<String>| static_file_owned(format!("vendor/{f}"))))
         .route("/api/status", get(status))
@@ -125,6 +129,7 @@ pub fn router(state: AppState) -> Router {
         .route("/api/events", get(events))
         .route("/api/drives/{name}/target", post(set_target))
         .route("/api/drives/{name}/reset", post(reset))
+        .route("/api/drives/{name}/condition", get(condition::condition))
         .route("/api/recordings", get(recordings))
         .route("/api/recordings/{file}", get(recording_file))
         .route("/metrics", get(metrics))

@@ -242,3 +242,16 @@ impl Wear {
         e
     }
 }
+
+/// Each effect's parameters under the catalogue's names, its main parameter (the one `[wear]` moves) first.
+pub fn parameter_names(id: &str) -> &'static [&'static str] {
+    match id {
+        "coulomb_friction" | "torque_offset" => &["torque_nm"],
+        "stribeck_friction" => &["breakaway_nm", "speed_rad_s"],
+        "internal_leakage" => &["l_min_per_bar"],
+        "dead_time" => &["ms"],
+        "entrained_air" => &["bulk_modulus_bar"],
+        "motor_slip" => &["rpm_per_nm"],
+        _ => &[],
+    }
+}

@@ -97,6 +97,9 @@ struct RawDrive {
     limits: RawLimits,
     #[serde(default)]
     registers: BTreeMap<String, RawRegister>,
+    /// Condition monitoring (src/service/condition.rs).
+    #[serde(default)]
+    condition: super::condition::RawCondition,
 }
 
 fn one_u8() -> u8 {
@@ -230,6 +233,7 @@ pub struct DriveSettings {
     pub model: PlantModel,
     pub ranges: ValidRanges,
     pub registers: RegisterMap,
+    pub condition: super::condition::ConditionSettings,
 }
 
 impl DriveSettings {
@@ -407,6 +411,7 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
     }
 
     let registers = apply_overrides(d.registers, &key("registers"))?;
+    let condition = super::condition::validate(d.condition, &key("condition"), &model, |p| resolve(p, base))?;
     let settings = DriveSettings {
         name: d.name,
         address: d.address,
@@ -426,6 +431,7 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
         model,
         ranges,
         registers,
+        condition,
     };
     if target > settings.max_target_omega_rad_s() * 1.5 {
         return Err((

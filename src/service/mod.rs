@@ -1,6 +1,7 @@
 //! The monitoring service: one poll loop per drive (modbus → estimator → control → modbus), publishing snapshots,
 //! a history ring, metrics and recordings for the HTTP side.
 
+pub mod condition;
 pub mod config;
 pub mod drive;
 pub mod estimators;
@@ -33,12 +34,20 @@ pub struct Service {
 /// Starts one poll loop per drive, each on a thread of its own (named `poll-<drive>`); they stop when `shutdown`
 /// is cancelled.
 pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Result<Service> {
-    let (metrics, registry) = Metrics::new();
+    let (metrics, mut registry) = Metrics::new();
+    let condition_metrics = condition::ConditionMetrics::register(&mut registry);
     let started = Instant::now();
     let mut drives = Vec::with_capacity(settings.drives.len());
     let mut loops = Vec::with_capacity(settings.drives.len());
+    let mut conditions = Vec::with_capacity(settings.drives.len());
+    let mut condition_jobs = Vec::new();
     for d in &settings.drives {
-        let history_len = (settings.http.history.as_secs_f64() / d.poll.as_secs_f64()).ceil() as usize;
+        // the ring also holds a condition check's window
+        let mut ring_s = settings.http.history.as_secs_f64();
+        if d.condition.enabled {
+            ring_s = ring_s.max(d.condition.window.as_secs_f64());
+        }
+        let history_len = (ring_s / d.poll.as_secs_f64()).ceil() as usize;
         let snapshot = DriveSnapshot {
             name: d.name.clone(),
             mode: d.mode,
@@ -63,11 +72,29 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
         };
         let estimator = estimators::build(&d.estimator, &d.model);
         loops.push(DriveLoop::new(d.clone(), estimator, state.clone(), metrics.clone(), recorder, started));
+        let cond = Arc::new(condition::DriveCondition::new(&d.name, &d.condition));
+        if d.condition.enabled {
+            condition_jobs.push(condition::Job {
+                drive: state.clone(),
+                condition: cond.clone(),
+                settings: d.condition.clone(),
+                store: condition::store_for(settings.recording.dir.as_deref(), &d.name),
+                stored_lines: 0,
+                checked_up_to_s: None,
+            });
+        }
+        conditions.push(cond);
         drives.push(state);
     }
-    let state =
-        Arc::new(ServiceState { drives, metrics, registry, recording_dir: settings.recording.dir.clone(), started });
-    let mut threads = Vec::with_capacity(loops.len());
+    let state = Arc::new(ServiceState {
+        drives,
+        conditions,
+        metrics,
+        registry,
+        recording_dir: settings.recording.dir.clone(),
+        started,
+    });
+    let mut threads = Vec::with_capacity(loops.len() + 1);
     let count = loops.len();
     for (index, mut l) in loops.into_iter().enumerate() {
         l.stagger(index, count);
@@ -83,6 +110,16 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
                 join(threads);
                 return Err(e);
             }
+        }
+    }
+    // the checks' thread after the loops: a failed start stops the loops as above
+    match condition::start(condition_jobs, condition_metrics, shutdown.clone()) {
+        Ok(Some(t)) => threads.push(t),
+        Ok(None) => {}
+        Err(e) => {
+            shutdown.cancel();
+            join(threads);
+            return Err(e);
         }
     }
     Ok(Service { state, threads })

@@ -261,6 +261,8 @@ impl DriveState {
 /// The whole service's shared state.
 pub struct ServiceState {
     pub drives: Vec<Arc<DriveState>>,
+    /// Each drive's condition checks and alarms, in `drives` order.
+    pub conditions: Vec<Arc<super::condition::DriveCondition>>,
     pub metrics: Metrics,
     pub registry: prometheus_client::registry::Registry,
     /// Where recordings are written; None when recording is off.
@@ -271,6 +273,10 @@ pub struct ServiceState {
 impl ServiceState {
     pub fn drive(&self, name: &str) -> Option<&Arc<DriveState>> {
         self.drives.iter().find(|d| d.name == name)
+    }
+
+    pub fn condition(&self, name: &str) -> Option<&Arc<super::condition::DriveCondition>> {
+        self.conditions.iter().find(|c| c.drive == name)
     }
 
     /// Ready when every drive is connected and fresh.

@@ -28,7 +28,7 @@ fn chromium() -> PathBuf {
 }
 
 /// Runs headless chromium with `args` and the URL, killing it after `limit`; returns its stdout.
-fn run_chromium(url: &str, args: &[&str], limit: Duration) -> String {
+pub(crate) fn run_chromium(url: &str, args: &[&str], limit: Duration) -> String {
     let profile = tempfile::tempdir().expect("tmp");
     let out_path = profile.path().join("stdout.txt");
     let out = std::fs::File::create(&out_path).expect("stdout file");
@@ -69,7 +69,7 @@ fn run_chromium(url: &str, args: &[&str], limit: Duration) -> String {
 }
 
 /// The value of the first `attr="..."` after `anchor` in the DOM.
-fn attr_after<'a>(dom: &'a str, anchor: &str, attr: &str) -> Option<&'a str> {
+pub(crate) fn attr_after<'a>(dom: &'a str, anchor: &str, attr: &str) -> Option<&'a str> {
     let at = dom.find(anchor)?;
     let rest = &dom[at..];
     let key = format!("{attr}=\"");

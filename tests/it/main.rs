@@ -2,6 +2,7 @@
 
 mod analysis;
 mod cli_service;
+mod condition;
 mod dashboard;
 mod estimate_stream;
 mod estimator;

@@ -1,0 +1,12 @@
+//! `GET /api/drives/{name}/condition`: a drive's condition checks (oldest first) and alarms.
+
+use axum::extract::{Path, State};
+use axum::response::Response;
+
+use super::{ApiError, AppState, json_response};
+
+pub(super) async fn condition(State(s): State<AppState>, Path(name): Path<String>) -> Result<Response, ApiError> {
+    let c = s.service.condition(&name).ok_or_else(|| ApiError::not_found(format!("no drive {name:?}")))?;
+    let body = c.to_json();
+    Ok(json_response(&body, 4096))
+}

@@ -1,0 +1,438 @@
+//! Condition monitoring in the service: `[drives.condition]` (parsed and validated here), each drive's checks and
+//! alarms as the HTTP side reads them, their metrics, and the one low-priority thread that runs the checks.
+//!
+//! The checks run on a thread of their own (`condition`), at nice [`CONDITION_NICE`]: below the poll threads and
+//! the HTTP workers, never on a poll thread and never on the async runtime. The data are the drive's history ring
+//! (kept at least `window_s` long), thinned to at most [`MAX_CHECK_HZ`] samples a second, with the load unknown.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicU64;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use prometheus_client::encoding::EncodeLabelSet;
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::family::Family;
+use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::registry::Registry;
+use serde::Deserialize;
+use tokio_util::sync::CancellationToken;
+
+use super::metrics::DriveLabel;
+use super::state::{COLUMNS, DriveState, lock};
+use crate::condition::{self, Check, Limits, Monitor, Store};
+use crate::plant::{LoadSpec, PlantModel};
+use crate::recording::Recording;
+
+/// The checking thread's nice value: below the HTTP workers (10), far below the poll threads.
+pub const CONDITION_NICE: i32 = 15;
+
+/// A check sees at most this many samples a second (the ring thinned evenly): the analysis is validated at 5 ms
+/// polls, and a check's cost must not grow with the poll rate (a 1 ms poll would make it five times dearer).
+pub const MAX_CHECK_HZ: f64 = 200.0;
+
+/// A check waits until the ring holds at least this fraction of `window_s`.
+pub const MIN_WINDOW_FRACTION: f64 = 0.5;
+
+/// `[drives.condition]` as written.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub(crate) struct RawCondition {
+    enabled: bool,
+    window_s: f64,
+    every_s: f64,
+    model: Option<String>,
+    limits: Limits,
+}
+
+impl Default for RawCondition {
+    fn default() -> Self {
+        RawCondition { enabled: false, window_s: 120.0, every_s: 300.0, model: None, limits: Limits::new() }
+    }
+}
+
+/// A drive's condition monitoring, validated.
+#[derive(Debug, Clone)]
+pub struct ConditionSettings {
+    pub enabled: bool,
+    pub window: Duration,
+    pub every: Duration,
+    /// The nominal model the checks compare against (the estimator's unless `model` says otherwise), its load
+    /// set to "recorded": the service's data carry no load, so the load is unknown.
+    pub model: PlantModel,
+    pub limits: Limits,
+}
+
+/// Validates `[drives.condition]`; `key` is its prefix (`drives[0].condition`), `estimator_model` the default model,
+/// `resolve` finds a relative model path. Errors name the key.
+pub(crate) fn validate(
+    raw: RawCondition,
+    key: &str,
+    estimator_model: &PlantModel,
+    resolve: impl Fn(&str) -> PathBuf,
+) -> Result<ConditionSettings, (String, String)> {
+    let k = |s: &str| format!("{key}.{s}");
+    if !(raw.window_s.is_finite() && (5.0..=3600.0).contains(&raw.window_s)) {
+        return Err((k("window_s"), format!("must be 5 ..= 3600 s, got {}", raw.window_s)));
+    }
+    if !(raw.every_s.is_finite() && (1.0..=86_400.0).contains(&raw.every_s)) {
+        return Err((k("every_s"), format!("must be 1 ..= 86400 s, got {}", raw.every_s)));
+    }
+    let mut model = match raw.model {
+        None => estimator_model.clone(),
+        Some(p) => PlantModel::load(&resolve(&p)).map_err(|e| (k("model"), e.to_string()))?,
+    };
+    if model.motor.displacement_cm3.is_none() || model.hydraulics.is_none() || model.pump.is_none() {
+        return Err((k("model"), "the model needs [pump], [motor] displacement_cm3 and [hydraulics]".into()));
+    }
+    model.load = LoadSpec::Recorded;
+    condition::validate_limits(&raw.limits, &k("limits"))?;
+    Ok(ConditionSettings {
+        enabled: raw.enabled,
+        window: Duration::from_secs_f64(raw.window_s),
+        every: Duration::from_secs_f64(raw.every_s),
+        model,
+        limits: raw.limits,
+    })
+}
+
+/// One drive's checks and alarms, shared by the checking thread and the HTTP side.
+pub struct DriveCondition {
+    pub drive: String,
+    pub enabled: bool,
+    monitor: Mutex<Monitor>,
+    /// Why the last check failed (cleared by a check that succeeds).
+    last_error: Mutex<Option<String>>,
+}
+
+impl DriveCondition {
+    pub fn new(drive: &str, settings: &ConditionSettings) -> DriveCondition {
+        DriveCondition {
+            drive: drive.to_string(),
+            enabled: settings.enabled,
+            monitor: Mutex::new(Monitor::new(settings.limits.clone())),
+            last_error: Mutex::new(None),
+        }
+    }
+
+    /// The body of `GET /api/drives/{name}/condition` (CONTRACT.md "Extensions"), plus `enabled`, `limits`,
+    /// `last_error` and each check's `alarms`.
+    pub fn to_json(&self) -> serde_json::Value {
+        let mut v = lock(&self.monitor).to_json(&self.drive);
+        if let Some(o) = v.as_object_mut() {
+            o.insert("enabled".into(), self.enabled.into());
+            o.insert("last_error".into(), lock(&self.last_error).clone().into());
+        }
+        v
+    }
+
+    pub fn push(&self, check: Check) {
+        lock(&self.monitor).push(check);
+        *lock(&self.last_error) = None;
+    }
+
+    pub fn monitor(&self) -> std::sync::MutexGuard<'_, Monitor> {
+        lock(&self.monitor)
+    }
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct ParameterLabels {
+    pub drive: String,
+    pub effect: String,
+    pub parameter: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct EffectLabels {
+    pub drive: String,
+    pub effect: String,
+}
+
+type GaugeF = Gauge<f64, AtomicU64>;
+
+/// The condition families (CONTRACT.md "Extensions"), in the service's registry.
+#[derive(Clone)]
+pub struct ConditionMetrics {
+    /// The last check's fitted effect parameters; an effect the last check did not name has no series.
+    pub parameter: Family<ParameterLabels, GaugeF>,
+    /// 1 while an alarm of the effect is raised, else 0 (every effect with a limit).
+    pub alarm: Family<EffectLabels, Gauge>,
+    pub duration: Family<DriveLabel, GaugeF>,
+    pub checks: Family<DriveLabel, Counter>,
+    pub failures: Family<DriveLabel, Counter>,
+}
+
+impl ConditionMetrics {
+    pub fn register(r: &mut Registry) -> ConditionMetrics {
+        let m = ConditionMetrics {
+            parameter: Family::default(),
+            alarm: Family::default(),
+            duration: Family::default(),
+            checks: Family::default(),
+            failures: Family::default(),
+        };
+        r.register(
+            "condition_parameter",
+            "An effect parameter as the last condition check fitted it (catalogue units)",
+            m.parameter.clone(),
+        );
+        r.register("condition_alarm", "1 while a condition alarm of the effect is raised", m.alarm.clone());
+        r.register("condition_check_duration_seconds", "Wall time of the last condition check", m.duration.clone());
+        r.register("condition_checks", "Condition checks run", m.checks.clone());
+        r.register("condition_check_failures", "Condition checks the analysis refused", m.failures.clone());
+        m
+    }
+
+    /// Sets the gauges from a drive's monitor after its last check.
+    fn update(&self, drive: &str, monitor: &Monitor) {
+        let alarms = monitor.alarms();
+        for effect in monitor.limits().keys() {
+            let on = alarms.iter().any(|a| &a.effect == effect);
+            self.alarm.get_or_create(&EffectLabels { drive: drive.into(), effect: effect.clone() }).set(i64::from(on));
+        }
+        let Some(last) = monitor.last() else { return };
+        let fitted = last.parameters();
+        // drop the series of effects the last check no longer names
+        for effect in crate::plant::effects::EFFECT_IDS {
+            for &parameter in crate::plant::effects::parameter_names(effect) {
+                if !fitted.iter().any(|(e, p, _)| e == effect && p == parameter) {
+                    self.parameter.remove(&ParameterLabels {
+                        drive: drive.into(),
+                        effect: effect.into(),
+                        parameter: parameter.into(),
+                    });
+                }
+            }
+        }
+        for (effect, parameter, value) in fitted {
+            self.parameter.get_or_create(&ParameterLabels { drive: drive.into(), effect, parameter }).set(value);
+        }
+        self.duration.get_or_create(&DriveLabel { drive: drive.into() }).set(last.duration_s);
+    }
+}
+
+/// One drive's part of the checking thread.
+pub struct Job {
+    pub drive: Arc<DriveState>,
+    pub condition: Arc<DriveCondition>,
+    pub settings: ConditionSettings,
+    /// None when recording is off: the history is then kept in memory only.
+    pub store: Option<Store>,
+    /// Lines in the store's file: past `2 × KEEP_CHECKS` it is rewritten with the checks kept.
+    pub stored_lines: usize,
+    /// The service time of the last sample this run's last check saw: a drive whose link is down brings no new
+    /// data, and the same window is not checked twice.
+    pub checked_up_to_s: Option<f64>,
+}
+
+impl Job {
+    /// Loads the drive's history from its store (the alarms replayed) and sets the metrics from it.
+    fn restore(&mut self, metrics: &ConditionMetrics) {
+        let Some(store) = &self.store else {
+            metrics.update(&self.drive.name, &self.condition.monitor());
+            return;
+        };
+        match store.load_counting() {
+            Ok((checks, lines)) => {
+                self.stored_lines = lines;
+                let n = checks.len();
+                let mut m = self.condition.monitor();
+                checks.into_iter().for_each(|c| m.push(c));
+                metrics.update(&self.drive.name, &m);
+                if n > 0 {
+                    tracing::info!(drive = %self.drive.name, checks = n, alarms = m.alarms().len(),
+                        file = %store.path().display(), "condition history loaded");
+                }
+            }
+            Err(e) => tracing::warn!(drive = %self.drive.name, file = %store.path().display(), error = %e,
+                "cannot read the condition history; starting without it"),
+        }
+    }
+
+    /// Runs one check on the ring's last window; false when the ring does not hold enough data yet.
+    fn run(&mut self, metrics: &ConditionMetrics) -> bool {
+        let window_s = self.settings.window.as_secs_f64();
+        let points = self.drive.history(window_s, (window_s * MAX_CHECK_HZ).ceil() as usize);
+        let (Some(first), Some(last)) = (points.first().copied(), points.last().copied()) else { return false };
+        let span = last.t_s - first.t_s;
+        if self.checked_up_to_s.is_some_and(|t| last.t_s <= t) {
+            tracing::debug!(drive = %self.drive.name, "no new data since the last condition check");
+            return true;
+        }
+        if span < MIN_WINDOW_FRACTION * window_s {
+            tracing::debug!(drive = %self.drive.name, span_s = span, "condition check waits for more data");
+            return false;
+        }
+        let mut cols: Vec<Vec<f64>> = vec![Vec::with_capacity(points.len()); COLUMNS.len()];
+        for p in &points {
+            for (c, v) in cols.iter_mut().zip(p.values()) {
+                c.push(v);
+            }
+        }
+        let source = format!("{} (last {span:.0} s)", self.drive.name);
+        let rec = Recording::from_columns(&source, COLUMNS.iter().map(|s| s.to_string()).collect(), cols);
+        drop(points);
+        let drive_label = DriveLabel { drive: self.drive.name.clone() };
+        self.checked_up_to_s = Some(last.t_s);
+        match condition::check(&rec, &self.settings.model, last.t_s, span) {
+            Ok(c) => {
+                if let Some(store) = &self.store {
+                    match store.append(&c) {
+                        Ok(()) => self.stored_lines += 1,
+                        Err(e) => tracing::warn!(drive = %self.drive.name, file = %store.path().display(),
+                            error = %e, "cannot append to the condition history"),
+                    }
+                }
+                let named: Vec<String> = c.parameters().iter().map(|(e, p, v)| format!("{e}.{p}={v:.4}")).collect();
+                tracing::info!(drive = %self.drive.name, t_s = c.t_s, window_s = span, duration_s = c.duration_s,
+                    findings = ?named, "condition check");
+                self.condition.push(c);
+                let m = self.condition.monitor();
+                for a in m.alarms().iter().filter(|a| a.since_s == last.t_s) {
+                    tracing::warn!(drive = %self.drive.name, effect = %a.effect, parameter = %a.parameter,
+                        value = a.value, limit = a.limit, "condition alarm raised");
+                }
+                metrics.update(&self.drive.name, &m);
+                metrics.checks.get_or_create(&drive_label).inc();
+                if let Some(store) = &self.store
+                    && self.stored_lines > 2 * condition::KEEP_CHECKS
+                {
+                    match store.rewrite(m.checks()) {
+                        Ok(()) => self.stored_lines = m.checks().count(),
+                        Err(e) => tracing::warn!(drive = %self.drive.name, file = %store.path().display(),
+                            error = %e, "cannot rewrite the condition history"),
+                    }
+                }
+            }
+            Err(e) => {
+                tracing::warn!(drive = %self.drive.name, error = %e, "condition check failed");
+                *lock(&self.condition.last_error) = Some(e.to_string());
+                metrics.failures.get_or_create(&drive_label).inc();
+            }
+        }
+        true
+    }
+}
+
+/// The store of a drive's history: `<recordings dir>/<drive>.condition.jsonl`.
+pub fn store_for(dir: Option<&Path>, drive: &str) -> Option<Store> {
+    dir.map(|d| Store::new(d, drive))
+}
+
+/// Starts the checking thread for the enabled jobs (None when there are none). Each drive's first check comes
+/// `every_s` after the start, then every `every_s`; a check that finds less than half a window of data is tried
+/// again a tenth of `every_s` later. The thread ends when `shutdown` is cancelled (after the check running then).
+pub fn start(
+    mut jobs: Vec<Job>,
+    metrics: ConditionMetrics,
+    shutdown: CancellationToken,
+) -> std::io::Result<Option<std::thread::JoinHandle<()>>> {
+    for j in &mut jobs {
+        j.restore(&metrics);
+    }
+    let mut jobs: Vec<(Job, Instant)> = jobs
+        .into_iter()
+        .filter(|j| j.settings.enabled)
+        .map(|j| {
+            let due = Instant::now() + j.settings.every;
+            (j, due)
+        })
+        .collect();
+    if jobs.is_empty() {
+        return Ok(None);
+    }
+    let thread = std::thread::Builder::new().name("condition".into()).spawn(move || {
+        lower_priority();
+        // bounded: every pass either sleeps (≤ 100 ms) or runs one check, and the token ends it
+        while !shutdown.is_cancelled() {
+            let now = Instant::now();
+            let Some(next) = jobs.iter_mut().min_by_key(|(_, due)| *due) else { return };
+            if next.1 > now {
+                std::thread::sleep((next.1 - now).min(Duration::from_millis(100)));
+                continue;
+            }
+            let (job, due) = next;
+            let every = job.settings.every;
+            *due = if job.run(&metrics) { (*due + every).max(Instant::now()) } else { Instant::now() + every / 10 };
+        }
+    })?;
+    Ok(Some(thread))
+}
+
+/// Puts the calling thread at nice [`CONDITION_NICE`] (Linux; elsewhere nothing). Raising a nice value needs no
+/// privilege.
+pub fn lower_priority() {
+    #[cfg(target_os = "linux")]
+    {
+        let tid = rustix::thread::gettid();
+        if let Err(e) = rustix::process::setpriority_process(Some(tid), CONDITION_NICE) {
+            tracing::warn!(error = %e, "cannot lower the condition thread's priority");
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn raw(text: &str) -> RawCondition {
+        toml::from_str(text).expect("parses")
+    }
+
+    fn check(text: &str) -> Result<ConditionSettings, (String, String)> {
+        validate(raw(text), "drives[0].condition", &PlantModel::reference(), |p: &str| PathBuf::from(p))
+    }
+
+    #[test]
+    fn defaults_are_off_120_s_every_300_s_on_the_estimators_model_with_the_load_unknown() {
+        let s = check("").expect("valid");
+        assert!(!s.enabled);
+        assert_eq!((s.window, s.every), (Duration::from_secs(120), Duration::from_secs(300)));
+        assert_eq!(s.model.load, LoadSpec::Recorded);
+        assert_eq!(s.model.motor, PlantModel::reference().motor);
+        assert!(s.limits.is_empty());
+    }
+
+    #[test]
+    fn errors_name_the_key() {
+        let key = |text: &str| check(text).expect_err(text).0;
+        assert_eq!(key("window_s = 1.0"), "drives[0].condition.window_s");
+        assert_eq!(key("every_s = -5.0"), "drives[0].condition.every_s");
+        assert_eq!(key("model = \"/no/such/plant.toml\""), "drives[0].condition.model");
+        assert_eq!(key("[limits]\nleak = { l_min_per_bar = 0.02 }"), "drives[0].condition.limits.leak");
+        assert_eq!(
+            key("[limits]\ninternal_leakage = { l_per_bar = 0.02 }"),
+            "drives[0].condition.limits.internal_leakage.l_per_bar"
+        );
+        let unknown = toml::from_str::<RawCondition>("enable = true").expect_err("unknown key").to_string();
+        assert!(unknown.contains("enable"), "{unknown}");
+    }
+
+    #[test]
+    fn the_service_config_carries_it_and_its_errors_name_the_drives_key() {
+        let base = "[[drives]]\nname = \"pump1\"\naddress = \"127.0.0.1:5020\"\n[drives.condition]\n";
+        let parse = |extra: &str| super::super::config::parse(&format!("{base}{extra}"), "t.toml", None);
+        let s = parse("enabled = true\nevery_s = 60\n").expect("valid");
+        assert!(s.drives[0].condition.enabled);
+        assert_eq!(s.drives[0].condition.every, Duration::from_secs(60));
+        let e = parse("window_s = 0.5\n").expect_err("too short");
+        assert!(e.is_bad_input() && e.to_string().contains("drives[0].condition.window_s"), "{e}");
+        let e = parse("enable = true\n").expect_err("unknown key");
+        assert!(e.is_bad_input() && e.to_string().contains("enable"), "{e}");
+        let e = parse("[drives.condition.limits]\ndead_time = { seconds = 1.0 }\n").expect_err("unknown parameter");
+        assert!(e.to_string().contains("drives[0].condition.limits.dead_time.seconds"), "{e}");
+    }
+
+    #[test]
+    fn the_contracts_example_parses() {
+        let s = check(
+            "enabled = true\nwindow_s = 120\nevery_s = 60\n[limits]\ninternal_leakage = { l_min_per_bar = 0.02 }\n\
+             dead_time = { ms = 50.0 }\nentrained_air = { bulk_modulus_bar = 8000.0 }\n",
+        )
+        .expect("valid");
+        assert!(s.enabled);
+        assert_eq!(s.every, Duration::from_secs(60));
+        assert_eq!(s.limits["entrained_air"]["bulk_modulus_bar"], 8000.0);
+    }
+}

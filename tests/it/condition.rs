@@ -1,0 +1,438 @@
+//! Condition monitoring on a plant that wears: checks of the last 120 s, every 60 s, with the load unknown, as the
+//! service will run them (src/condition.rs). Offline here: the test stand simulated, recorded as the service
+//! records at 5 ms.
+
+use hydrolens::condition::{self, Limits, Monitor};
+use hydrolens::plant::PlantModel;
+use hydrolens::recording::Recording;
+
+use crate::noload::as_the_service_records;
+
+const POLL_MS: usize = 5;
+const WINDOW_S: f64 = 120.0;
+const EVERY_S: f64 = 60.0;
+
+/// The reference plant; with `growth_per_hour` > 0 its internal leakage grows from zero at that rate.
+fn plant(growth_per_hour: f64) -> PlantModel {
+    let mut text = hydrolens::plant::model::REFERENCE_TOML.to_string();
+    if growth_per_hour > 0.0 {
+        text.push_str(&format!(
+            "\n[effects.internal_leakage]\nl_min_per_bar = 0.0\n\n[wear.internal_leakage]\ngrowth_per_hour = {growth_per_hour}\n"
+        ));
+    }
+    PlantModel::parse(&text, "wearing.toml").expect("valid")
+}
+
+/// The rows of `rec` with `from ≤ t_s < to`.
+fn window(rec: &Recording, from: f64, to: f64) -> Recording {
+    let t = rec.t_s();
+    let (a, b) = (t.partition_point(|v| *v < from), t.partition_point(|v| *v < to));
+    let names: Vec<String> = rec.names().to_vec();
+    let cols = names.iter().map(|n| rec.column(n).expect("column")[a..b].to_vec()).collect();
+    Recording::from_columns("window", names, cols)
+}
+
+/// Runs the checks over `seconds` of the plant, returning the monitor and the true leakage at each check's
+/// window centre.
+fn monitor(truth: &PlantModel, seconds: f64, seed: u64, limits: Limits) -> (Monitor, Vec<f64>) {
+    let rec = hydrolens::plant::simulate::test_stand(truth, seconds, seed, &mut |_| {}).expect("simulable");
+    let rec = as_the_service_records(&rec, POLL_MS, seed);
+    let mut m = Monitor::new(limits);
+    let mut centres = Vec::new();
+    let mut t = WINDOW_S;
+    while t <= seconds + 1e-9 {
+        let c = condition::check(&window(&rec, t - WINDOW_S, t), &PlantModel::reference(), t, WINDOW_S).expect("check");
+        m.push(c);
+        centres.push(truth.at(t - WINDOW_S / 2.0).effects.internal_leakage.map_or(0.0, |l| l.l_min_per_bar));
+        t += EVERY_S;
+    }
+    (m, centres)
+}
+
+fn leak_limit(limit: f64) -> Limits {
+    [("internal_leakage".to_string(), [("l_min_per_bar".to_string(), limit)].into())].into()
+}
+
+#[test]
+fn a_growing_leak_shows_rising_in_the_checks_and_raises_its_alarm() {
+    // 0.3 l/min/bar an hour: 0.035 after 7 minutes; the limit 0.02 is passed near 4 minutes.
+    let (m, truth) = monitor(&plant(0.3), 420.0, 3, leak_limit(0.02));
+    let fitted: Vec<Option<f64>> = m.checks().map(|c| c.value("internal_leakage", "l_min_per_bar")).collect();
+    eprintln!("fitted {fitted:?}\ntruth {truth:?}\nalarms {:?}", m.alarms());
+    let last = fitted.last().copied().flatten().expect("the last check names the leak");
+    let first = fitted.first().copied().flatten().unwrap_or(0.0);
+    assert!(last > first + 0.01, "the leak rises across checks: {fitted:?}");
+    let want = *truth.last().expect("checks");
+    assert!((last - want).abs() < 0.3 * want, "last check {last} against the window's mean leak {want}");
+    let alarms = m.alarms();
+    assert_eq!(alarms.len(), 1, "{alarms:?}");
+    assert_eq!(alarms[0].effect, "internal_leakage");
+    assert!(alarms[0].value > 0.02);
+}
+
+#[test]
+fn a_clean_plant_gives_no_finding_and_no_alarm() {
+    let (m, _) = monitor(&plant(0.0), 240.0, 3, leak_limit(0.02));
+    for c in m.checks() {
+        assert_eq!(c.findings, serde_json::json!([]), "check at {} s", c.t_s);
+    }
+    assert!(m.alarms().is_empty());
+}
+
+// ---- over real TCP: `sim` (a plant that wears, or a clean one) and the service checking itself ----
+
+use std::time::Duration;
+
+use crate::support::{self, wait_for};
+
+/// Speed mode, and checks of the last `window_s` every `every_s` with a leakage limit of 0.02 l/min/bar.
+fn condition_config(window_s: f64, every_s: f64) -> String {
+    format!(
+        "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 40.0\nmax_hz = 50.0\nramp_hz_per_s = 20.0\n\n\
+         [drives.condition]\nenabled = true\nwindow_s = {window_s:?}\nevery_s = {every_s:?}\n\n\
+         [drives.condition.limits]\ninternal_leakage = {{ l_min_per_bar = 0.02 }}\n"
+    )
+}
+
+/// Moves the drive's target through the demo program, twice as fast (a 15 s cycle, so a short window holds steps
+/// up and down and a ramp), until `stop`.
+async fn move_targets(
+    drive: std::sync::Arc<hydrolens::service::DriveState>,
+    stop: tokio_util::sync::CancellationToken,
+) {
+    let start = std::time::Instant::now();
+    while !stop.is_cancelled() {
+        let t = 2.0 * start.elapsed().as_secs_f64();
+        drive.set_target(hydrolens::service::program::demo_target_rad_s(t, 40.0, drive.max_target_omega_rad_s));
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+async fn condition_json(url: &str, drive: &str) -> (reqwest::StatusCode, serde_json::Value) {
+    let r = reqwest::get(format!("{url}/api/drives/{drive}/condition")).await.expect("GET condition");
+    let status = r.status();
+    (status, r.json().await.expect("json"))
+}
+
+fn leaks(v: &serde_json::Value) -> Vec<Option<f64>> {
+    v["checks"]
+        .as_array()
+        .expect("checks")
+        .iter()
+        .map(|c| {
+            c["findings"].as_array()?.iter().find(|f| f["effect"] == "internal_leakage")?["parameters"]["l_min_per_bar"]
+                .as_f64()
+        })
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn over_tcp_a_growing_leak_shows_rising_across_checks_and_raises_its_alarm() {
+    let run = async {
+        // 3.6 l/min/bar an hour: 0.001 a second, past the 0.02 limit after 20 s of plant time
+        let stack = support::Stack::start_on(plant(3.6), 5, &condition_config(20.0, 8.0)).await;
+        let stop = tokio_util::sync::CancellationToken::new();
+        tokio::spawn(move_targets(stack.state.drives[0].clone(), stop.clone()));
+        let url = stack.url.clone();
+        let raised = wait_for(Duration::from_secs(55), || async {
+            let (_, v) = condition_json(&url, "pump1").await;
+            v["alarms"].as_array().is_some_and(|a| !a.is_empty())
+        })
+        .await;
+        stop.cancel();
+        let (status, v) = condition_json(&stack.url, "pump1").await;
+        assert_eq!(status, 200);
+        let fitted = leaks(&v);
+        let truth_now = stack.sim.lock().truth();
+        eprintln!(
+            "checks at {:?} s: leak {fitted:?}; alarms {}; plant time {:.1} s",
+            v["checks"]
+                .as_array()
+                .expect("checks")
+                .iter()
+                .map(|c| c["t_s"].as_f64().unwrap_or(f64::NAN))
+                .collect::<Vec<_>>(),
+            v["alarms"],
+            truth_now.t_s
+        );
+        assert!(raised.is_some(), "no alarm within 55 s: {v}");
+        assert!(fitted.len() >= 2, "{fitted:?}");
+        let last = fitted.last().copied().flatten().expect("the last check names the leak");
+        let first = fitted.first().copied().flatten().unwrap_or(0.0);
+        assert!(last > first, "the leak rises across checks: {fitted:?}");
+        let a = &v["alarms"][0];
+        assert_eq!((a["effect"].as_str(), a["parameter"].as_str()), (Some("internal_leakage"), Some("l_min_per_bar")));
+        assert!(a["value"].as_f64().expect("value") > 0.02 && a["limit"] == 0.02, "{a}");
+        let since = a["since_s"].as_f64().expect("since_s");
+        assert_eq!(v["checks"].as_array().expect("checks").last().expect("a check")["t_s"].as_f64(), Some(since));
+        // contract shape: every check carries the analysis JSON's parts
+        for c in v["checks"].as_array().expect("checks") {
+            for k in ["t_s", "window_s", "findings", "baseline", "improved"] {
+                assert!(!c[k].is_null(), "check without {k}: {c}");
+            }
+        }
+        let metrics = stack.metrics().await;
+        let alarm = support::metric(&metrics, "hydrolens_condition_alarm{drive=\"pump1\",effect=\"internal_leakage\"}");
+        assert_eq!(alarm, Some(1.0), "{metrics}");
+        let param = support::metric(
+            &metrics,
+            "hydrolens_condition_parameter{drive=\"pump1\",effect=\"internal_leakage\",parameter=\"l_min_per_bar\"}",
+        );
+        assert_eq!(param, Some(last));
+        let took = support::metric(&metrics, "hydrolens_condition_check_duration_seconds{drive=\"pump1\"}");
+        assert!(took.is_some_and(|s| s > 0.0 && s < 5.0), "{took:?}");
+        let (status, _) = condition_json(&stack.url, "pump9").await;
+        assert_eq!(status, 404);
+        assert!(!stack.sim.lock().truth().tripped);
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(75), run).await.expect("bounded");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn over_tcp_a_clean_plant_gives_no_finding_and_no_alarm() {
+    let run = async {
+        let stack = support::Stack::start_on(plant(0.0), 5, &condition_config(20.0, 8.0)).await;
+        let stop = tokio_util::sync::CancellationToken::new();
+        tokio::spawn(move_targets(stack.state.drives[0].clone(), stop.clone()));
+        let url = stack.url.clone();
+        let three = wait_for(Duration::from_secs(45), || async {
+            let (_, v) = condition_json(&url, "pump1").await;
+            v["checks"].as_array().is_some_and(|c| c.len() >= 3)
+        })
+        .await;
+        stop.cancel();
+        let (_, v) = condition_json(&stack.url, "pump1").await;
+        assert!(three.is_some(), "three checks within 45 s: {v}");
+        for c in v["checks"].as_array().expect("checks") {
+            assert_eq!(c["findings"], serde_json::json!([]), "check at {} s: {c}", c["t_s"]);
+        }
+        assert_eq!(v["alarms"], serde_json::json!([]));
+        let metrics = stack.metrics().await;
+        let alarm = support::metric(&metrics, "hydrolens_condition_alarm{drive=\"pump1\",effect=\"internal_leakage\"}");
+        assert_eq!(alarm, Some(0.0), "{metrics}");
+        assert!(!metrics.contains("hydrolens_condition_parameter{"), "no fitted parameter: {metrics}");
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(70), run).await.expect("bounded");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn over_tcp_a_restart_keeps_the_history_and_its_alarms() {
+    let run = async {
+        // a fast leak (0.002 a second) so that the alarm comes within the first checks
+        let stack = support::Stack::start_on(plant(7.2), 5, &condition_config(12.0, 6.0)).await;
+        let stop = tokio_util::sync::CancellationToken::new();
+        tokio::spawn(move_targets(stack.state.drives[0].clone(), stop.clone()));
+        let url = stack.url.clone();
+        let raised = wait_for(Duration::from_secs(45), || async {
+            let (_, v) = condition_json(&url, "pump1").await;
+            v["alarms"].as_array().is_some_and(|a| !a.is_empty())
+        })
+        .await;
+        stop.cancel();
+        let (_, before) = condition_json(&stack.url, "pump1").await;
+        assert!(raised.is_some(), "an alarm to keep: {before}");
+        let dir = stack.stop().await;
+        let lines = std::fs::read_to_string(dir.path().join("pump1.condition.jsonl")).expect("the history file");
+        assert_eq!(lines.lines().count(), before["checks"].as_array().expect("checks").len());
+
+        // the same recordings directory, a new simulator and service; no check is due for 300 s
+        let (_sim, addr, sim_stop, sim_task) = support::start_sim(plant(0.0), 0).await;
+        let text = support::config_text(
+            addr,
+            dir.path(),
+            5,
+            "[drives.condition]\nenabled = true\nevery_s = 300.0\n[drives.condition.limits]\n\
+             internal_leakage = { l_min_per_bar = 0.02 }\n",
+        );
+        let (svc, url, shutdown, http) = support::start_service(&text).await;
+        let (_, after) = condition_json(&url, "pump1").await;
+        assert_eq!(after["checks"], before["checks"], "the checks come back, oldest first");
+        assert_eq!(after["alarms"], before["alarms"], "and the alarms with them");
+        let metrics = reqwest::get(format!("{url}/metrics")).await.expect("GET").text().await.expect("text");
+        let alarm = support::metric(&metrics, "hydrolens_condition_alarm{drive=\"pump1\",effect=\"internal_leakage\"}");
+        assert_eq!(alarm, Some(1.0), "{metrics}");
+        shutdown.cancel();
+        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("service stops");
+        let _ = tokio::time::timeout(Duration::from_secs(10), http).await.expect("http stops");
+        sim_stop.cancel();
+        let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await.expect("simulator stops");
+    };
+    tokio::time::timeout(Duration::from_secs(75), run).await.expect("bounded");
+}
+
+/// The dashboard in headless chromium (as tests/it/dashboard.rs) over a service whose history says the leak rose
+/// past its limit: the condition panel draws the trend, marks the checks in alarm and says when the last ran.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_dashboard_draws_the_trend_marks_the_alarm_and_says_when_the_last_check_ran() {
+    use crate::dashboard::{attr_after, run_chromium};
+    let dir = tempfile::tempdir().expect("tmp");
+    // the history as the service writes it: four checks, the leak rising past 0.02 in the last two
+    let store = condition::Store::new(dir.path(), "pump1");
+    for (k, leak) in [None, Some(0.012), Some(0.024), Some(0.031)].into_iter().enumerate() {
+        let findings = match leak {
+            Some(v) => serde_json::json!([{"effect": "internal_leakage", "parameters": {"l_min_per_bar": v}}]),
+            None => serde_json::json!([]),
+        };
+        let t_s = 60.0 * (k + 1) as f64;
+        let c = condition::Check {
+            t_s,
+            window_s: 60.0,
+            findings,
+            baseline: serde_json::json!({}),
+            improved: serde_json::json!({}),
+            duration_s: 0.4,
+            unix_s: 1.79e9 + t_s,
+        };
+        store.append(&c).expect("append");
+    }
+    let (_sim, addr, sim_stop, sim_task) = support::start_sim(plant(0.0), 0).await;
+    let text = support::config_text(
+        addr,
+        dir.path(),
+        10,
+        "[drives.condition]\nenabled = true\nevery_s = 300.0\n[drives.condition.limits]\n\
+         internal_leakage = { l_min_per_bar = 0.02 }\ndead_time = { ms = 50.0 }\n",
+    );
+    let (svc, url, shutdown, http) = support::start_service(&text).await;
+    let page = format!("{url}/?close_after=5");
+    let dom = tokio::task::spawn_blocking(move || {
+        run_chromium(&page, &["--virtual-time-budget=5000", "--dump-dom"], Duration::from_secs(60))
+    })
+    .await
+    .expect("joins");
+    let panel = "class=\"condition-panel\" data-drive=\"pump1\"";
+    assert!(dom.contains(panel), "a condition panel for pump1: {dom:.3000}");
+    assert_eq!(attr_after(&dom, panel, "data-checks"), Some("4"));
+    assert_eq!(attr_after(&dom, panel, "data-alarms"), Some("1"));
+    assert_eq!(attr_after(&dom, "class=\"last-check\"", "data-t-s"), Some("240"));
+    assert!(dom.contains("ALARM internal_leakage: l_min_per_bar = 0.03100 (limit 0.02000)"), "{dom:.3000}");
+    let leak = "data-parameter=\"internal_leakage.l_min_per_bar\"";
+    assert_eq!(attr_after(&dom, leak, "data-points"), Some("3"), "three checks named the leak");
+    assert_eq!(attr_after(&dom, leak, "data-alarm-marks"), Some("2"), "two checks left it in alarm");
+    let dead = "data-parameter=\"dead_time.ms\"";
+    assert_eq!(attr_after(&dom, dead, "data-points"), Some("0"), "a limited effect no check named: an empty trend");
+    assert_eq!(attr_after(&dom, dead, "data-alarm-marks"), Some("0"));
+    // HYDROLENS_CONDITION_SCREENSHOT=panel.png keeps a picture of the page
+    if let Ok(keep) = std::env::var("HYDROLENS_CONDITION_SCREENSHOT") {
+        let (page, arg) = (format!("{url}/?close_after=5"), format!("--screenshot={keep}"));
+        tokio::task::spawn_blocking(move || {
+            run_chromium(
+                &page,
+                &["--virtual-time-budget=5000", "--window-size=1280,1400", &arg],
+                Duration::from_secs(60),
+            )
+        })
+        .await
+        .expect("joins");
+    }
+    shutdown.cancel();
+    tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("service stops");
+    let _ = tokio::time::timeout(Duration::from_secs(10), http).await.expect("http stops");
+    sim_stop.cancel();
+    let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await.expect("simulator stops");
+}
+
+/// `hydrolens serve` with a mistyped `[drives.condition]`: exit 2, the message names the file and the key.
+#[test]
+fn a_mistyped_condition_config_exits_2_naming_the_key() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let base = support::config_text("127.0.0.1:1".parse().expect("addr"), dir.path(), 10, "");
+    let cases = [
+        ("unknown.toml", "[drives.condition]\nenabled = true\nevery_minutes = 5\n", "every_minutes"),
+        ("window.toml", "[drives.condition]\nenabled = true\nwindow_s = 0.0\n", "drives[0].condition.window_s"),
+        (
+            "effect.toml",
+            "[drives.condition.limits]\nleakage = { l_min_per_bar = 0.02 }\n",
+            "drives[0].condition.limits.leakage",
+        ),
+        ("model.toml", "[drives.condition]\nmodel = \"no/such/plant.toml\"\n", "drives[0].condition.model"),
+    ];
+    for (name, extra, needle) in cases {
+        let path = dir.path().join(name);
+        std::fs::write(&path, format!("{base}{extra}")).expect("write");
+        let mut child = std::process::Command::new(support::bin())
+            .args(["serve", "--config"])
+            .arg(&path)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("serve starts");
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        let code = loop {
+            if let Some(status) = child.try_wait().expect("wait") {
+                break status.code();
+            }
+            if std::time::Instant::now() > deadline {
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!("{name}: serve accepted the config and kept running");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        let mut err = String::new();
+        std::io::Read::read_to_string(&mut child.stderr.take().expect("stderr"), &mut err).expect("stderr");
+        assert_eq!(code, Some(2), "{name}: {err}");
+        assert!(err.contains(needle) && err.contains(name), "{name}: {err}");
+    }
+}
+
+/// The contract's sizes over TCP: checks of the last 120 s every 60 s, a leak growing by 0.6 l/min/bar an hour
+/// (config/plant_wearing.toml's), the alarm within 6 minutes. Several minutes: `cargo test --test it -- --ignored
+/// condition::over_tcp_at_the_contracts_sizes`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "about 5 minutes"]
+async fn over_tcp_at_the_contracts_sizes_a_wearing_plant_raises_its_alarm() {
+    let run = async {
+        let stack = support::Stack::start_on(plant(0.6), 5, &condition_config(120.0, 60.0)).await;
+        let stop = tokio_util::sync::CancellationToken::new();
+        tokio::spawn(move_targets(stack.state.drives[0].clone(), stop.clone()));
+        let url = stack.url.clone();
+        let raised = wait_for(Duration::from_secs(360), || async {
+            tokio::time::sleep(Duration::from_secs(1)).await;
+            let (_, v) = condition_json(&url, "pump1").await;
+            v["alarms"].as_array().is_some_and(|a| !a.is_empty())
+        })
+        .await;
+        stop.cancel();
+        let (_, v) = condition_json(&stack.url, "pump1").await;
+        let fitted = leaks(&v);
+        let at: Vec<f64> = v["checks"].as_array().expect("checks").iter().filter_map(|c| c["t_s"].as_f64()).collect();
+        eprintln!("checks at {at:.0?} s: leak {fitted:?}; alarms {}", v["alarms"]);
+        assert!(raised.is_some(), "no alarm within 6 minutes: {fitted:?}");
+        let last = fitted.last().copied().flatten().expect("the last check names the leak");
+        assert!(last > fitted.first().copied().flatten().unwrap_or(0.0), "rising: {fitted:?}");
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(420), run).await.expect("bounded");
+}
+
+/// A drive whose simulator has gone brings no new data: no check runs again on the window already checked.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn over_tcp_a_drive_without_new_data_is_not_checked_again() {
+    let run = async {
+        let stack = support::Stack::start_on(plant(0.0), 5, &condition_config(6.0, 3.0)).await;
+        let stop = tokio_util::sync::CancellationToken::new();
+        tokio::spawn(move_targets(stack.state.drives[0].clone(), stop.clone()));
+        let url = stack.url.clone();
+        let checked = wait_for(Duration::from_secs(30), || async {
+            let (_, v) = condition_json(&url, "pump1").await;
+            v["checks"].as_array().is_some_and(|c| !c.is_empty())
+        })
+        .await;
+        assert!(checked.is_some(), "a first check within 30 s");
+        stack.sim_stop.cancel(); // the plant goes: the link drops, the ring keeps its old points
+        stop.cancel();
+        tokio::time::sleep(Duration::from_secs(4)).await; // a check running when it went has ended by now
+        let (_, before) = condition_json(&stack.url, "pump1").await;
+        tokio::time::sleep(Duration::from_secs(8)).await; // more than two periods
+        let (_, after) = condition_json(&stack.url, "pump1").await;
+        let n = |v: &serde_json::Value| v["checks"].as_array().map_or(0, Vec::len);
+        assert!(n(&before) >= 1);
+        assert_eq!(n(&after), n(&before), "no check of the same window again: {after}");
+        assert!(!stack.state.drives[0].snapshot().link.connected || stack.state.drives[0].snapshot().link.stale);
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
+}
