@@ -3,9 +3,11 @@
 mod analysis;
 mod cli_service;
 mod dashboard;
+mod device;
 mod estimate_stream;
 mod estimator;
 mod faults;
+mod hardening;
 mod http;
 mod link_faults;
 mod multi;
