@@ -4,6 +4,7 @@
 pub mod config;
 pub mod drive;
 pub mod estimators;
+pub mod freshness;
 pub mod metrics;
 pub mod program;
 pub mod recorder;
