@@ -53,6 +53,10 @@ pub struct Metrics {
     pub viscous_sd: Family<DriveLabel, GaugeF>,
     pub setpoint: Family<DriveLabel, GaugeF>,
     pub target: Family<DriveLabel, GaugeF>,
+    /// The HTTP side's (no drive label): open connections, wrong tokens, requests refused while throttled.
+    pub http_connections: Gauge,
+    pub http_auth_failures: Counter,
+    pub http_auth_throttled: Counter,
 }
 
 impl Metrics {
@@ -80,6 +84,9 @@ impl Metrics {
             viscous_sd: Family::default(),
             setpoint: Family::default(),
             target: Family::default(),
+            http_connections: Gauge::default(),
+            http_auth_failures: Counter::default(),
+            http_auth_throttled: Counter::default(),
         };
         let mut r = Registry::with_prefix("hydrolens");
         r.register("polls", "Poll cycles run", m.polls.clone());
@@ -123,6 +130,13 @@ impl Metrics {
         );
         r.register("setpoint_hz", "Last frequency setpoint written", m.setpoint.clone());
         r.register("target_omega_rad_s", "Speed target", m.target.clone());
+        r.register("http_connections", "Open HTTP connections", m.http_connections.clone());
+        r.register("http_auth_failures", "Write requests with a wrong Bearer token", m.http_auth_failures.clone());
+        r.register(
+            "http_auth_throttled",
+            "Write requests refused with 429 after a burst of wrong tokens",
+            m.http_auth_throttled.clone(),
+        );
         (m, r)
     }
 }

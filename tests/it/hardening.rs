@@ -283,10 +283,8 @@ async fn concurrent_connections_are_bounded() {
         let http = "header_timeout_ms = 10000\nmax_connections = 2\n";
         let s = Svc::start("127.0.0.1:9".parse().expect("addr"), http, "").await;
         let addr = s.url.trim_start_matches("http://").to_string();
-        let held = [
-            TcpStream::connect(&addr).await.expect("connect"),
-            TcpStream::connect(&addr).await.expect("connect"),
-        ];
+        let held =
+            [TcpStream::connect(&addr).await.expect("connect"), TcpStream::connect(&addr).await.expect("connect")];
         tokio::time::sleep(Duration::from_millis(200)).await; // both taken by the server
         let mut third = TcpStream::connect(&addr).await.expect("the kernel queues it");
         third.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").await.expect("write");
