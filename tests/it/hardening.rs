@@ -450,3 +450,54 @@ fn serve_with_a_recording_dir_that_is_a_file_exits_2_naming_the_key() {
     assert_eq!(status.code(), Some(2), "{err}");
     assert!(err.contains("recording.dir"), "{err}");
 }
+
+// ---- item 9: a recording cut mid-row ----
+
+#[test]
+fn a_recording_cut_mid_row_at_its_end_is_read_without_that_line_and_a_cut_inside_is_an_error() {
+    use hydrolens::plant::{PlantModel, simulate};
+    use hydrolens::recording::{self, Batch, StreamReader};
+    let rec = simulate::test_stand(&PlantModel::reference(), 2.0, 3, &mut |_| {}).expect("simulate");
+    let mut text = Vec::new();
+    recording::write_csv(&mut text, &rec).expect("write");
+    let rows = rec.len();
+    let dir = tempfile::tempdir().expect("tmp");
+    // cut in the middle of the last row, as a SIGTERM on a full disk left it
+    let last_line_start = text[..text.len() - 1].iter().rposition(|&b| b == b'\n').expect("lines") + 1;
+    let cut_at = last_line_start + (text.len() - last_line_start) / 2;
+    let cut = dir.path().join("cut.csv");
+    std::fs::write(&cut, &text[..cut_at]).expect("write");
+    let loaded = recording::load(&cut).expect("a cut last line is dropped, not an error");
+    assert_eq!(loaded.len(), rows - 1);
+    let mut reader = StreamReader::open(&cut).expect("opens");
+    let mut batch = Batch::default();
+    let mut streamed = 0;
+    loop {
+        match reader.read_batch(&mut batch, 4096).expect("streams without the cut line") {
+            0 => break,
+            n => streamed += n,
+        }
+    }
+    assert_eq!(streamed, rows - 1);
+    let out = dir.path().join("est.csv");
+    let o = std::process::Command::new(crate::support::bin())
+        .arg("estimate")
+        .arg(&cut)
+        .arg("--model")
+        .arg(root().join("config/plant.toml"))
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .expect("runs");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    assert!(err.contains("cut mid-row"), "a warning: {err}");
+    // a row cut in the middle of the file is still an error
+    let mid_start = text[..text.len() / 2].iter().rposition(|&b| b == b'\n').expect("lines") + 1;
+    let mut broken = text[..mid_start + 5].to_vec();
+    broken.push(b'\n');
+    broken.extend_from_slice(&text[mid_start..]);
+    let inside = dir.path().join("inside.csv");
+    std::fs::write(&inside, &broken).expect("write");
+    assert!(recording::load(&inside).is_err(), "a cut inside the file is an error");
+}
