@@ -527,6 +527,14 @@ impl DriveLoop {
         self.metrics.target.get_or_create(l).set(self.law.target_omega_rad_s);
         let stale = self.last_fresh_at.is_none_or(|t| t.elapsed() > self.settings.stale_after);
         self.metrics.stale.get_or_create(l).set(i64::from(stale));
+        let recording_health = self.recorder.as_ref().map(|r| r.health.snapshot());
+        if let Some(h) = &recording_health {
+            self.metrics.recording_ok.get_or_create(l).set(i64::from(h.ok));
+            let errors = self.metrics.recording_errors.get_or_create(l);
+            errors.inc_by(h.errors.saturating_sub(errors.get()));
+            let lost = self.metrics.recording_rows_lost.get_or_create(l);
+            lost.inc_by(h.rows_lost.saturating_sub(lost.get()));
+        }
         // skipped when a reader holds it: the next cycle publishes again
         let _ = self.state.publish(DriveSnapshot {
             name: self.settings.name.clone(),
@@ -541,6 +549,7 @@ impl DriveLoop {
             sample: self.sample,
             estimate: self.estimate,
             timing: stats,
+            recording: recording_health,
         });
     }
 }

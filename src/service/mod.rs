@@ -53,6 +53,7 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
             sample: None,
             estimate: None,
             timing: TimingStats::default(),
+            recording: None,
         };
         let state =
             Arc::new(DriveState::new(snapshot, d.max_target_omega_rad_s(), d.stale_after, history_len.min(1 << 20)));

@@ -501,3 +501,104 @@ fn a_recording_cut_mid_row_at_its_end_is_read_without_that_line_and_a_cut_inside
     std::fs::write(&inside, &broken).expect("write");
     assert!(recording::load(&inside).is_err(), "a cut inside the file is an error");
 }
+
+// ---- item 9: the disk fills ----
+
+/// `hydrolens serve` under a file-size limit (the kernel refuses writes past it, as a full disk does; SIGXFSZ
+/// ignored so that the write fails instead): the recorder's trouble shows in /api/status, /metrics and readiness
+/// while polling goes on, and recording resumes once the limit is lifted (`prlimit`), as when space returns.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_disk_shows_in_status_metrics_and_readiness_and_recording_resumes() {
+    let (_sim, modbus, sim_stop, _task) = crate::support::start_sim(crate::support::test_plant(5.0), 0).await;
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec_dir = dir.path().join("rec");
+    let config = dir.path().join("c.toml");
+    let text = format!(
+        "[recording]\ndir = {:?}\n[[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 2\n",
+        rec_dir.display().to_string()
+    );
+    std::fs::write(&config, text).expect("write");
+    let script = format!(
+        "trap '' XFSZ; ulimit -S -f 64; exec {} serve --config {} --http 127.0.0.1:0",
+        crate::support::bin().display(),
+        config.display()
+    );
+    let mut child = std::process::Command::new("sh")
+        .args(["-c", &script])
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .expect("starts");
+    let pid = child.id();
+    let stderr = child.stderr.take().expect("stderr");
+    let (tx, rx) = std::sync::mpsc::channel::<String>();
+    // the first line with a URL, then drained so that the service never blocks on a full pipe
+    std::thread::spawn(move || {
+        use std::io::BufRead;
+        for line in std::io::BufReader::new(stderr).lines().map_while(Result::ok) {
+            if let Some(url) = line.split_whitespace().find(|w| w.starts_with("http://")) {
+                let _ = tx.send(url.to_string());
+            }
+        }
+    });
+    let run = async {
+        let url = tokio::task::spawn_blocking(move || rx.recv_timeout(Duration::from_secs(10)))
+            .await
+            .expect("joins")
+            .expect("serve announces its URL");
+        let status = || async {
+            let v: serde_json::Value =
+                reqwest::get(format!("{url}/api/status")).await.expect("status").json().await.expect("json");
+            v["drives"][0].clone()
+        };
+        let failing = wait_for(Duration::from_secs(10), || async { status().await["recording"]["ok"] == false }).await;
+        assert!(failing.is_some(), "recording trouble shows in /api/status: {}", status().await);
+        let s = status().await;
+        assert!(s["recording"]["last_error"].as_str().is_some_and(|e| !e.is_empty()), "{s}");
+        let polls = s["link"]["polls"].as_u64().expect("polls");
+        let ready = reqwest::get(format!("{url}/readyz")).await.expect("readyz");
+        assert_eq!(ready.status(), 503, "not ready while rows are lost");
+        let m = reqwest::get(format!("{url}/metrics")).await.expect("metrics").text().await.expect("text");
+        assert!(metric(&m, "hydrolens_recording_errors_total{drive=\"pump1\"}").unwrap_or(0.0) >= 1.0, "{m}");
+        assert_eq!(metric(&m, "hydrolens_recording_ok{drive=\"pump1\"}"), Some(0.0), "{m}");
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        assert!(status().await["link"]["polls"].as_u64().expect("polls") > polls, "polling goes on");
+        // space returns
+        let lifted = std::process::Command::new("prlimit")
+            .args([format!("--pid={pid}"), "--fsize=unlimited:unlimited".to_string()])
+            .status()
+            .expect("prlimit");
+        assert!(lifted.success());
+        let back = wait_for(Duration::from_secs(10), || async { status().await["recording"]["ok"] == true }).await;
+        assert!(back.is_some(), "recording resumes: {}", status().await);
+        let ready = wait_for(Duration::from_secs(5), || async {
+            reqwest::get(format!("{url}/readyz")).await.expect("readyz").status() == 200
+        })
+        .await;
+        assert!(ready.is_some(), "ready again");
+        let _ = std::process::Command::new("kill").args(["-TERM", &pid.to_string()]).status();
+    };
+    let finished = tokio::time::timeout(Duration::from_secs(40), run).await;
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    let code = loop {
+        if let Some(code) = child.try_wait().expect("wait") {
+            break Some(code);
+        }
+        if std::time::Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    finished.expect("bounded");
+    assert!(code.is_some_and(|c| c.success()), "stops cleanly on SIGTERM: {code:?}");
+    sim_stop.cancel();
+    // every file left behind reads, cut last lines and all
+    for f in std::fs::read_dir(&rec_dir).expect("dir") {
+        let p = f.expect("entry").path();
+        if std::fs::metadata(&p).expect("meta").len() > 300 {
+            hydrolens::recording::load(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+        }
+    }
+}
