@@ -78,11 +78,22 @@ struct RawRecording {
     enabled: bool,
     max_file_mb: f64,
     rotate_hours: f64,
+    /// All drives' recordings together at most this (each drive keeps its share); absent: unbounded.
+    max_total_mb: Option<f64>,
+    /// Closed recordings older than this are deleted; absent: kept.
+    keep_days: Option<f64>,
 }
 
 impl Default for RawRecording {
     fn default() -> Self {
-        RawRecording { dir: "recordings".into(), enabled: true, max_file_mb: 64.0, rotate_hours: 1.0 }
+        RawRecording {
+            dir: "recordings".into(),
+            enabled: true,
+            max_file_mb: 64.0,
+            rotate_hours: 1.0,
+            max_total_mb: None,
+            keep_days: None,
+        }
     }
 }
 
@@ -234,6 +245,10 @@ pub struct RecordingSettings {
     pub dir: Option<PathBuf>,
     pub max_file_bytes: u64,
     pub rotate_after: Duration,
+    /// All drives' recordings together at most this many bytes.
+    pub max_total_bytes: Option<u64>,
+    /// Closed recordings older than this go.
+    pub keep: Option<Duration>,
 }
 
 /// Plausible ranges of decoded values; anything outside (or non-finite) is rejected before the estimator.
@@ -399,10 +414,35 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
     if r.enabled {
         directory_or_creatable(Path::new(&r.dir)).map_err(|m| ("recording.dir".to_string(), m))?;
     }
+    let max_total_bytes = match r.max_total_mb {
+        None => None,
+        Some(t) => {
+            let t = positive("recording.max_total_mb", t)?;
+            if t < 2.0 * max_mb {
+                return Err((
+                    "recording.max_total_mb".into(),
+                    format!("must be at least twice recording.max_file_mb ({max_mb}), got {t}"),
+                ));
+            }
+            Some((t * 1024.0 * 1024.0) as u64)
+        }
+    };
+    let keep = match r.keep_days {
+        None => None,
+        Some(d) => {
+            let d = positive("recording.keep_days", d)?;
+            if d > 36_500.0 {
+                return Err(("recording.keep_days".into(), format!("must be ≤ 36500, got {d}")));
+            }
+            Some(Duration::from_secs_f64(d * 86_400.0))
+        }
+    };
     let recording = RecordingSettings {
         dir: r.enabled.then(|| PathBuf::from(r.dir)),
         max_file_bytes: (max_mb * 1024.0 * 1024.0) as u64,
         rotate_after: Duration::from_secs_f64(hours * 3600.0),
+        max_total_bytes,
+        keep,
     };
 
     if raw.drives.is_empty() {

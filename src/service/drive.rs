@@ -534,6 +534,8 @@ impl DriveLoop {
             errors.inc_by(h.errors.saturating_sub(errors.get()));
             let lost = self.metrics.recording_rows_lost.get_or_create(l);
             lost.inc_by(h.rows_lost.saturating_sub(lost.get()));
+            let deleted = self.metrics.recording_files_deleted.get_or_create(l);
+            deleted.inc_by(h.files_deleted.saturating_sub(deleted.get()));
         }
         // skipped when a reader holds it: the next cycle publishes again
         let _ = self.state.publish(DriveSnapshot {

@@ -9,12 +9,16 @@ use std::time::{Duration, Instant};
 
 use crate::recording::RotatingWriter;
 
+use super::retention::{Retention, prune};
 use super::state::{COLUMNS, Point, RecordingHealth};
 
 /// How often buffered rows reach the file.
 const FLUSH_EVERY: Duration = Duration::from_millis(500);
 /// How often the writer thread takes the rows sent since its last turn.
 const DRAIN_EVERY: Duration = Duration::from_millis(100);
+
+/// Retention runs at each new file and at least this often (for `keep_days`).
+const PRUNE_EVERY: Duration = Duration::from_secs(60);
 
 /// After a failed write, rows are dropped (and counted) for this long before a new file is tried: a full disk is
 /// not hammered with a new file per row.
@@ -27,6 +31,7 @@ pub struct Health {
     errors: AtomicU64,
     rows_lost: AtomicU64,
     last_error: Mutex<Option<String>>,
+    files_deleted: AtomicU64,
 }
 
 impl Health {
@@ -37,6 +42,7 @@ impl Health {
             rows_lost: self.rows_lost.load(Ordering::Relaxed),
             // never wait for the writer thread: a busy lock shows no message this time
             last_error: self.last_error.try_lock().ok().and_then(|e| e.clone()),
+            files_deleted: self.files_deleted.load(Ordering::Relaxed),
         }
     }
 }
@@ -93,18 +99,26 @@ impl Spell<'_> {
 
 impl Recorder {
     /// Starts writing `<dir>/<drive>-<unix ms>.csv` files, rotated after `rotate_after` or `max_bytes`.
-    pub fn start(dir: &Path, drive: &str, rotate_after: Duration, max_bytes: u64) -> std::io::Result<Recorder> {
+    pub fn start(
+        dir: &Path,
+        drive: &str,
+        rotate_after: Duration,
+        max_bytes: u64,
+        retention: Retention,
+    ) -> std::io::Result<Recorder> {
         std::fs::create_dir_all(dir)?;
         let mut writer = RotatingWriter::new(dir, drive, &COLUMNS, rotate_after, max_bytes);
         let (tx, rx) = mpsc::channel::<Point>();
         let name = drive.to_string();
         let health = Arc::new(Health::default());
         let shared = health.clone();
+        let dir = dir.to_path_buf();
         let thread = std::thread::Builder::new().name(format!("rec-{drive}")).spawn(move || {
             let mut spell = Spell { name: &name, health: &shared, retry_at: None };
             // the thread drains the channel on its own clock rather than blocking in `recv`: a blocked receiver
             // would be woken by every row, a context switch per poll per drive (a tenth of a 50-drive service's CPU)
             let mut flushed = Instant::now();
+            let mut pruned: Option<(Instant, Option<std::path::PathBuf>)> = None;
             loop {
                 std::thread::sleep(DRAIN_EVERY);
                 let mut open = true;
@@ -135,6 +149,18 @@ impl Recorder {
                         Err(e) => spell.failed(&mut writer, &e),
                     }
                     flushed = Instant::now();
+                }
+                // retention: when a new file was opened, and at least every PRUNE_EVERY for keep_days
+                let current = writer.current_path().map(Path::to_path_buf);
+                let due = pruned.as_ref().is_none_or(|(at, path)| *path != current || at.elapsed() >= PRUNE_EVERY);
+                if due && !retention.is_off() {
+                    match prune(&dir, &name, current.as_deref(), retention) {
+                        Ok(n) => {
+                            shared.files_deleted.fetch_add(n, Ordering::Relaxed);
+                        }
+                        Err(e) => tracing::warn!(drive = %name, error = %e, "retention: cannot list the recordings"),
+                    }
+                    pruned = Some((Instant::now(), current));
                 }
                 if !open {
                     break;

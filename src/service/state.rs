@@ -143,6 +143,8 @@ pub struct RecordingHealth {
     /// Rows not recorded because of them.
     pub rows_lost: u64,
     pub last_error: Option<String>,
+    /// Old recordings deleted by retention.
+    pub files_deleted: u64,
 }
 
 /// Requests from the HTTP side, taken by the loop at its next cycle.

@@ -602,3 +602,49 @@ async fn a_full_disk_shows_in_status_metrics_and_readiness_and_recording_resumes
         }
     }
 }
+
+// ---- item 10: retention ----
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn retention_keeps_the_recordings_within_max_total_mb_and_never_deletes_the_open_file() {
+    let run = async {
+        let (_sim, modbus, sim_stop, _task) = crate::support::start_sim(crate::support::test_plant(5.0), 0).await;
+        let dir = tempfile::tempdir().expect("tmp");
+        // an older file of another drive whose name starts alike: never touched
+        std::fs::write(dir.path().join("pump1-b-1000.csv"), "t_s\n1\n").expect("write");
+        let text = format!(
+            "[http]\nbind = \"127.0.0.1:0\"\n[recording]\ndir = {:?}\nmax_file_mb = 0.1\nmax_total_mb = 0.3\n\
+             [[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 1\n",
+            dir.path().display().to_string()
+        );
+        let (svc, url, shutdown, http) = start_service(&text).await;
+        let deleted = || async {
+            let m = reqwest::get(format!("{url}/metrics")).await.expect("metrics").text().await.expect("text");
+            metric(&m, "hydrolens_recording_files_deleted_total{drive=\"pump1\"}").unwrap_or(0.0)
+        };
+        let went = wait_for(Duration::from_secs(20), || async { deleted().await >= 3.0 }).await;
+        assert!(went.is_some(), "old files deleted and counted");
+        let ours = || -> Vec<(String, u64)> {
+            std::fs::read_dir(dir.path())
+                .expect("dir")
+                .map(|e| e.expect("entry"))
+                .map(|e| (e.file_name().to_string_lossy().into_owned(), e.metadata().expect("meta").len()))
+                .filter(|(n, _)| n.starts_with("pump1-1") || n.starts_with("pump1-2"))
+                .collect()
+        };
+        let total: u64 = ours().iter().map(|(_, b)| b).sum();
+        // the budget, plus the open file growing past it until the next rotation
+        assert!(total <= (0.3 * 1048576.0) as u64 + 110_000, "{total} bytes: {:?}", ours());
+        assert!(dir.path().join("pump1-b-1000.csv").exists(), "another drive's file is not ours");
+        shutdown.cancel();
+        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("stops");
+        let _ = tokio::time::timeout(Duration::from_secs(10), http).await;
+        sim_stop.cancel();
+        // the newest file (open until the stop) is still there and whole
+        let mut names: Vec<String> = ours().into_iter().map(|(n, _)| n).collect();
+        names.sort();
+        let newest = dir.path().join(names.last().expect("files left"));
+        hydrolens::recording::load(&newest).expect("the open file was kept and closed cleanly");
+    };
+    tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+}
