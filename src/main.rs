@@ -406,10 +406,16 @@ async fn run_service(
         max_body_bytes: settings.http.max_body_bytes,
         shutdown: shutdown.clone(),
         status_cache: Default::default(),
+        auth: Default::default(),
     };
     announce(&url, &svc.state);
     // on the (lower-priority) workers, not on the thread that started the poll loops
-    let served = tokio::spawn(http::serve(listener, state)).await;
+    let limits = http::ConnLimits {
+        header_timeout: settings.http.header_timeout,
+        request_timeout: settings.http.request_timeout,
+        max_connections: settings.http.max_connections,
+    };
+    let served = tokio::spawn(http::serve_with(listener, state, limits)).await;
     shutdown.cancel();
     svc.wait().await;
     served.context("http server task")?.context("http server")

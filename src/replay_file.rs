@@ -109,7 +109,7 @@ fn written_in_place(out: &Path) -> bool {
 }
 
 /// The recording's reader with the replay's columns selected, and the replay's plan.
-fn open_planned(recording: &Path) -> Result<(StreamReader<File>, Plan), EstimateError> {
+fn open_planned(recording: &Path) -> Result<(StreamReader<crate::recording::RecordingFile>, Plan), EstimateError> {
     let mut reader = StreamReader::open(recording).map_err(EstimateError::Recording)?;
     let plan = Plan::choose(reader.names(), |columns| holds_values(recording, columns));
     let selected: Vec<usize> = plan.columns().iter().filter_map(|c| reader.index_of(c)).collect();

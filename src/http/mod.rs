@@ -22,6 +22,12 @@ use crate::control::Mode;
 use crate::service::state::{DriveSnapshot, ServiceState};
 
 mod condition;
+pub mod conn;
+pub mod files;
+pub mod throttle;
+
+pub use conn::{ConnLimits, serve_with};
+use throttle::AuthThrottle;
 
 /// What the handlers share.
 #[derive(Clone)]
@@ -34,6 +40,8 @@ pub struct AppState {
     pub shutdown: CancellationToken,
     /// The last rendered `/api/status` body (see [`STATUS_MAX_AGE`]).
     pub status_cache: Arc<StatusCache>,
+    /// Wrong tokens per client (see [`throttle`]).
+    pub auth: Arc<AuthThrottle>,
 }
 
 /// How long a rendered `/api/status` body is served to further requests. Requests within it share one rendering
@@ -73,6 +81,12 @@ impl ApiError {
     fn bad_request(message: impl Into<String>) -> ApiError {
         ApiError::new(StatusCode::BAD_REQUEST, message)
     }
+    fn throttled(wait: Duration) -> ApiError {
+        ApiError {
+            status: StatusCode::TOO_MANY_REQUESTS,
+            message: format!("too many wrong tokens: try again in {} s", wait.as_secs().max(1)),
+        }
+    }
 }
 
 impl IntoResponse for ApiError {
@@ -83,6 +97,9 @@ impl IntoResponse for ApiError {
         let mut resp = (self.status, Json(serde_json::json!({ "error": self.message }))).into_response();
         if self.status == StatusCode::UNAUTHORIZED {
             resp.headers_mut().insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
+        }
+        if self.status == StatusCode::TOO_MANY_REQUESTS {
+            resp.headers_mut().insert(header::RETRY_AFTER, HeaderValue::from(throttle::BLOCK.as_secs()));
         }
         resp
     }
@@ -140,10 +157,21 @@ pub fn router(state: AppState) -> Router {
         .with_state(state)
 }
 
-/// Serves the router on an already-bound listener until `state.shutdown` fires.
+/// Serves the router on an already-bound listener until `state.shutdown` fires, within the default
+/// [`ConnLimits`].
 pub async fn serve(listener: tokio::net::TcpListener, state: AppState) -> std::io::Result<()> {
-    let shutdown = state.shutdown.clone();
-    axum::serve(listener, router(state)).with_graceful_shutdown(async move { shutdown.cancelled().await }).await
+    serve_with(listener, state, ConnLimits::default()).await
+}
+
+/// The client's address, when the request came through [`serve_with`] (not in `oneshot` tests).
+pub struct ClientAddr(Option<std::net::SocketAddr>);
+
+impl<S: Send + Sync> axum::extract::FromRequestParts<S> for ClientAddr {
+    type Rejection = Infallible;
+
+    async fn from_request_parts(parts: &mut axum::http::request::Parts, _: &S) -> Result<Self, Infallible> {
+        Ok(ClientAddr(parts.extensions.get::<axum::extract::ConnectInfo<std::net::SocketAddr>>().map(|c| c.0)))
+    }
 }
 
 async fn static_file(path: &'static str) -> Response {
@@ -300,19 +328,40 @@ async fn events(State(s): State<AppState>) -> Sse<impl Stream<Item = Result<Even
     Sse::new(stream).keep_alive(KeepAlive::default())
 }
 
-/// Checks `Authorization: Bearer <token>` in constant time.
-fn authorize(s: &AppState, headers: &HeaderMap) -> Result<(), ApiError> {
+/// Checks `Authorization: Bearer <token>` in constant time; a client that sent a burst of wrong tokens gets 429
+/// for a while (see [`throttle`]). Failures are counted and logged with the client's address, never the token.
+fn authorize(s: &AppState, headers: &HeaderMap, client: &ClientAddr) -> Result<(), ApiError> {
     let Some(token) = &s.token else {
         return Err(ApiError::new(StatusCode::FORBIDDEN, "write routes are disabled: no http.token in the config"));
     };
+    // requests without an address (in-process tests) share one entry
+    let ip = client.0.map_or(std::net::IpAddr::from([0, 0, 0, 0]), |a| a.ip());
+    let now = std::time::Instant::now();
+    if let Some(wait) = s.auth.blocked(ip, now) {
+        s.service.metrics.http_auth_throttled.inc();
+        return Err(ApiError::throttled(wait));
+    }
     let given = headers
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.strip_prefix("Bearer "))
         .map(str::trim);
     match given {
-        Some(g) if bool::from(g.as_bytes().ct_eq(token.as_bytes())) => Ok(()),
-        Some(_) => Err(ApiError::new(StatusCode::UNAUTHORIZED, "wrong token")),
+        Some(g) if bool::from(g.as_bytes().ct_eq(token.as_bytes())) => {
+            s.auth.succeeded(ip);
+            Ok(())
+        }
+        Some(_) => {
+            s.service.metrics.http_auth_failures.inc();
+            let (failures, blocked) = s.auth.failed(ip, now);
+            if blocked {
+                tracing::warn!(client = %ip, block_s = throttle::BLOCK.as_secs(),
+                    "wrong token: too many from this client, write routes answer 429 for a while");
+            } else {
+                tracing::warn!(client = %ip, failures, "wrong token on a write route");
+            }
+            Err(ApiError::new(StatusCode::UNAUTHORIZED, "wrong token"))
+        }
         None => Err(ApiError::new(StatusCode::UNAUTHORIZED, "needs Authorization: Bearer <token>")),
     }
 }
@@ -326,10 +375,11 @@ struct TargetBody {
 async fn set_target(
     State(s): State<AppState>,
     Path(name): Path<String>,
+    client: ClientAddr,
     headers: HeaderMap,
     body: Result<Bytes, BytesRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
-    authorize(&s, &headers)?;
+    authorize(&s, &headers, &client)?;
     let drive = s.service.drive(&name).ok_or_else(|| ApiError::not_found(format!("no drive {name:?}")))?;
     let body = body?;
     let t: TargetBody = serde_json::from_slice(&body)
@@ -359,9 +409,10 @@ async fn set_target(
 async fn reset(
     State(s): State<AppState>,
     Path(name): Path<String>,
+    client: ClientAddr,
     headers: HeaderMap,
 ) -> Result<(StatusCode, Json<serde_json::Value>), ApiError> {
-    authorize(&s, &headers)?;
+    authorize(&s, &headers, &client)?;
     let drive = s.service.drive(&name).ok_or_else(|| ApiError::not_found(format!("no drive {name:?}")))?;
     if drive.mode == Mode::Monitor {
         return Err(ApiError::new(StatusCode::CONFLICT, format!("drive {name:?} is in monitor mode: it never writes")));
@@ -396,6 +447,10 @@ async fn recordings(State(s): State<AppState>) -> Result<Json<serde_json::Value>
         if !valid_file_name(&name) {
             continue;
         }
+        // only regular files: never a link, FIFO or directory (what the download route would refuse)
+        if !entry.file_type().await.is_ok_and(|t| t.is_file()) {
+            continue;
+        }
         let Ok(meta) = entry.metadata().await else { continue };
         let modified_unix_s =
             meta.modified().ok().and_then(|m| m.duration_since(std::time::UNIX_EPOCH).ok()).map(|d| d.as_secs());
@@ -419,8 +474,12 @@ async fn recording_file(State(s): State<AppState>, Path(file): Path<String>) -> 
         return Err(ApiError::bad_request(format!("{file:?} is not a recording name such as pump1-1700000000000.csv")));
     }
     let Some(dir) = &s.service.recording_dir else { return Err(ApiError::not_found("recording is off")) };
-    match tokio::fs::read(dir.join(&file)).await {
-        Ok(bytes) => Ok((
+    let (dir, name) = (dir.clone(), file.clone());
+    let read = tokio::task::spawn_blocking(move || files::read_regular(&dir, &name))
+        .await
+        .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("reading {file}: {e}")))?;
+    match read {
+        Ok(Some(bytes)) => Ok((
             [
                 (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()),
                 (header::CONTENT_DISPOSITION, format!("attachment; filename=\"{file}\"")),
@@ -428,9 +487,7 @@ async fn recording_file(State(s): State<AppState>, Path(file): Path<String>) -> 
             bytes,
         )
             .into_response()),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-            Err(ApiError::not_found(format!("no recording {file:?}")))
-        }
+        Ok(None) => Err(ApiError::not_found(format!("no recording {file:?}"))),
         Err(e) => Err(ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("reading {file}: {e}"))),
     }
 }

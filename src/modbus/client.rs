@@ -110,7 +110,8 @@ impl DriveClient {
                 }
                 self.ever_connected = true;
                 self.ctx = Some(ctx);
-                self.backoff = BACKOFF_START;
+                // the back-off stays: a device that accepts and then answers garbage must not be reconnected
+                // to at full rate; [`DriveClient::good_poll`] resets it
                 self.next_attempt = None;
                 tracing::info!(address = %self.address, unit_id = self.unit_id, "modbus connected");
                 Ok(())
@@ -185,6 +186,11 @@ impl DriveClient {
             })
         })
         .await
+    }
+
+    /// A poll came back whole and valid: the next failure starts the back-off afresh.
+    pub fn good_poll(&mut self) {
+        self.backoff = BACKOFF_START;
     }
 
     /// Closes the connection (on shutdown).

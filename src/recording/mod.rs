@@ -1,10 +1,12 @@
 //! Recordings: the contract's CSV (CONTRACT.md "Recording CSV"), read strictly and written streaming, with rotation.
 
+pub mod cut;
 mod join;
 mod read;
 pub mod stream;
 mod write;
 
+pub use cut::RecordingFile;
 pub use join::{drive_files, join, last_run};
 pub use read::{RecordingError, load, parse};
 pub use stream::{Batch, Chunk, ChunkParser, ChunkSource, StreamReader, TimeText};

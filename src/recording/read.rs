@@ -28,10 +28,10 @@ impl RecordingError {
     }
 }
 
-/// Reads a recording file.
+/// Reads a recording file (a last line cut mid-row is dropped with a warning, see [`super::cut`]).
 pub fn load(path: &Path) -> Result<Recording, RecordingError> {
     let name = path.display().to_string();
-    let file = std::fs::File::open(path).map_err(|source| RecordingError::Io { path: name.clone(), source })?;
+    let file = super::cut::open(path)?;
     parse(std::io::BufReader::with_capacity(1 << 16, file), &name)
 }
 

@@ -116,11 +116,12 @@ struct CsvInput<R: Read> {
     first_line: Option<u64>,
 }
 
-impl StreamReader<std::fs::File> {
-    /// Opens a recording file and reads its header. Nothing is selected yet: see [`StreamReader::select`].
-    pub fn open(path: &Path) -> Result<StreamReader<std::fs::File>, RecordingError> {
+impl StreamReader<super::RecordingFile> {
+    /// Opens a recording file and reads its header. Nothing is selected yet: see [`StreamReader::select`]. A last
+    /// line cut mid-row is dropped with a warning (see [`super::cut`]).
+    pub fn open(path: &Path) -> Result<StreamReader<super::RecordingFile>, RecordingError> {
         let name = path.display().to_string();
-        let file = std::fs::File::open(path).map_err(|source| RecordingError::Io { path: name.clone(), source })?;
+        let file = super::cut::open(path)?;
         StreamReader::new(file, &name)
     }
 }

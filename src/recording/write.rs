@@ -235,6 +235,18 @@ impl RotatingWriter {
         Ok(())
     }
 
+    /// Gives up the current file after a failed write (it may end in a cut row, which readers drop): the next row
+    /// starts a new file. Errors on the way out are ignored, the failure was reported already.
+    pub fn abandon(&mut self) {
+        if let Some(c) = self.current.take() {
+            let mut counting = c.writer.into_inner();
+            let _ = counting.flush();
+            if let Ok(file) = counting.inner.into_inner() {
+                let _ = file.sync_all();
+            }
+        }
+    }
+
     /// Flushes and closes the current file, syncing it to disk.
     pub fn close(&mut self) -> std::io::Result<()> {
         if let Some(c) = self.current.take() {

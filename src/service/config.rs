@@ -7,6 +7,7 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
+use super::freshness::RateLimits;
 use crate::control::{FeedForward, Gains, Limits, Mode};
 use crate::estimator::{EstimatorSettings, Method};
 use crate::modbus::map::{RegisterMap, RegisterSpec, Table, ValueType, WordOrder};
@@ -48,11 +49,25 @@ struct RawHttp {
     token: String,
     max_body_bytes: usize,
     history_seconds: f64,
+    /// A request's headers must arrive within this (also how long an idle kept-alive connection lives).
+    header_timeout_ms: u64,
+    /// A whole request, body included, must be answered within this.
+    request_timeout_ms: u64,
+    /// Open HTTP connections at most; further clients wait in the kernel's backlog.
+    max_connections: usize,
 }
 
 impl Default for RawHttp {
     fn default() -> Self {
-        RawHttp { bind: "127.0.0.1:8080".into(), token: String::new(), max_body_bytes: 4096, history_seconds: 120.0 }
+        RawHttp {
+            bind: "127.0.0.1:8080".into(),
+            token: String::new(),
+            max_body_bytes: 4096,
+            history_seconds: 120.0,
+            header_timeout_ms: 10_000,
+            request_timeout_ms: 10_000,
+            max_connections: 512,
+        }
     }
 }
 
@@ -63,11 +78,22 @@ struct RawRecording {
     enabled: bool,
     max_file_mb: f64,
     rotate_hours: f64,
+    /// All drives' recordings together at most this (each drive keeps its share); absent: unbounded.
+    max_total_mb: Option<f64>,
+    /// Closed recordings older than this are deleted; absent: kept.
+    keep_days: Option<f64>,
 }
 
 impl Default for RawRecording {
     fn default() -> Self {
-        RawRecording { dir: "recordings".into(), enabled: true, max_file_mb: 64.0, rotate_hours: 1.0 }
+        RawRecording {
+            dir: "recordings".into(),
+            enabled: true,
+            max_file_mb: 64.0,
+            rotate_hours: 1.0,
+            max_total_mb: None,
+            keep_days: None,
+        }
     }
 }
 
@@ -87,6 +113,9 @@ struct RawDrive {
     /// Watchdog refresh period (default 100 ms, well inside the drive's comm timeout / 3).
     #[serde(default = "hundred")]
     watchdog_ms: u64,
+    /// The drive's own comm timeout (its watchdog trips after this long without a change); default: the model's
+    /// `drive.comm_timeout_ms`. `watchdog_ms` must stay within a third of it (CONTRACT.md, register 2).
+    comm_timeout_ms: Option<u64>,
     /// Real-time (SCHED_FIFO) priority of the drive's poll thread, 1..=99; absent: normal scheduling.
     realtime_priority: Option<u8>,
     #[serde(default)]
@@ -157,11 +186,27 @@ struct RawLimits {
     max_pressure_bar: f64,
     max_speed_rad_s: f64,
     max_frequency_hz: f64,
+    /// Rate-of-change plausibility (see [`RateLimits`]); a sample that moved faster is rejected like an
+    /// out-of-range one.
+    max_pressure_rate_bar_per_s: f64,
+    max_speed_rate_rad_per_s2: f64,
+    max_frequency_rate_hz_per_s: f64,
 }
 
 impl Default for RawLimits {
     fn default() -> Self {
-        RawLimits { min_pressure_bar: -1.0, max_pressure_bar: 400.0, max_speed_rad_s: 1000.0, max_frequency_hz: 400.0 }
+        // the rates: about four times what the reference plant can do (≈ 40 000 bar/s with the pump into a closed
+        // volume, ≈ 2 500 rad/s² at 400 bar) and far above sensor noise differenced at a 1 ms poll (≈ 2 500 bar/s,
+        // ≈ 9 000 rad/s² at 8 σ); drives ramp at tens of Hz/s
+        RawLimits {
+            min_pressure_bar: -1.0,
+            max_pressure_bar: 400.0,
+            max_speed_rad_s: 1000.0,
+            max_frequency_hz: 400.0,
+            max_pressure_rate_bar_per_s: 200_000.0,
+            max_speed_rate_rad_per_s2: 10_000.0,
+            max_frequency_rate_hz_per_s: 1_000.0,
+        }
     }
 }
 
@@ -192,6 +237,9 @@ pub struct HttpSettings {
     pub token: Option<String>,
     pub max_body_bytes: usize,
     pub history: Duration,
+    pub header_timeout: Duration,
+    pub request_timeout: Duration,
+    pub max_connections: usize,
 }
 
 #[derive(Debug, Clone)]
@@ -200,6 +248,10 @@ pub struct RecordingSettings {
     pub dir: Option<PathBuf>,
     pub max_file_bytes: u64,
     pub rotate_after: Duration,
+    /// All drives' recordings together at most this many bytes.
+    pub max_total_bytes: Option<u64>,
+    /// Closed recordings older than this go.
+    pub keep: Option<Duration>,
 }
 
 /// Plausible ranges of decoded values; anything outside (or non-finite) is rejected before the estimator.
@@ -209,6 +261,8 @@ pub struct ValidRanges {
     pub max_pressure_bar: f64,
     pub max_speed_rad_s: f64,
     pub max_frequency_hz: f64,
+    /// The largest plausible rates of change between samples.
+    pub rates: RateLimits,
 }
 
 #[derive(Debug, Clone)]
@@ -271,6 +325,41 @@ fn positive(key: &str, v: f64) -> Result<f64, Invalid> {
     if v.is_finite() && v > 0.0 { Ok(v) } else { Err((key.into(), format!("must be finite and > 0, got {v}"))) }
 }
 
+/// The smallest `recording.max_file_mb`: about 500 rows, half a second at a 1 ms poll.
+pub const MIN_FILE_MB: f64 = 0.1;
+/// The shortest `recording.rotate_hours`: one minute.
+pub const MIN_ROTATE_HOURS: f64 = 1.0 / 60.0;
+/// The largest PI gains accepted: 50 and 170 times the defaults, far beyond any tuning that regulates.
+pub const MAX_KP_HZ_PER_RAD_S: f64 = 10.0;
+pub const MAX_KI_HZ_PER_RAD: f64 = 100.0;
+
+/// A recordings directory: an existing directory, or a path whose nearest existing ancestor is one.
+fn directory_or_creatable(dir: &Path) -> Result<(), String> {
+    for p in dir.ancestors().filter(|p| !p.as_os_str().is_empty()) {
+        match std::fs::metadata(p) {
+            Ok(m) if m.is_dir() => return Ok(()),
+            Ok(_) if p == dir => return Err(format!("{} exists and is not a directory", dir.display())),
+            Ok(_) => return Err(format!("{}: {} is not a directory", dir.display(), p.display())),
+            Err(e) if matches!(e.kind(), std::io::ErrorKind::NotFound | std::io::ErrorKind::NotADirectory) => {}
+            // unreadable: leave it to the recorder, whose error then says why
+            Err(_) => return Ok(()),
+        }
+    }
+    Ok(())
+}
+
+/// The largest value a register can hold, in engineering units (for error messages).
+fn register_capacity(spec: &RegisterSpec) -> f64 {
+    let raw_max = match spec.kind {
+        ValueType::U16 => 65535.0,
+        ValueType::I16 => 32767.0,
+        ValueType::U32 => 4_294_967_295.0,
+        ValueType::I32 => 2_147_483_647.0,
+        ValueType::F32 => f64::from(f32::MAX),
+    };
+    (raw_max * spec.scale.abs() * 1e6).round() / 1e6 + spec.offset
+}
+
 fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
     let bind = raw.http.bind.parse().map_err(|e| {
         ("http.bind".to_string(), format!("{:?} is not an address such as 127.0.0.1:8080 ({e})", raw.http.bind))
@@ -283,26 +372,81 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
         return Err(("http.history_seconds".into(), format!("must be ≤ 3600, got {history_s}")));
     }
     let token = (!raw.http.token.is_empty()).then_some(raw.http.token);
+    // an idle or half-sent request must be gone within 30 s (issue 20)
+    for (k, ms) in [
+        ("http.header_timeout_ms", raw.http.header_timeout_ms),
+        ("http.request_timeout_ms", raw.http.request_timeout_ms),
+    ] {
+        if !(1..=30_000).contains(&ms) {
+            return Err((k.into(), format!("must be 1 ..= 30000, got {ms}")));
+        }
+    }
+    if !(1..=65_536).contains(&raw.http.max_connections) {
+        return Err(("http.max_connections".into(), format!("must be 1 ..= 65536, got {}", raw.http.max_connections)));
+    }
     let http = HttpSettings {
         bind,
         token,
         max_body_bytes: raw.http.max_body_bytes,
         history: Duration::from_secs_f64(history_s),
+        header_timeout: Duration::from_millis(raw.http.header_timeout_ms),
+        request_timeout: Duration::from_millis(raw.http.request_timeout_ms),
+        max_connections: raw.http.max_connections,
     };
 
     let r = raw.recording;
     let max_mb = positive("recording.max_file_mb", r.max_file_mb)?;
+    if max_mb < MIN_FILE_MB {
+        return Err((
+            "recording.max_file_mb".into(),
+            format!("must be ≥ {MIN_FILE_MB} (smaller files rotate every few rows), got {max_mb}"),
+        ));
+    }
     let hours = positive("recording.rotate_hours", r.rotate_hours)?;
     if hours > 24.0 * 365.0 {
         return Err(("recording.rotate_hours".into(), format!("must be ≤ 8760, got {hours}")));
     }
+    if hours < MIN_ROTATE_HOURS {
+        return Err((
+            "recording.rotate_hours".into(),
+            format!("must be ≥ {MIN_ROTATE_HOURS:.4} (one minute), got {hours}"),
+        ));
+    }
     if r.dir.is_empty() && r.enabled {
         return Err(("recording.dir".into(), "must not be empty while recording is enabled".into()));
     }
+    if r.enabled {
+        directory_or_creatable(Path::new(&r.dir)).map_err(|m| ("recording.dir".to_string(), m))?;
+    }
+    let max_total_bytes = match r.max_total_mb {
+        None => None,
+        Some(t) => {
+            let t = positive("recording.max_total_mb", t)?;
+            if t < 2.0 * max_mb {
+                return Err((
+                    "recording.max_total_mb".into(),
+                    format!("must be at least twice recording.max_file_mb ({max_mb}), got {t}"),
+                ));
+            }
+            Some((t * 1024.0 * 1024.0) as u64)
+        }
+    };
+    let keep = match r.keep_days {
+        None => None,
+        Some(d) => {
+            let d = positive("recording.keep_days", d)?;
+            if d > 36_500.0 {
+                return Err(("recording.keep_days".into(), format!("must be ≤ 36500, got {d}")));
+            }
+            Some(Duration::from_secs_f64(d * 86_400.0))
+        }
+    };
     let recording = RecordingSettings {
         dir: r.enabled.then(|| PathBuf::from(r.dir)),
         max_file_bytes: (max_mb * 1024.0 * 1024.0) as u64,
         rotate_after: Duration::from_secs_f64(hours * 3600.0),
+        max_total_bytes,
+        keep,
     };
 
     if raw.drives.is_empty() {
@@ -313,6 +457,18 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
         let drive = validate_drive(d, i, base)?;
         if drives.iter().any(|o: &DriveSettings| o.name == drive.name) {
             return Err((format!("drives[{i}].name"), format!("{:?} is used by another drive", drive.name)));
+        }
+        if let Some(o) = drives.iter().find(|o: &&DriveSettings| {
+            drive.mode.writes() && o.mode.writes() && o.address == drive.address && o.unit_id == drive.unit_id
+        }) {
+            return Err((
+                format!("drives[{i}].address"),
+                format!(
+                    "{} with unit_id {} is already written by drive {:?}: two writing loops would fight over one \
+                     drive (one may watch it in monitor mode)",
+                    drive.address, drive.unit_id, o.name
+                ),
+            ));
         }
         drives.push(drive);
     }
@@ -361,7 +517,13 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
     }
     let ramp = positive(&key("control.ramp_hz_per_s"), c.ramp_hz_per_s)?;
     let kp = nonneg(&key("control.kp"), c.kp)?;
+    if kp > MAX_KP_HZ_PER_RAD_S {
+        return Err((key("control.kp"), format!("must be ≤ {MAX_KP_HZ_PER_RAD_S} Hz per rad/s, got {kp}")));
+    }
     let ki = nonneg(&key("control.ki"), c.ki)?;
+    if ki > MAX_KI_HZ_PER_RAD {
+        return Err((key("control.ki"), format!("must be ≤ {MAX_KI_HZ_PER_RAD} Hz per rad, got {ki}")));
+    }
     let fixed_hz = finite(&key("control.fixed_hz"), c.fixed_hz)?;
     if c.mode == Mode::Manual && !(min_hz..=max_hz).contains(&fixed_hz) {
         return Err((
@@ -405,6 +567,11 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
         max_pressure_bar: finite(&key("limits.max_pressure_bar"), l.max_pressure_bar)?,
         max_speed_rad_s: positive(&key("limits.max_speed_rad_s"), l.max_speed_rad_s)?,
         max_frequency_hz: positive(&key("limits.max_frequency_hz"), l.max_frequency_hz)?,
+        rates: RateLimits {
+            pressure_bar_per_s: positive(&key("limits.max_pressure_rate_bar_per_s"), l.max_pressure_rate_bar_per_s)?,
+            speed_rad_per_s2: positive(&key("limits.max_speed_rate_rad_per_s2"), l.max_speed_rate_rad_per_s2)?,
+            frequency_hz_per_s: positive(&key("limits.max_frequency_rate_hz_per_s"), l.max_frequency_rate_hz_per_s)?,
+        },
     };
     if ranges.min_pressure_bar >= ranges.max_pressure_bar {
         return Err((key("limits.min_pressure_bar"), "must be below limits.max_pressure_bar".into()));
@@ -412,6 +579,35 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
 
     let registers = apply_overrides(d.registers, &key("registers"))?;
     let condition = super::condition::validate(d.condition, &key("condition"), &model, |p| resolve(p, base))?;
+    let setpoint = registers.frequency_setpoint_hz;
+    for (k, hz) in [("control.max_hz", max_hz), ("control.fixed_hz", fixed_hz), ("control.min_hz", min_hz)] {
+        if setpoint.encode(hz).is_err() {
+            return Err((
+                key(k),
+                format!(
+                    "{hz} Hz does not fit the setpoint register ({:?}, {} Hz per step: at most {} Hz)",
+                    setpoint.kind,
+                    setpoint.scale,
+                    register_capacity(&setpoint)
+                ),
+            ));
+        }
+    }
+    let comm_timeout_ms =
+        d.comm_timeout_ms.unwrap_or_else(|| model.drive.as_ref().map_or(1000, |drive| drive.comm_timeout_ms));
+    if comm_timeout_ms == 0 {
+        return Err((key("comm_timeout_ms"), "must be ≥ 1".into()));
+    }
+    if d.watchdog_ms.saturating_mul(3) > comm_timeout_ms {
+        return Err((
+            key("watchdog_ms"),
+            format!(
+                "{} ms is more than a third of the drive's comm timeout ({comm_timeout_ms} ms, comm_timeout_ms or \
+                 the model's drive.comm_timeout_ms): the drive would trip",
+                d.watchdog_ms
+            ),
+        ));
+    }
     let settings = DriveSettings {
         name: d.name,
         address: d.address,

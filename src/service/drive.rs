@@ -1,9 +1,11 @@
 //! One drive's poll loop: batched read → decode and validate → estimator → control law → setpoint and watchdog
 //! write, every `poll_ms`. Publishes a snapshot each cycle, feeds the history ring and the recording.
 //!
-//! Data are fresh when the sample counter has moved and every value decodes in range. Only fresh data reach the
-//! estimator, and only fresh data lead to a write: on stale data nothing is written, so the drive's own watchdog
-//! takes over. A tripped drive is commanded towards 0 Hz and only re-armed by a reset request from the API.
+//! Data are fresh when the sample counter has moved forward (and has not run backwards lately, see
+//! [`super::freshness`]), every value decodes in range and changed no faster than the plausible rates, the reply
+//! came within `stale_ms` and the previous new sample no more than `stale_ms` before: the one definition readiness
+//! also uses (only fresh samples mark the drive fresh). Only fresh data reach the estimator, and only fresh data
+//! lead to a write: on stale data nothing is written, so the drive's own watchdog takes over. A tripped drive is commanded towards 0 Hz and only re-armed by a reset request from the API.
 //!
 //! Each loop runs on an OS thread of its own with a current-thread runtime, paced by a [`Ticker`]: the HTTP side,
 //! other drives and the recorder never share its thread, so they cannot delay its ticks.
@@ -14,6 +16,7 @@ use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 use super::config::{DriveSettings, ValidRanges};
+use super::freshness::{CounterCheck, CounterVerdict, implausible_jump};
 use super::metrics::{DriveLabel, ErrorLabels, Metrics};
 use super::recorder::Recorder;
 use super::state::{DriveSnapshot, DriveState, DriveStatus, Link, Point};
@@ -42,6 +45,8 @@ pub enum Rejected {
     Decode { entry: &'static str, message: String },
     #[error("{entry} = {value} is outside the valid range")]
     Range { entry: &'static str, value: f64 },
+    #[error("{entry} jumped from {from} to {to} ({rate:.0}/s, limit {max_rate}/s)")]
+    Jump { entry: &'static str, from: f64, to: f64, rate: f64, max_rate: f64 },
 }
 
 /// The measured entries of the map, by name.
@@ -169,7 +174,10 @@ pub struct DriveLoop {
     started: Instant,
     timing: LoopTiming,
     plan: Vec<(Table, u16, u16)>,
-    last_counter: Option<u64>,
+    counter: CounterCheck,
+    /// The last sample that passed every check but timeliness, and when it was read: the reference of the
+    /// rate-of-change check and of the gap between new samples.
+    last_valid: Option<(Instant, Sample)>,
     last_fresh_at: Option<Instant>,
     /// When the watchdog value last changed: it must change at least every `watchdog_ms`.
     last_watchdog_at: Option<Instant>,
@@ -215,12 +223,13 @@ impl DriveLoop {
         }
         let _ = metrics.writes.get_or_create(&label);
         let _ = metrics.overruns.get_or_create(&label);
-        for kind in ["connect", "timeout", "transport", "protocol", "exception", "encode"] {
+        for kind in ["connect", "timeout", "transport", "protocol", "exception", "encode", "counter"] {
             let _ = metrics.errors.get_or_create(&ErrorLabels { drive: label.drive.clone(), kind: kind.into() });
         }
         let mut law = SpeedLaw::new(settings.mode, settings.limits, settings.gains, settings.feed_forward);
         law.target_omega_rad_s = settings.target_omega_rad_s;
         law.fixed_hz = settings.fixed_hz;
+        let counter = CounterCheck::new(16 * u32::from(settings.registers.sample_counter.kind.words()));
         DriveLoop {
             label,
             plan: read_plan(&settings.registers),
@@ -233,7 +242,8 @@ impl DriveLoop {
             recorder,
             started,
             settings,
-            last_counter: None,
+            counter,
+            last_valid: None,
             last_fresh_at: None,
             last_watchdog_at: None,
             last_written: Vec::new(),
@@ -330,13 +340,12 @@ impl DriveLoop {
         match self.read().await {
             Err(e) => self.error(&e),
             Ok(blocks) => match decode_sample(&self.settings.registers, &blocks, &self.settings.ranges) {
-                Err(r) => {
-                    self.link.rejected_samples += 1;
-                    self.link.last_error = Some(format!("rejected sample: {r}"));
-                    self.metrics.rejected_samples.get_or_create(&self.label).inc();
-                    tracing::debug!(drive = %self.settings.name, reason = %r, "sample rejected");
+                Err(r) => self.reject(&r),
+                Ok(sample) => {
+                    // a good poll: the link may forget its back-off
+                    self.client.good_poll();
+                    self.fresh_or_stale(now, sample).await
                 }
-                Ok(sample) => self.fresh_or_stale(now, sample).await,
             },
         }
 
@@ -351,13 +360,47 @@ impl DriveLoop {
         self.publish();
     }
 
+    fn reject(&mut self, r: &Rejected) {
+        self.link.rejected_samples += 1;
+        self.link.last_error = Some(format!("rejected sample: {r}"));
+        self.metrics.rejected_samples.get_or_create(&self.label).inc();
+        tracing::debug!(drive = %self.settings.name, reason = %r, "sample rejected");
+    }
+
+    fn stale(&mut self) {
+        self.metrics.stale_samples.get_or_create(&self.label).inc();
+    }
+
+    /// `now` is when the read was sent: the data are at least as old as the reply took.
     async fn fresh_or_stale(&mut self, now: Instant, sample: Sample) {
         self.status = drive_status(sample.status_word);
-        let fresh = self.last_counter != Some(sample.counter);
-        self.last_counter = Some(sample.counter);
-        if !fresh {
-            self.metrics.stale_samples.get_or_create(&self.label).inc();
-            return;
+        match self.counter.observe(sample.counter) {
+            CounterVerdict::Moved => {}
+            CounterVerdict::Unchanged | CounterVerdict::Settling => return self.stale(),
+            CounterVerdict::Backwards => {
+                self.link.errors += 1;
+                self.link.last_error = Some(format!("sample counter ran backwards (to {})", sample.counter));
+                let labels = ErrorLabels { drive: self.label.drive.clone(), kind: "counter".into() };
+                self.metrics.errors.get_or_create(&labels).inc();
+                tracing::debug!(drive = %self.settings.name, counter = sample.counter, "sample counter ran backwards");
+                return self.stale();
+            }
+        }
+        let previous = self.last_valid;
+        if let Some((at, prev)) = previous {
+            let dt = now.saturating_duration_since(at).max(self.settings.poll);
+            if let Some(r) = implausible_jump(&prev, &sample, dt.as_secs_f64(), &self.settings.ranges) {
+                return self.reject(&r);
+            }
+        }
+        self.last_valid = Some((now, sample));
+        // timely: the reply came within stale_ms, and so did this sample after the one before; else readiness
+        // would call the drive stale while the loop wrote from it
+        let limit = self.settings.stale_after;
+        let reply_took = Instant::now().saturating_duration_since(now);
+        let gap_ok = previous.is_some_and(|(at, _)| now.saturating_duration_since(at) <= limit);
+        if reply_took > limit || !gap_ok {
+            return self.stale();
         }
         let first = self.last_fresh_at.is_none();
         let dt = self.last_fresh_at.map_or(self.settings.poll, |t| now.saturating_duration_since(t));
@@ -484,6 +527,16 @@ impl DriveLoop {
         self.metrics.target.get_or_create(l).set(self.law.target_omega_rad_s);
         let stale = self.last_fresh_at.is_none_or(|t| t.elapsed() > self.settings.stale_after);
         self.metrics.stale.get_or_create(l).set(i64::from(stale));
+        let recording_health = self.recorder.as_ref().map(|r| r.health.snapshot());
+        if let Some(h) = &recording_health {
+            self.metrics.recording_ok.get_or_create(l).set(i64::from(h.ok));
+            let errors = self.metrics.recording_errors.get_or_create(l);
+            errors.inc_by(h.errors.saturating_sub(errors.get()));
+            let lost = self.metrics.recording_rows_lost.get_or_create(l);
+            lost.inc_by(h.rows_lost.saturating_sub(lost.get()));
+            let deleted = self.metrics.recording_files_deleted.get_or_create(l);
+            deleted.inc_by(h.files_deleted.saturating_sub(deleted.get()));
+        }
         // skipped when a reader holds it: the next cycle publishes again
         let _ = self.state.publish(DriveSnapshot {
             name: self.settings.name.clone(),
@@ -498,6 +551,7 @@ impl DriveLoop {
             sample: self.sample,
             estimate: self.estimate,
             timing: stats,
+            recording: recording_health,
         });
     }
 }
@@ -512,6 +566,11 @@ mod tests {
             max_pressure_bar: 400.0,
             max_speed_rad_s: 1000.0,
             max_frequency_hz: 400.0,
+            rates: crate::service::freshness::RateLimits {
+                pressure_bar_per_s: 2e5,
+                speed_rad_per_s2: 1e4,
+                frequency_hz_per_s: 1e3,
+            },
         }
     }
 

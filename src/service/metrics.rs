@@ -53,6 +53,15 @@ pub struct Metrics {
     pub viscous_sd: Family<DriveLabel, GaugeF>,
     pub setpoint: Family<DriveLabel, GaugeF>,
     pub target: Family<DriveLabel, GaugeF>,
+    /// The recorder's: 1 while rows reach the disk; failures; rows lost to them.
+    pub recording_ok: Family<DriveLabel, Gauge>,
+    pub recording_errors: Family<DriveLabel, Counter>,
+    pub recording_rows_lost: Family<DriveLabel, Counter>,
+    pub recording_files_deleted: Family<DriveLabel, Counter>,
+    /// The HTTP side's (no drive label): open connections, wrong tokens, requests refused while throttled.
+    pub http_connections: Gauge,
+    pub http_auth_failures: Counter,
+    pub http_auth_throttled: Counter,
 }
 
 impl Metrics {
@@ -80,6 +89,13 @@ impl Metrics {
             viscous_sd: Family::default(),
             setpoint: Family::default(),
             target: Family::default(),
+            recording_ok: Family::default(),
+            recording_errors: Family::default(),
+            recording_rows_lost: Family::default(),
+            recording_files_deleted: Family::default(),
+            http_connections: Gauge::default(),
+            http_auth_failures: Counter::default(),
+            http_auth_throttled: Counter::default(),
         };
         let mut r = Registry::with_prefix("hydrolens");
         r.register("polls", "Poll cycles run", m.polls.clone());
@@ -123,6 +139,21 @@ impl Metrics {
         );
         r.register("setpoint_hz", "Last frequency setpoint written", m.setpoint.clone());
         r.register("target_omega_rad_s", "Speed target", m.target.clone());
+        r.register("recording_ok", "1 while the drive's rows reach the disk", m.recording_ok.clone());
+        r.register("recording_errors", "Recording write, flush or open failures", m.recording_errors.clone());
+        r.register("recording_rows_lost", "Rows not recorded because writing failed", m.recording_rows_lost.clone());
+        r.register(
+            "recording_files_deleted",
+            "Old recordings deleted by retention (max_total_mb, keep_days)",
+            m.recording_files_deleted.clone(),
+        );
+        r.register("http_connections", "Open HTTP connections", m.http_connections.clone());
+        r.register("http_auth_failures", "Write requests with a wrong Bearer token", m.http_auth_failures.clone());
+        r.register(
+            "http_auth_throttled",
+            "Write requests refused with 429 after a burst of wrong tokens",
+            m.http_auth_throttled.clone(),
+        );
         (m, r)
     }
 }

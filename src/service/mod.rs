@@ -5,9 +5,11 @@ pub mod condition;
 pub mod config;
 pub mod drive;
 pub mod estimators;
+pub mod freshness;
 pub mod metrics;
 pub mod program;
 pub mod recorder;
+pub mod retention;
 pub mod state;
 pub mod timing;
 
@@ -61,12 +63,19 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
             sample: None,
             estimate: None,
             timing: TimingStats::default(),
+            recording: None,
         };
         let state =
             Arc::new(DriveState::new(snapshot, d.max_target_omega_rad_s(), d.stale_after, history_len.min(1 << 20)));
         let recorder = match &settings.recording.dir {
             Some(dir) => {
-                Some(Recorder::start(dir, &d.name, settings.recording.rotate_after, settings.recording.max_file_bytes)?)
+                let r = &settings.recording;
+                let retention = retention::Retention {
+                    // each drive keeps its share of the whole
+                    max_bytes: r.max_total_bytes.map(|t| t / settings.drives.len().max(1) as u64),
+                    keep: r.keep,
+                };
+                Some(Recorder::start(dir, &d.name, r.rotate_after, r.max_file_bytes, retention)?)
             }
             None => None,
         };

@@ -129,6 +129,22 @@ pub struct DriveSnapshot {
     pub sample: Option<Point>,
     pub estimate: Option<Estimate>,
     pub timing: TimingStats,
+    /// The recorder's health; None while recording is off.
+    pub recording: Option<RecordingHealth>,
+}
+
+/// Whether the drive's rows reach the disk (a full disk, say, makes them fail until space returns).
+#[derive(Debug, Clone, PartialEq, Serialize, Default)]
+pub struct RecordingHealth {
+    /// False while rows are failing to be written.
+    pub ok: bool,
+    /// Write, flush or open failures so far.
+    pub errors: u64,
+    /// Rows not recorded because of them.
+    pub rows_lost: u64,
+    pub last_error: Option<String>,
+    /// Old recordings deleted by retention.
+    pub files_deleted: u64,
 }
 
 /// Requests from the HTTP side, taken by the loop at its next cycle.
@@ -193,9 +209,13 @@ impl DriveState {
     }
 
     /// Ready: connected and fresh.
+    /// Ready: connected and fresh, and the recording (if on) is being written.
     pub fn ready(&self) -> bool {
-        let connected = lock(&self.snapshot).link.connected;
-        connected && !self.freshness().0
+        let (connected, recording_ok) = {
+            let s = lock(&self.snapshot);
+            (s.link.connected, s.recording.as_ref().is_none_or(|r| r.ok))
+        };
+        connected && recording_ok && !self.freshness().0
     }
 
     // The poll thread never waits for a lock the HTTP side may hold: an HTTP worker runs at a lower priority and
@@ -334,6 +354,7 @@ mod tests {
             sample: None,
             estimate: None,
             timing: TimingStats::default(),
+            recording: None,
         };
         DriveState::new(snap, 100.0, Duration::from_millis(50), history_len)
     }

@@ -31,6 +31,7 @@ fn make_app(token: Option<&str>, mode: &str) -> (axum::Router, CancellationToken
         max_body_bytes: 1024,
         shutdown: shutdown.clone(),
         status_cache: Default::default(),
+        auth: Default::default(),
     };
     (router(state), shutdown, dir)
 }

@@ -101,8 +101,14 @@ pub async fn start_service(text: &str) -> (Service, String, CancellationToken, J
         max_body_bytes: settings.http.max_body_bytes,
         shutdown: shutdown.clone(),
         status_cache: Default::default(),
+        auth: Default::default(),
     };
-    let http = tokio::spawn(http::serve(listener, state));
+    let limits = http::ConnLimits {
+        header_timeout: settings.http.header_timeout,
+        request_timeout: settings.http.request_timeout,
+        max_connections: settings.http.max_connections,
+    };
+    let http = tokio::spawn(http::serve_with(listener, state, limits));
     (svc, url, shutdown, http)
 }
 

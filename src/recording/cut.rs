@@ -1,0 +1,60 @@
+//! Opening a recording whose last line may have been cut mid-row (the service stopped, or the disk filled, while
+//! a row was being written): the bytes after the last newline are dropped with a warning, so every reader sees
+//! whole lines. A cut anywhere else is still the parser's error. Our writers end every row with a newline.
+
+use std::fs::File;
+use std::io::{Read, Seek, SeekFrom, Take};
+use std::path::Path;
+
+use super::RecordingError;
+
+/// A recording file as the readers take it: the file up to its last newline.
+pub type RecordingFile = Take<File>;
+
+/// Opens `path`, leaving out a last line that has no newline.
+pub fn open(path: &Path) -> Result<RecordingFile, RecordingError> {
+    let name = path.display().to_string();
+    let io = |source| RecordingError::Io { path: name.clone(), source };
+    let mut file = File::open(path).map_err(io)?;
+    let len = file.metadata().map_err(io)?.len();
+    let keep = whole_lines_len(&mut file, len).map_err(io)?;
+    if keep < len {
+        tracing::warn!(recording = %name, dropped_bytes = len - keep,
+            "the last line was cut mid-row (writing was interrupted): dropped it");
+    }
+    file.seek(SeekFrom::Start(0)).map_err(io)?;
+    Ok(file.take(keep))
+}
+
+/// The length up to and including the last newline: `len` when the file ends with one, is empty, or has none at
+/// all (a header alone: the parser says what is wrong with it).
+fn whole_lines_len<R: Read + Seek>(file: &mut R, len: u64) -> std::io::Result<u64> {
+    const BLOCK: u64 = 1 << 16;
+    let mut end = len;
+    let mut buf = vec![0u8; BLOCK as usize];
+    while end > 0 {
+        let start = end.saturating_sub(BLOCK);
+        let block = &mut buf[..(end - start) as usize];
+        file.seek(SeekFrom::Start(start))?;
+        file.read_exact(block)?;
+        if let Some(i) = memchr::memrchr(b'\n', block) {
+            return Ok(start + i as u64 + 1);
+        }
+        end = start;
+    }
+    Ok(len)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_a_tail_without_newline_goes() {
+        let len = |s: &str| whole_lines_len(&mut std::io::Cursor::new(s.as_bytes()), s.len() as u64).expect("reads");
+        assert_eq!(len("t_s,a\n1,2\n"), 10);
+        assert_eq!(len("t_s,a\n1,2\n3,"), 10);
+        assert_eq!(len("t_s,a"), 5);
+        assert_eq!(len(""), 0);
+    }
+}

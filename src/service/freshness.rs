@@ -1,0 +1,136 @@
+//! Whether a decoded sample may be used: the sample counter's verdict (moved, unchanged, or impossible) and the
+//! rate-of-change plausibility of the measured values. Pure: fed counters, samples and Δt.
+
+use super::config::ValidRanges;
+use super::drive::{Rejected, Sample};
+
+/// Forward steps a counter must make after it ran backwards before its samples count again: a counter alternating
+/// between two values never makes two in a row; a device that restarted (counter back to 0) recovers in a few polls.
+pub const SETTLE_STEPS: u8 = 3;
+
+/// What the sample counter says about a read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CounterVerdict {
+    /// Moved forward: new data.
+    Moved,
+    /// Unchanged: the same data as before (stale, not a fault).
+    Unchanged,
+    /// Ran backwards (or jumped more than half its range): impossible, a device fault.
+    Backwards,
+    /// Moving forward again after running backwards, not yet [`SETTLE_STEPS`] steps in a row.
+    Settling,
+}
+
+/// Follows a wrapping sample counter of `bits` bits.
+#[derive(Debug, Clone)]
+pub struct CounterCheck {
+    modulus: u64,
+    last: Option<u64>,
+    /// Forward steps still needed after a backwards one.
+    settle: u8,
+}
+
+impl CounterCheck {
+    /// A counter that wraps after `bits` bits (16 for one register, 32 for two).
+    pub fn new(bits: u32) -> CounterCheck {
+        CounterCheck { modulus: 1u64 << bits.clamp(1, 63), last: None, settle: 0 }
+    }
+
+    pub fn observe(&mut self, counter: u64) -> CounterVerdict {
+        let now = counter % self.modulus;
+        let Some(last) = self.last.replace(now) else { return CounterVerdict::Moved };
+        let delta = (now + self.modulus - last) % self.modulus;
+        if delta == 0 {
+            CounterVerdict::Unchanged
+        } else if delta >= self.modulus / 2 {
+            self.settle = SETTLE_STEPS;
+            CounterVerdict::Backwards
+        } else if self.settle > 0 {
+            self.settle -= 1;
+            CounterVerdict::Settling
+        } else {
+            CounterVerdict::Moved
+        }
+    }
+}
+
+/// The largest plausible rates of change of the measured values (`[drives.limits]`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RateLimits {
+    pub pressure_bar_per_s: f64,
+    pub speed_rad_per_s2: f64,
+    pub frequency_hz_per_s: f64,
+}
+
+/// Rejects `next` when a measured value moved faster than `ranges` allow since `prev`, `dt_s` earlier (the caller
+/// floors Δt at the poll period, so that a late tick followed by an early one does not turn noise into a jump).
+pub fn implausible_jump(prev: &Sample, next: &Sample, dt_s: f64, ranges: &ValidRanges) -> Option<Rejected> {
+    let r = &ranges.rates;
+    let checks = [
+        ("inlet_pressure_bar", prev.p_in_bar, next.p_in_bar, r.pressure_bar_per_s),
+        ("outlet_pressure_bar", prev.p_out_bar, next.p_out_bar, r.pressure_bar_per_s),
+        ("omega_rad_s", prev.omega_rad_s, next.omega_rad_s, r.speed_rad_per_s2),
+        ("drive_frequency_hz", prev.f_drive_hz, next.f_drive_hz, r.frequency_hz_per_s),
+    ];
+    checks.into_iter().find_map(|(entry, a, b, max_rate)| {
+        let rate = (b - a).abs() / dt_s.max(1e-6);
+        (rate > max_rate).then_some(Rejected::Jump { entry, from: a, to: b, rate, max_rate })
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use CounterVerdict::*;
+
+    #[test]
+    fn a_counter_that_wraps_moves_on() {
+        let mut c = CounterCheck::new(16);
+        assert_eq!(c.observe(65534), Moved);
+        assert_eq!(c.observe(65535), Moved);
+        assert_eq!(c.observe(4), Moved);
+        assert_eq!(c.observe(4), Unchanged);
+    }
+
+    #[test]
+    fn backwards_and_alternating_counters_never_count() {
+        let mut c = CounterCheck::new(16);
+        c.observe(500);
+        let backwards: Vec<_> = (0..10).map(|i| c.observe(400 - i)).collect();
+        assert!(backwards.iter().all(|v| *v == Backwards), "{backwards:?}");
+        let mut c = CounterCheck::new(16);
+        c.observe(500);
+        let alternating: Vec<_> = (0..10).map(|i| c.observe(100 + i % 2)).collect();
+        assert!(!alternating.contains(&Moved), "{alternating:?}");
+        assert!(alternating.contains(&Backwards));
+        // a device that restarted from 0 counts again after SETTLE_STEPS forward steps
+        let mut c = CounterCheck::new(16);
+        c.observe(500);
+        assert_eq!(c.observe(0), Backwards);
+        let after: Vec<_> = (1..=5).map(|i| c.observe(i)).collect();
+        assert_eq!(after, [Settling, Settling, Settling, Moved, Moved]);
+    }
+
+    fn ranges() -> ValidRanges {
+        ValidRanges {
+            min_pressure_bar: -1.0,
+            max_pressure_bar: 400.0,
+            max_speed_rad_s: 1000.0,
+            max_frequency_hz: 400.0,
+            rates: RateLimits { pressure_bar_per_s: 1e5, speed_rad_per_s2: 1e4, frequency_hz_per_s: 1e3 },
+        }
+    }
+
+    #[test]
+    fn jumps_beyond_the_rate_are_rejected() {
+        let a =
+            Sample { p_in_bar: 50.0, p_out_bar: 3.0, omega_rad_s: 40.0, f_drive_hz: 25.0, status_word: 3, counter: 1 };
+        let b = Sample { omega_rad_s: 343.0, ..a };
+        let r = implausible_jump(&a, &b, 0.01, &ranges());
+        assert!(matches!(r, Some(Rejected::Jump { entry: "omega_rad_s", .. })), "{r:?}");
+        // the same change over a second is physics
+        assert_eq!(implausible_jump(&a, &b, 1.0, &ranges()), None);
+        let noisy = Sample { omega_rad_s: 42.0, p_in_bar: 51.0, ..a };
+        assert_eq!(implausible_jump(&a, &noisy, 0.001, &ranges()), None);
+    }
+}

@@ -1,0 +1,650 @@
+//! What a hostile tester found (issue 20), each as a test through real parts: a misbehaving Modbus device of our
+//! own (`device.rs`), real sockets on 127.0.0.1, the real router and config parser.
+
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use hydrolens::modbus::Table;
+use hydrolens::modbus::client::DriveClient;
+use hydrolens::service::{self, Service};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+use tokio::task::JoinHandle;
+use tokio_util::sync::CancellationToken;
+
+use crate::device::{self, Device};
+use crate::support::{TOKEN, metric, root, start_service, wait_for};
+
+const SPEED: &str = "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\n";
+
+/// A service on one drive at `modbus` (a closed port is fine), with HTTP on 127.0.0.1:0.
+struct Svc {
+    svc: Option<Service>,
+    url: String,
+    shutdown: CancellationToken,
+    http: Option<JoinHandle<std::io::Result<()>>>,
+    _dir: tempfile::TempDir,
+}
+
+impl Svc {
+    async fn start(modbus: SocketAddr, http_extra: &str, drive_extra: &str) -> Svc {
+        let dir = tempfile::tempdir().expect("tmp");
+        Svc::start_in(dir, modbus, http_extra, drive_extra).await
+    }
+
+    async fn start_in(dir: tempfile::TempDir, modbus: SocketAddr, http_extra: &str, drive_extra: &str) -> Svc {
+        let text = format!(
+            "[http]\nbind = \"127.0.0.1:0\"\ntoken = \"{TOKEN}\"\n{http_extra}\n[recording]\ndir = {d:?}\n\n\
+             [[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 10\ntimeout_ms = 100\n{drive_extra}\n",
+            d = dir.path().display().to_string()
+        );
+        let (svc, url, shutdown, http) = start_service(&text).await;
+        Svc { svc: Some(svc), url, shutdown, http: Some(http), _dir: dir }
+    }
+
+    fn state(&self) -> &Arc<service::ServiceState> {
+        &self.svc.as_ref().expect("running").state
+    }
+
+    async fn readyz(&self) -> u16 {
+        reqwest::get(format!("{}/readyz", self.url)).await.expect("GET readyz").status().as_u16()
+    }
+
+    async fn metrics(&self) -> String {
+        reqwest::get(format!("{}/metrics", self.url)).await.expect("GET metrics").text().await.expect("text")
+    }
+
+    async fn stop(mut self) {
+        self.shutdown.cancel();
+        let bounded = Duration::from_secs(10);
+        if let Some(s) = self.svc.take() {
+            tokio::time::timeout(bounded, s.wait()).await.expect("service stops");
+        }
+        if let Some(h) = self.http.take() {
+            let _ = tokio::time::timeout(bounded, h).await.expect("http stops");
+        }
+    }
+}
+
+// ---- item 4: one definition of fresh ----
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn late_replies_that_readiness_calls_stale_never_lead_to_writes() {
+    let run = async {
+        let dev = Device::start(device::healthy()).await;
+        let s = Svc::start(dev.addr, "", SPEED).await;
+        wait_for(Duration::from_secs(5), || async { dev.lock().writes > 5 }).await.expect("writing while healthy");
+        // replies 70 ms late: inside timeout_ms = 100, beyond the default stale_ms = 50
+        dev.lock().delay = Duration::from_millis(70);
+        tokio::time::sleep(Duration::from_millis(300)).await; // what was in flight lands
+        let before = dev.lock().writes;
+        for _ in 0..8 {
+            tokio::time::sleep(Duration::from_millis(100)).await;
+            assert_eq!(s.readyz().await, 503, "late data are stale for readiness");
+        }
+        assert_eq!(dev.lock().writes, before, "nothing written from data readiness calls stale");
+        dev.lock().delay = Duration::ZERO;
+        wait_for(Duration::from_secs(3), || async { dev.lock().writes > before }).await.expect("writes resume");
+        s.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(25), run).await.expect("bounded");
+}
+
+// ---- item 5: impossible counters ----
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_counter_running_backwards_or_alternating_is_stale_and_a_device_fault() {
+    let run = async {
+        let scripts: [(&str, device::Script); 2] = [
+            ("backwards", Box::new(|n| [5000, 300, 3820, 2550, 3, 60000u16.wrapping_sub(n as u16)])),
+            ("alternating", Box::new(|n| [5000, 300, 3820, 2550, 3, 100 + (n % 2) as u16])),
+        ];
+        for (name, script) in scripts {
+            let dev = Device::start(device::healthy()).await;
+            let s = Svc::start(dev.addr, "", SPEED).await;
+            wait_for(Duration::from_secs(5), || async { s.readyz().await == 200 && dev.lock().writes > 5 })
+                .await
+                .expect("ready and writing while healthy");
+            dev.lock().script = script;
+            tokio::time::sleep(Duration::from_millis(200)).await;
+            let before = dev.lock().writes;
+            tokio::time::sleep(Duration::from_millis(600)).await;
+            assert_eq!(dev.lock().writes, before, "{name}: nothing written");
+            assert_eq!(s.readyz().await, 503, "{name}: not ready");
+            let m = s.metrics().await;
+            let faults = metric(&m, "hydrolens_errors_total{drive=\"pump1\",kind=\"counter\"}").unwrap_or(0.0);
+            assert!(faults >= 1.0, "{name}: counted as a device fault\n{m}");
+            dev.lock().script = device::healthy();
+            wait_for(Duration::from_secs(3), || async { dev.lock().writes > before })
+                .await
+                .unwrap_or_else(|| panic!("{name}: writes resume with a healthy counter"));
+            s.stop().await;
+        }
+    };
+    tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+}
+
+// ---- item 6: back-off resets only after a good poll ----
+
+#[tokio::test]
+async fn backoff_keeps_growing_when_each_connect_is_followed_by_garbage() {
+    let dev = Device::start(device::healthy()).await;
+    dev.lock().garbage = true;
+    let mut client = DriveClient::new(&dev.addr.to_string(), 1, Duration::from_millis(100));
+    let start = tokio::time::Instant::now();
+    let mut calls = 0;
+    while start.elapsed() < Duration::from_secs(3) && calls < 10_000 {
+        assert!(client.read(Table::Input, 0, 6).await.is_err(), "garbage is never a reply");
+        tokio::time::sleep(Duration::from_millis(5)).await;
+        calls += 1;
+    }
+    // back-off 50, 100, 200, 400, 500, 500 … ms: about 7 connections in 3 s; reset at each connect: 20 or more
+    let connections = dev.lock().connections;
+    assert!(connections <= 12, "{connections} connections in 3 s: back-off was reset by each connect");
+    assert!(connections >= 3, "{connections}: the client keeps trying");
+    dev.lock().garbage = false;
+    let mut good = false;
+    for _ in 0..200 {
+        if client.read(Table::Input, 0, 6).await.is_ok() {
+            good = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    assert!(good, "reads succeed again once the device answers properly");
+}
+
+// ---- item 7: implausible jumps ----
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_implausible_jump_in_speed_is_rejected_and_counted() {
+    let run = async {
+        let dev = Device::start(device::healthy()).await;
+        let s = Svc::start(dev.addr, "", "").await;
+        wait_for(Duration::from_secs(5), || async { s.readyz().await == 200 }).await.expect("ready");
+        let at = dev.lock().reads + 3;
+        // 343 rad/s (32755 × 0.1 rpm) in one sample, from 40: inside limits.max_speed_rad_s = 1000
+        dev.lock().script = Box::new(move |n| {
+            let rpm = if n == at { 32755 } else { 3820 };
+            [5000 + (n % 7) as u16, 300, rpm, 2550, 3, (n * 10) as u16]
+        });
+        wait_for(Duration::from_secs(3), || async { dev.lock().reads > at + 10 }).await.expect("polled past it");
+        let drive = &s.state().drives[0];
+        let snap = drive.snapshot();
+        assert!(snap.link.rejected_samples >= 1, "the jump is rejected and counted: {:?}", snap.link);
+        let worst = drive.history(60.0, 100_000).iter().map(|p| p.omega_rad_s).fold(0.0, f64::max);
+        assert!(worst < 100.0, "the jump never reached the history: {worst}");
+        let m = s.metrics().await;
+        assert!(metric(&m, "hydrolens_rejected_samples_total{drive=\"pump1\"}").unwrap_or(0.0) >= 1.0, "{m}");
+        s.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(20), run).await.expect("bounded");
+}
+
+// ---- item 1: recordings download ----
+
+#[tokio::test]
+async fn recording_download_serves_only_regular_files_inside_the_directory() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let outside = tempfile::tempdir().expect("tmp");
+    let secret = outside.path().join("secret.csv");
+    std::fs::write(&secret, "t_s\nSECRET\n").expect("write");
+    std::os::unix::fs::symlink(&secret, dir.path().join("link.csv")).expect("symlink");
+    std::fs::write(dir.path().join("pump1-1.csv"), "t_s\n1\n").expect("write");
+    std::os::unix::fs::symlink(dir.path().join("pump1-1.csv"), dir.path().join("inner-link.csv")).expect("symlink");
+    std::fs::create_dir(dir.path().join("dir.csv")).expect("mkdir");
+    let fifo = std::process::Command::new("mkfifo").arg(dir.path().join("fifo.csv")).status().expect("mkfifo");
+    assert!(fifo.success());
+    let s = Svc::start_in(dir, "127.0.0.1:9".parse().expect("addr"), "", "").await;
+    let client = reqwest::Client::builder().timeout(Duration::from_secs(5)).build().expect("client");
+    let get = |f: &str| client.get(format!("{}/api/recordings/{f}", s.url)).send();
+    let ok = get("pump1-1.csv").await.expect("answered");
+    assert_eq!(ok.status(), 200);
+    assert_eq!(ok.text().await.expect("body"), "t_s\n1\n");
+    for f in ["link.csv", "inner-link.csv", "fifo.csv", "dir.csv"] {
+        let r = get(f).await.unwrap_or_else(|e| panic!("{f}: no answer: {e}"));
+        assert_eq!(r.status(), 404, "{f}");
+        assert!(!r.text().await.expect("body").contains("SECRET"));
+    }
+    let list: serde_json::Value =
+        client.get(format!("{}/api/recordings", s.url)).send().await.expect("list").json().await.expect("json");
+    let names: Vec<&str> = list["files"].as_array().expect("files").iter().filter_map(|f| f["name"].as_str()).collect();
+    assert!(names.contains(&"pump1-1.csv"), "{names:?}");
+    for f in ["link.csv", "inner-link.csv", "fifo.csv", "dir.csv"] {
+        assert!(!names.contains(&f), "{f} listed: {names:?}");
+    }
+    s.stop().await;
+}
+
+// ---- item 2: slow and idle HTTP clients ----
+
+/// Reads until the server closes the connection; true if it did within `limit`.
+async fn closed_within(s: &mut TcpStream, limit: Duration) -> bool {
+    let mut buf = [0u8; 4096];
+    let deadline = tokio::time::Instant::now() + limit;
+    loop {
+        match tokio::time::timeout_at(deadline, s.read(&mut buf)).await {
+            Err(_) => return false,
+            Ok(Ok(0)) | Ok(Err(_)) => return true,
+            Ok(Ok(_)) => {}
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_and_half_sent_requests_are_closed() {
+    let run = async {
+        let http = "header_timeout_ms = 300\nrequest_timeout_ms = 300\nmax_connections = 16\n";
+        let s = Svc::start("127.0.0.1:9".parse().expect("addr"), http, SPEED).await;
+        let addr = s.url.trim_start_matches("http://").to_string();
+        let connect = || TcpStream::connect(addr.clone());
+        let mut idle = connect().await.expect("connect");
+        let mut partial = connect().await.expect("connect");
+        partial.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n").await.expect("write");
+        let mut no_body = connect().await.expect("connect");
+        no_body
+            .write_all(
+                b"POST /api/drives/pump1/target HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+                  Content-Length: 100\r\nAuthorization: Bearer test-token-7f3a\r\n\r\n{",
+            )
+            .await
+            .expect("write");
+        let mut kept_alive = connect().await.expect("connect");
+        kept_alive.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n").await.expect("write");
+        let mut trickle = connect().await.expect("connect");
+        let trickler = tokio::spawn(async move {
+            let _ = trickle.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n").await;
+            for _ in 0..100 {
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                if trickle.write_all(b"X").await.is_err() {
+                    return true;
+                }
+            }
+            false
+        });
+        for (name, sock) in
+            [("idle", &mut idle), ("partial", &mut partial), ("no body", &mut no_body), ("kept alive", &mut kept_alive)]
+        {
+            assert!(closed_within(sock, Duration::from_secs(3)).await, "{name}: still open after 3 s");
+        }
+        assert!(trickler.await.expect("joins"), "a trickled header is cut off");
+        // and the server still answers
+        let ok = reqwest::get(format!("{}/healthz", s.url)).await.expect("healthz").status();
+        assert_eq!(ok, 200);
+        s.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(20), run).await.expect("bounded");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn concurrent_connections_are_bounded() {
+    let run = async {
+        let http = "header_timeout_ms = 10000\nmax_connections = 2\n";
+        let s = Svc::start("127.0.0.1:9".parse().expect("addr"), http, "").await;
+        let addr = s.url.trim_start_matches("http://").to_string();
+        let held =
+            [TcpStream::connect(&addr).await.expect("connect"), TcpStream::connect(&addr).await.expect("connect")];
+        tokio::time::sleep(Duration::from_millis(200)).await; // both taken by the server
+        let mut third = TcpStream::connect(&addr).await.expect("the kernel queues it");
+        third.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").await.expect("write");
+        let mut buf = [0u8; 256];
+        let early = tokio::time::timeout(Duration::from_millis(500), third.read(&mut buf)).await;
+        assert!(early.is_err(), "a third connection is served while two are held: {early:?}");
+        drop(held);
+        let n = tokio::time::timeout(Duration::from_secs(3), third.read(&mut buf))
+            .await
+            .expect("served once a slot is free")
+            .expect("read");
+        assert!(String::from_utf8_lossy(&buf[..n]).starts_with("HTTP/1.1 200"));
+        s.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(20), run).await.expect("bounded");
+}
+
+// ---- item 3: wrong tokens ----
+
+#[derive(Clone, Default)]
+struct Log(Arc<Mutex<Vec<u8>>>);
+
+impl std::io::Write for Log {
+    fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+        self.0.lock().unwrap_or_else(|e| e.into_inner()).extend_from_slice(b);
+        Ok(b.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+#[tokio::test]
+async fn wrong_tokens_are_throttled_counted_and_logged_without_the_token() {
+    let log = Log::default();
+    let sink = log.clone();
+    let subscriber = tracing_subscriber::fmt()
+        .with_max_level(tracing::Level::DEBUG)
+        .with_ansi(false)
+        .with_writer(move || sink.clone())
+        .finish();
+    let _guard = tracing::subscriber::set_default(subscriber);
+    let s = Svc::start("127.0.0.1:9".parse().expect("addr"), "", SPEED).await;
+    let client = reqwest::Client::new();
+    let post = |token: String| {
+        client
+            .post(format!("{}/api/drives/pump1/target", s.url))
+            .header("Authorization", format!("Bearer {token}"))
+            .json(&serde_json::json!({ "target_omega_rad_s": 20.0 }))
+            .send()
+    };
+    let mut codes = Vec::new();
+    for i in 0..40 {
+        codes.push(post(format!("guess-{i:04}")).await.expect("answered").status().as_u16());
+    }
+    assert!(codes[..5].iter().all(|&c| c == 401), "{codes:?}");
+    assert_eq!(codes.last(), Some(&429), "a burst of failures is throttled: {codes:?}");
+    let right = post(TOKEN.to_string()).await.expect("answered");
+    assert_eq!(right.status(), 429, "while throttled even the right token waits");
+    assert!(right.headers().contains_key("retry-after"));
+    let m = s.metrics().await;
+    let failures = metric(&m, "hydrolens_http_auth_failures_total").unwrap_or(0.0);
+    assert!(failures >= 5.0, "failures counted: {failures}\n{m}");
+    assert!(metric(&m, "hydrolens_http_auth_throttled_total").unwrap_or(0.0) >= 1.0, "{m}");
+    s.stop().await;
+    let text = String::from_utf8_lossy(&log.0.lock().unwrap_or_else(|e| e.into_inner())).into_owned();
+    assert!(text.contains("wrong token"), "failures are logged:\n{text}");
+    assert!(!text.contains("guess-0"), "never with the token:\n{text}");
+    assert!(!text.contains(TOKEN), "never with the token:\n{text}");
+}
+
+// ---- item 8: config that must be refused ----
+
+fn refused(text: &str) -> String {
+    match service::config::parse(text, "t.toml", Some(&root())) {
+        Ok(_) => panic!("accepted:\n{text}"),
+        Err(e) => {
+            assert!(e.is_bad_input());
+            e.to_string()
+        }
+    }
+}
+
+const DRIVE: &str = "[[drives]]\nname = \"pump1\"\naddress = \"127.0.0.1:5020\"\n";
+
+#[test]
+fn configs_that_must_be_refused_name_their_key() {
+    let writing = |name: &str, unit: u8| {
+        format!("[[drives]]\nname = \"{name}\"\naddress = \"127.0.0.1:5020\"\nunit_id = {unit}\n{SPEED}")
+    };
+    let e = refused(&format!("{}{}", writing("a", 1), writing("b", 1)));
+    assert!(e.contains("drives[1].address") && e.contains("unit_id"), "{e}");
+    // the same address and unit watched by a monitor is fine, and so are two writers on two units
+    let monitor = "[[drives]]\nname = \"m\"\naddress = \"127.0.0.1:5020\"\nunit_id = 1\n";
+    service::config::parse(&format!("{}{monitor}", writing("a", 1)), "t", None).expect("monitor beside a writer");
+    service::config::parse(&format!("{}{}", writing("a", 1), writing("b", 2)), "t", None).expect("two units");
+
+    let e = refused(&format!("[recording]\nmax_file_mb = 0.001\n{DRIVE}"));
+    assert!(e.contains("recording.max_file_mb"), "{e}");
+    let e = refused(&format!("[recording]\nrotate_hours = 0.0001\n{DRIVE}"));
+    assert!(e.contains("recording.rotate_hours"), "{e}");
+
+    let e = refused(&format!("{DRIVE}watchdog_ms = 1000\n"));
+    assert!(e.contains("drives[0].watchdog_ms"), "{e}");
+    let e = refused(&format!("{DRIVE}watchdog_ms = 300\ncomm_timeout_ms = 600\n"));
+    assert!(e.contains("drives[0].watchdog_ms"), "{e}");
+    service::config::parse(&format!("{DRIVE}watchdog_ms = 300\ncomm_timeout_ms = 1000\n"), "t", None)
+        .expect("a third of the comm timeout");
+
+    let e = refused(&format!("{DRIVE}[drives.control]\nmax_hz = 700.0\n"));
+    assert!(e.contains("drives[0].control.max_hz") && e.contains("655.35"), "{e}");
+    let e = refused(&format!("{DRIVE}[drives.control]\nmode = \"manual\"\nmax_hz = 50.0\nfixed_hz = 700.0\n"));
+    assert!(e.contains("drives[0].control.fixed_hz"), "{e}");
+    let e = refused(&format!("{DRIVE}[drives.control]\nfixed_hz = 700.0\n"));
+    assert!(e.contains("drives[0].control.fixed_hz"), "{e}");
+
+    let e = refused(&format!("{DRIVE}[drives.control]\nkp = 1e308\n"));
+    assert!(e.contains("drives[0].control.kp"), "{e}");
+    let e = refused(&format!("{DRIVE}[drives.control]\nki = 1e308\n"));
+    assert!(e.contains("drives[0].control.ki"), "{e}");
+
+    let file = tempfile::NamedTempFile::new().expect("tmp");
+    let e = refused(&format!("[recording]\ndir = {:?}\n{DRIVE}", file.path().display().to_string()));
+    assert!(e.contains("recording.dir"), "{e}");
+    let e = refused(&format!("[recording]\ndir = {:?}\n{DRIVE}", file.path().join("sub").display().to_string()));
+    assert!(e.contains("recording.dir"), "{e}");
+
+    let e = refused(&format!("{DRIVE}[drives.limits]\nmax_speed_rate_rad_per_s2 = -1.0\n"));
+    assert!(e.contains("drives[0].limits.max_speed_rate_rad_per_s2"), "{e}");
+}
+
+#[test]
+fn serve_with_a_recording_dir_that_is_a_file_exits_2_naming_the_key() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let file = dir.path().join("not-a-dir");
+    std::fs::write(&file, "x").expect("write");
+    let config = dir.path().join("c.toml");
+    let text = format!("[recording]\ndir = {:?}\n{DRIVE}", file.display().to_string());
+    std::fs::write(&config, text).expect("write");
+    let mut child = std::process::Command::new(crate::support::bin())
+        .args(["serve", "--config"])
+        .arg(&config)
+        .args(["--http", "127.0.0.1:0"])
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .expect("starts");
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    let status = loop {
+        if let Some(s) = child.try_wait().expect("wait") {
+            break Some(s);
+        }
+        if std::time::Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().expect("stderr"), &mut err).expect("utf-8");
+    let status = status.expect("refused at once");
+    assert_eq!(status.code(), Some(2), "{err}");
+    assert!(err.contains("recording.dir"), "{err}");
+}
+
+// ---- item 9: a recording cut mid-row ----
+
+#[test]
+fn a_recording_cut_mid_row_at_its_end_is_read_without_that_line_and_a_cut_inside_is_an_error() {
+    use hydrolens::plant::{PlantModel, simulate};
+    use hydrolens::recording::{self, Batch, StreamReader};
+    let rec = simulate::test_stand(&PlantModel::reference(), 2.0, 3, &mut |_| {}).expect("simulate");
+    let mut text = Vec::new();
+    recording::write_csv(&mut text, &rec).expect("write");
+    let rows = rec.len();
+    let dir = tempfile::tempdir().expect("tmp");
+    // cut in the middle of the last row, as a SIGTERM on a full disk left it
+    let last_line_start = text[..text.len() - 1].iter().rposition(|&b| b == b'\n').expect("lines") + 1;
+    let cut_at = last_line_start + (text.len() - last_line_start) / 2;
+    let cut = dir.path().join("cut.csv");
+    std::fs::write(&cut, &text[..cut_at]).expect("write");
+    let loaded = recording::load(&cut).expect("a cut last line is dropped, not an error");
+    assert_eq!(loaded.len(), rows - 1);
+    let mut reader = StreamReader::open(&cut).expect("opens");
+    let mut batch = Batch::default();
+    let mut streamed = 0;
+    loop {
+        match reader.read_batch(&mut batch, 4096).expect("streams without the cut line") {
+            0 => break,
+            n => streamed += n,
+        }
+    }
+    assert_eq!(streamed, rows - 1);
+    let out = dir.path().join("est.csv");
+    let o = std::process::Command::new(crate::support::bin())
+        .arg("estimate")
+        .arg(&cut)
+        .arg("--model")
+        .arg(root().join("config/plant.toml"))
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .expect("runs");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    assert!(err.contains("cut mid-row"), "a warning: {err}");
+    // a row cut in the middle of the file is still an error
+    let mid_start = text[..text.len() / 2].iter().rposition(|&b| b == b'\n').expect("lines") + 1;
+    let mut broken = text[..mid_start + 5].to_vec();
+    broken.push(b'\n');
+    broken.extend_from_slice(&text[mid_start..]);
+    let inside = dir.path().join("inside.csv");
+    std::fs::write(&inside, &broken).expect("write");
+    assert!(recording::load(&inside).is_err(), "a cut inside the file is an error");
+}
+
+// ---- item 9: the disk fills ----
+
+/// `hydrolens serve` under a file-size limit (the kernel refuses writes past it, as a full disk does; SIGXFSZ
+/// ignored so that the write fails instead): the recorder's trouble shows in /api/status, /metrics and readiness
+/// while polling goes on, and recording resumes once the limit is lifted (`prlimit`), as when space returns.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_disk_shows_in_status_metrics_and_readiness_and_recording_resumes() {
+    let (_sim, modbus, sim_stop, _task) = crate::support::start_sim(crate::support::test_plant(5.0), 0).await;
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec_dir = dir.path().join("rec");
+    let config = dir.path().join("c.toml");
+    let text = format!(
+        "[recording]\ndir = {:?}\n[[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 2\n",
+        rec_dir.display().to_string()
+    );
+    std::fs::write(&config, text).expect("write");
+    let script = format!(
+        "trap '' XFSZ; ulimit -S -f 64; exec {} serve --config {} --http 127.0.0.1:0",
+        crate::support::bin().display(),
+        config.display()
+    );
+    let mut child = std::process::Command::new("sh")
+        .args(["-c", &script])
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .expect("starts");
+    let pid = child.id();
+    let stderr = child.stderr.take().expect("stderr");
+    let (tx, rx) = std::sync::mpsc::channel::<String>();
+    // the first line with a URL, then drained so that the service never blocks on a full pipe
+    std::thread::spawn(move || {
+        use std::io::BufRead;
+        for line in std::io::BufReader::new(stderr).lines().map_while(Result::ok) {
+            if let Some(url) = line.split_whitespace().find(|w| w.starts_with("http://")) {
+                let _ = tx.send(url.to_string());
+            }
+        }
+    });
+    let run = async {
+        let url = tokio::task::spawn_blocking(move || rx.recv_timeout(Duration::from_secs(10)))
+            .await
+            .expect("joins")
+            .expect("serve announces its URL");
+        let status = || async {
+            let v: serde_json::Value =
+                reqwest::get(format!("{url}/api/status")).await.expect("status").json().await.expect("json");
+            v["drives"][0].clone()
+        };
+        let failing = wait_for(Duration::from_secs(10), || async { status().await["recording"]["ok"] == false }).await;
+        assert!(failing.is_some(), "recording trouble shows in /api/status: {}", status().await);
+        let s = status().await;
+        assert!(s["recording"]["last_error"].as_str().is_some_and(|e| !e.is_empty()), "{s}");
+        let polls = s["link"]["polls"].as_u64().expect("polls");
+        let ready = reqwest::get(format!("{url}/readyz")).await.expect("readyz");
+        assert_eq!(ready.status(), 503, "not ready while rows are lost");
+        let m = reqwest::get(format!("{url}/metrics")).await.expect("metrics").text().await.expect("text");
+        assert!(metric(&m, "hydrolens_recording_errors_total{drive=\"pump1\"}").unwrap_or(0.0) >= 1.0, "{m}");
+        assert_eq!(metric(&m, "hydrolens_recording_ok{drive=\"pump1\"}"), Some(0.0), "{m}");
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        assert!(status().await["link"]["polls"].as_u64().expect("polls") > polls, "polling goes on");
+        // space returns
+        let lifted = std::process::Command::new("prlimit")
+            .args([format!("--pid={pid}"), "--fsize=unlimited:unlimited".to_string()])
+            .status()
+            .expect("prlimit");
+        assert!(lifted.success());
+        let back = wait_for(Duration::from_secs(10), || async { status().await["recording"]["ok"] == true }).await;
+        assert!(back.is_some(), "recording resumes: {}", status().await);
+        let ready = wait_for(Duration::from_secs(5), || async {
+            reqwest::get(format!("{url}/readyz")).await.expect("readyz").status() == 200
+        })
+        .await;
+        assert!(ready.is_some(), "ready again");
+        let _ = std::process::Command::new("kill").args(["-TERM", &pid.to_string()]).status();
+    };
+    let finished = tokio::time::timeout(Duration::from_secs(40), run).await;
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    let code = loop {
+        if let Some(code) = child.try_wait().expect("wait") {
+            break Some(code);
+        }
+        if std::time::Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    finished.expect("bounded");
+    assert!(code.is_some_and(|c| c.success()), "stops cleanly on SIGTERM: {code:?}");
+    sim_stop.cancel();
+    // every file left behind reads, cut last lines and all
+    for f in std::fs::read_dir(&rec_dir).expect("dir") {
+        let p = f.expect("entry").path();
+        if std::fs::metadata(&p).expect("meta").len() > 300 {
+            hydrolens::recording::load(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
+        }
+    }
+}
+
+// ---- item 10: retention ----
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn retention_keeps_the_recordings_within_max_total_mb_and_never_deletes_the_open_file() {
+    let run = async {
+        let (_sim, modbus, sim_stop, _task) = crate::support::start_sim(crate::support::test_plant(5.0), 0).await;
+        let dir = tempfile::tempdir().expect("tmp");
+        // an older file of another drive whose name starts alike: never touched
+        std::fs::write(dir.path().join("pump1-b-1000.csv"), "t_s\n1\n").expect("write");
+        let text = format!(
+            "[http]\nbind = \"127.0.0.1:0\"\n[recording]\ndir = {:?}\nmax_file_mb = 0.1\nmax_total_mb = 0.3\n\
+             [[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 1\n",
+            dir.path().display().to_string()
+        );
+        let (svc, url, shutdown, http) = start_service(&text).await;
+        let deleted = || async {
+            let m = reqwest::get(format!("{url}/metrics")).await.expect("metrics").text().await.expect("text");
+            metric(&m, "hydrolens_recording_files_deleted_total{drive=\"pump1\"}").unwrap_or(0.0)
+        };
+        let went = wait_for(Duration::from_secs(20), || async { deleted().await >= 3.0 }).await;
+        assert!(went.is_some(), "old files deleted and counted");
+        let ours = || -> Vec<(String, u64)> {
+            std::fs::read_dir(dir.path())
+                .expect("dir")
+                .map(|e| e.expect("entry"))
+                .map(|e| (e.file_name().to_string_lossy().into_owned(), e.metadata().expect("meta").len()))
+                .filter(|(n, _)| n.starts_with("pump1-1") || n.starts_with("pump1-2"))
+                .collect()
+        };
+        let total: u64 = ours().iter().map(|(_, b)| b).sum();
+        // the budget, plus the open file growing past it until the next rotation
+        assert!(total <= (0.3 * 1048576.0) as u64 + 110_000, "{total} bytes: {:?}", ours());
+        assert!(dir.path().join("pump1-b-1000.csv").exists(), "another drive's file is not ours");
+        shutdown.cancel();
+        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("stops");
+        let _ = tokio::time::timeout(Duration::from_secs(10), http).await;
+        sim_stop.cancel();
+        // the newest file (open until the stop) is still there and whole
+        let mut names: Vec<String> = ours().into_iter().map(|(n, _)| n).collect();
+        names.sort();
+        let newest = dir.path().join(names.last().expect("files left"));
+        hydrolens::recording::load(&newest).expect("the open file was kept and closed cleanly");
+    };
+    tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+}
