@@ -8,8 +8,9 @@
 use std::time::Duration;
 
 use tokio::time::{Instant, timeout};
-use tokio_modbus::client::{Context, Reader, Writer};
+use tokio_modbus::client::{Client, Context};
 use tokio_modbus::{ExceptionCode, Slave};
+use tokio_modbus::{Request, Response};
 
 use super::map::Table;
 
@@ -156,16 +157,15 @@ impl DriveClient {
 
     /// Reads `count` registers of a table from `start` in one request.
     pub async fn read(&mut self, table: Table, start: u16, count: u16) -> Result<Vec<u16>, ClientError> {
-        let words = self
-            .call(move |ctx| {
-                Box::pin(async move {
-                    match table {
-                        Table::Input => ctx.read_input_registers(start, count).await,
-                        Table::Holding => ctx.read_holding_registers(start, count).await,
-                    }
-                })
-            })
-            .await?;
+        let request = match table {
+            Table::Input => Request::ReadInputRegisters(start, count),
+            Table::Holding => Request::ReadHoldingRegisters(start, count),
+        };
+        let response = self.call(move |ctx| Box::pin(ctx.call(request))).await?;
+        let words = match response {
+            Response::ReadInputRegisters(w) | Response::ReadHoldingRegisters(w) => w,
+            other => return Err(self.failed(ClientError::Protocol(format!("unexpected reply {other:?}")))),
+        };
         if words.len() < usize::from(count) {
             let err = ClientError::ShortReply { expected: usize::from(count), got: words.len() };
             return Err(self.failed(err));
@@ -173,19 +173,24 @@ impl DriveClient {
         Ok(words)
     }
 
-    /// Writes holding registers from `start` (function 16, or 06 for one word).
+    /// Writes holding registers from `start` (function 16, or 06 for one word). The device's echo is checked here,
+    /// not by tokio-modbus, whose debug assertions would panic the poll thread on a garbled echo.
     pub async fn write(&mut self, start: u16, words: &[u16]) -> Result<(), ClientError> {
-        let words = words.to_vec();
-        self.call(move |ctx| {
-            Box::pin(async move {
-                if let [w] = words.as_slice() {
-                    ctx.write_single_register(start, *w).await
-                } else {
-                    ctx.write_multiple_registers(start, &words).await
-                }
-            })
-        })
-        .await
+        let request = match words {
+            [w] => Request::WriteSingleRegister(start, *w),
+            _ => Request::WriteMultipleRegisters(start, std::borrow::Cow::Owned(words.to_vec())),
+        };
+        let response = self.call(move |ctx| Box::pin(ctx.call(request))).await?;
+        let echoed = match response {
+            Response::WriteSingleRegister(a, w) => a == start && words == [w],
+            Response::WriteMultipleRegisters(a, n) => a == start && usize::from(n) == words.len(),
+            _ => false,
+        };
+        if echoed {
+            Ok(())
+        } else {
+            Err(self.failed(ClientError::Protocol(format!("the write's echo does not match: {response:?}"))))
+        }
     }
 
     /// A poll came back whole and valid: the next failure starts the back-off afresh.

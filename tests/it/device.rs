@@ -26,6 +26,8 @@ pub struct Behaviour {
     pub delay: Duration,
     /// Answer every request with bytes that are not a Modbus frame.
     pub garbage: bool,
+    /// Echo each write with another address than the one written (a well-formed frame that does not match).
+    pub bad_echo: bool,
     /// Reads answered so far (the script's `n`).
     pub reads: u64,
     /// Write requests answered.
@@ -48,6 +50,7 @@ impl Device {
             script,
             delay: Duration::ZERO,
             garbage: false,
+            bad_echo: false,
             reads: 0,
             writes: 0,
             connections: 0,
@@ -117,7 +120,11 @@ async fn serve(mut s: TcpStream, b: Arc<Mutex<Behaviour>>) -> std::io::Result<()
                 }
                 Some(0x06) | Some(0x10) if pdu.len() >= 5 => {
                     g.writes += 1;
-                    pdu[..5].to_vec()
+                    let mut echo = pdu[..5].to_vec();
+                    if g.bad_echo {
+                        echo[1] ^= 0x02;
+                    }
+                    echo
                 }
                 Some(f) => vec![f | 0x80, 0x01],
                 None => vec![0x80, 0x01],

@@ -91,6 +91,41 @@ async fn late_replies_that_readiness_calls_stale_never_lead_to_writes() {
     tokio::time::timeout(Duration::from_secs(25), run).await.expect("bounded");
 }
 
+/// A device that echoes writes with the wrong address (a well-formed frame that does not match the request): the
+/// poll thread treats it as a protocol error and reconnects, and never dies (tokio-modbus's own check of the echo is
+/// a debug assertion that panicked the poll thread).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_write_echo_that_does_not_match_is_an_error_not_a_dead_poll_thread() {
+    let run = async {
+        let dev = Device::start(device::healthy()).await;
+        let s = Svc::start(dev.addr, "", SPEED).await;
+        wait_for(Duration::from_secs(5), || async { dev.lock().writes > 5 }).await.expect("writing while healthy");
+        let status = || async {
+            let url = format!("{}/api/status", s.url);
+            let v: serde_json::Value = reqwest::get(url).await.expect("GET").json().await.expect("json");
+            v["drives"][0]["link"].clone()
+        };
+        let (errors, reconnects) = {
+            let l = status().await;
+            (l["errors"].as_u64().expect("errors"), l["reconnects"].as_u64().expect("reconnects"))
+        };
+        dev.lock().bad_echo = true;
+        wait_for(Duration::from_secs(5), || async {
+            let l = status().await;
+            l["errors"].as_u64().expect("errors") > errors + 2 && l["reconnects"].as_u64().expect("n") > reconnects
+        })
+        .await
+        .expect("mismatched echoes counted as errors, the link re-opened");
+        dev.lock().bad_echo = false;
+        let reads = dev.lock().reads;
+        wait_for(Duration::from_secs(5), || async { dev.lock().reads > reads + 20 && s.readyz().await == 200 })
+            .await
+            .expect("the poll thread is alive: polling and ready again");
+        s.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(25), run).await.expect("bounded");
+}
+
 // ---- item 5: impossible counters ----
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
