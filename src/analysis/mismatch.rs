@@ -213,7 +213,7 @@ pub fn unexplained(s: &Series, cond: &Conditions, signal: &str, residual: &[f64]
                 count += m;
             }
             let mut longest = runs.clone();
-            longest.sort_by(|x, y| (y.1 - y.0).cmp(&(x.1 - x.0)));
+            longest.sort_by_key(|y| std::cmp::Reverse(y.1 - y.0));
             longest.truncate(MAX_UNEXPLAINED_WINDOWS);
             longest.sort_by_key(|x| x.0);
             Unexplained {

@@ -476,6 +476,11 @@ pub fn analyze(
         .iter()
         .map(|k| {
             let mut f = finding(k.id, &k.before, &k.after, k.delta_bic, &s, &conditions);
+            // the torque-balance terms are refitted with every effect named after them: a finding reports its
+            // values in the improved model (as `improved.parameters` and the fitted TOML), with their intervals
+            f.parameters = effect_parameters(&current.model, k.id);
+            let (b, a) = (k.before.validation.score(family), k.after.validation.score(family));
+            f.explanation = explain(k.id, &current.model, &s, b, a);
             f.evidence.cross_validation_score_before = k.cv_before;
             f.evidence.cross_validation_score_after = k.cv_after;
             f.evidence.validated_on = k.validated_on.clone();
