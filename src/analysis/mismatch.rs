@@ -141,3 +141,89 @@ pub fn locate(s: &Series, cond: &Conditions, signal: &str, residual: &[f64]) -> 
     }
     out
 }
+
+/// Where the improved model still misses: windows of one signal under one operating condition whose residual RMS
+/// exceeds [`UNEXPLAINED_X_FLOOR`] × the sensor-noise floor.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Unexplained {
+    /// `omega`, `dp`, `torque` or `f_drive`.
+    pub signal: String,
+    /// The operating conditions the windows share, e.g. "low speed".
+    pub condition: String,
+    /// The windows, `[t_start_s, t_end_s]`, in time order (the longest [`MAX_UNEXPLAINED_WINDOWS`]).
+    pub windows: Vec<[f64; 2]>,
+    /// RMS of the residual over those windows, and the noise floor, in the signal's unit.
+    pub rms: f64,
+    pub noise_floor: f64,
+    /// Fraction of the recording's rows in those windows.
+    pub share: f64,
+}
+
+/// A window is unexplained when its residual RMS exceeds this multiple of the noise floor. White noise alone gives
+/// a window RMS within a few % of the floor (0.5 s holds hundreds of samples); 2× means a model error of at least
+/// √3 ≈ 1.7× the noise.
+pub const UNEXPLAINED_X_FLOOR: f64 = 2.0;
+/// At most this many windows are listed per entry.
+pub const MAX_UNEXPLAINED_WINDOWS: usize = 20;
+
+/// Windows of `residual` (measured − improved model) above the floor, merged and grouped by condition.
+pub fn unexplained(s: &Series, cond: &Conditions, signal: &str, residual: &[f64], floor: f64) -> Vec<Unexplained> {
+    if !(floor > 0.0 && floor.is_finite()) {
+        return Vec::new();
+    }
+    let w = ((WINDOW_S * s.sample_hz) as usize).max(10);
+    let n = residual.len();
+    let rms = |a: usize, b: usize| -> (f64, usize) {
+        let v: Vec<f64> = residual[a..b].iter().copied().filter(|x| x.is_finite()).collect();
+        ((v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt(), v.len())
+    };
+    // each window above the floor with its own condition; the first window (the free run settling from its
+    // measured initial state) is not judged. Adjacent windows of one condition merge into a run.
+    let above: Vec<Option<String>> = (0..n / w)
+        .map(|i| {
+            let (a, b) = (i * w, (i + 1) * w);
+            (i > 0 && rms(a, b).0 > UNEXPLAINED_X_FLOOR * floor).then(|| cond.describe(s, a, b))
+        })
+        .collect();
+    let mut groups: Vec<(String, Vec<(usize, usize)>)> = Vec::new();
+    let mut i = 0;
+    while i < above.len() {
+        let Some(c) = above[i].clone() else {
+            i += 1;
+            continue;
+        };
+        let mut j = i;
+        while j + 1 < above.len() && above[j + 1].as_deref() == Some(c.as_str()) {
+            j += 1;
+        }
+        let (a, b) = (i * w, (j + 1) * w);
+        match groups.iter_mut().find(|g| g.0 == c) {
+            Some(g) => g.1.push((a, b)),
+            None => groups.push((c, vec![(a, b)])),
+        }
+        i = j + 1;
+    }
+    groups
+        .into_iter()
+        .map(|(condition, runs)| {
+            let (mut ss, mut count) = (0.0, 0usize);
+            for &(a, b) in &runs {
+                let (r, m) = rms(a, b);
+                ss += r * r * m as f64;
+                count += m;
+            }
+            let mut longest = runs.clone();
+            longest.sort_by_key(|y| std::cmp::Reverse(y.1 - y.0));
+            longest.truncate(MAX_UNEXPLAINED_WINDOWS);
+            longest.sort_by_key(|x| x.0);
+            Unexplained {
+                signal: signal.to_string(),
+                condition,
+                windows: longest.iter().map(|&(a, b)| [s.t_s[a], s.t_s[b - 1]]).collect(),
+                rms: (ss / count.max(1) as f64).sqrt(),
+                noise_floor: floor,
+                share: runs.iter().map(|(a, b)| b - a).sum::<usize>() as f64 / n.max(1) as f64,
+            }
+        })
+        .collect()
+}

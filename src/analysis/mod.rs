@@ -26,7 +26,8 @@ pub use mismatch::Mismatch;
 pub use predict::Errors;
 pub use series::{Family, Series};
 
-use search::{MechTerms, Scored};
+use predict::Prediction;
+use search::{MechTerms, Rows, Scored};
 
 /// Settings of an analysis; the defaults are the documented method.
 #[derive(Debug, Clone, Copy)]
@@ -43,6 +44,15 @@ pub struct Options {
     pub min_delta_bic: f64,
     /// Two candidates whose validation gains are within this fraction of each other are reported as ambiguous.
     pub tie_fraction: f64,
+    /// Blocks of the cross-validation (hydraulic family; also the jackknife of the confidence intervals). 0 or 1:
+    /// the fixed validation tail decides, as for the other families.
+    pub folds: usize,
+    /// An effect that acts in one operating regime (Stribeck friction: |ω| < 2 ω_s) may be validated on the
+    /// out-of-fold rows of that regime when the recording holds at least this much of it (s).
+    pub regime_min_s: f64,
+    /// Per round, at most this many candidates (those passing the BIC margin, largest ΔBIC first) are
+    /// cross-validated.
+    pub max_cross_validated: usize,
 }
 
 impl Default for Options {
@@ -53,6 +63,9 @@ impl Default for Options {
             min_relative_drop: 0.10,
             min_delta_bic: 10.0,
             tie_fraction: 0.9,
+            folds: 4,
+            regime_min_s: 5.0,
+            max_cross_validated: 3,
         }
     }
 }
@@ -77,6 +90,12 @@ pub struct Analysis {
     /// Parameters this recording does not determine, and why (with the load unknown: J and B).
     pub not_identified: Vec<NotIdentified>,
     pub improved: Summary,
+    /// Where the improved model's residual still exceeds the noise floor, grouped by signal and operating
+    /// condition; empty when the model explains the recording down to the sensor noise.
+    pub unexplained: Vec<mismatch::Unexplained>,
+    /// How effects were validated and how the confidence intervals were computed.
+    pub validation_rule: String,
+    pub interval_method: String,
     /// Every candidate tried, round by round: what the selection saw.
     pub candidates: Vec<CandidateScore>,
     #[serde(skip)]
@@ -93,6 +112,17 @@ pub struct Summary {
     /// The same errors over the whole recording (fitting and validation segments), to compare with published
     /// figures computed that way.
     pub whole_recording: Errors,
+    /// Hydraulic family: the blocked cross-validation score (mean squared NRMSE of the out-of-fold free runs).
+    pub cross_validation_score: Option<f64>,
+    /// 95 % interval of every fitted parameter (`interval_method`); absent when fewer than 3 folds fitted it.
+    pub confidence_intervals: BTreeMap<String, Interval>,
+}
+
+/// A confidence interval.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Interval {
+    pub low: f64,
+    pub high: f64,
 }
 
 /// One named effect.
@@ -100,6 +130,8 @@ pub struct Summary {
 pub struct Finding {
     pub effect: String,
     pub parameters: BTreeMap<String, f64>,
+    /// 95 % interval of each parameter (catalogue names), as in `improved.confidence_intervals`.
+    pub confidence_intervals: BTreeMap<String, Interval>,
     pub explanation: String,
     pub evidence: Evidence,
 }
@@ -119,6 +151,10 @@ pub struct Evidence {
     pub residual_correlation: f64,
     /// The conditions of the mismatch windows the effect removes most of.
     pub where_it_shows: String,
+    /// Hydraulic family: blocked cross-validation score before and after, and what it was judged on.
+    pub cross_validation_score_before: Option<f64>,
+    pub cross_validation_score_after: Option<f64>,
+    pub validated_on: String,
 }
 
 /// Effects this recording cannot tell apart.
@@ -142,6 +178,10 @@ pub struct CandidateScore {
     pub effect: String,
     pub validation_score: Option<f64>,
     pub delta_bic: Option<f64>,
+    /// Hydraulic family, candidates that pass the BIC margin: the out-of-fold score, and on the regime where the
+    /// effect acts (when it has one and the recording holds enough of it).
+    pub cross_validation_score: Option<f64>,
+    pub regime_drop: Option<f64>,
     pub kept: bool,
 }
 
@@ -218,7 +258,7 @@ pub fn analyze(
     start.load = crate::plant::LoadSpec::Recorded;
     // with the load unknown the torque balance is not fitted: J and B keep the nominal values
     let base_model = if family == Family::Flow {
-        start
+        start.clone()
     } else {
         search::fit_mechanics(&start, &s, nominal_terms).ok_or_else(|| {
             BadInput(format!(
@@ -232,18 +272,38 @@ pub fn analyze(
     progress(0.05);
 
     let search_end = s.split.min((opts.search_window_s * s.sample_hz) as usize).max(100);
+    let std_rows = Rows::standard(&s, search_end);
     let n_bic = s.split as f64 / 10.0;
+    // Blocked cross-validation: the recording cut into `folds` blocks; fold k fits on the others and runs block k
+    // free from its measured state. The fold models are chained like the selection (each fold keeps the effects
+    // kept so far, fitted on its own rows), and give the jackknife intervals.
+    let n_folds = if opts.folds >= 2 && s.len() >= 200 * opts.folds { opts.folds } else { 0 };
+    let folds: Vec<Rows> = (0..n_folds).map(|k| Rows::fold(&s, k, n_folds, search_end)).collect();
+    let cv = family == Family::Hydraulic && !folds.is_empty();
+    let fold_baseline: Vec<Option<(PlantModel, MechTerms)>> = folds
+        .iter()
+        .map(|r| {
+            if family == Family::Flow {
+                Some((start.clone(), nominal_terms))
+            } else {
+                search::fit_mechanics_on(&start, &s, nominal_terms, &r.ls).map(|m| (m, nominal_terms))
+            }
+        })
+        .collect();
+    let mut fold_current = fold_baseline.clone();
+    let mut cv_before = if cv { out_of_fold_score(&fold_current, &folds, &s) } else { None };
+    let cv_baseline = cv_before;
     let mut current = baseline.clone();
     let mut remaining: Vec<&'static str> =
         search::applicable(&s).into_iter().filter(|id| !nominal.effects.active_ids().contains(id)).collect();
-    let mut kept: Vec<(&'static str, Scored, Scored, f64)> = Vec::new(); // (id, before, after, ΔBIC)
+    let mut kept: Vec<Kept> = Vec::new();
     let mut candidates = Vec::new();
     let mut ties: Vec<(&'static str, &'static str)> = Vec::new();
     let total_rounds = remaining.len().max(1);
     for round in 1..=total_rounds {
-        let mut tried: Vec<(&'static str, Option<(Scored, f64)>)> = Vec::new();
+        let mut tried: Vec<Tried> = Vec::new();
         for (i, &id) in remaining.iter().enumerate() {
-            let scored = search::candidate(id, &current, &s, search_end)
+            let scored = search::candidate(id, &current.model, current.terms, &s, &std_rows, None)
                 .and_then(|(m, terms)| Scored::evaluate(m, terms, &s).ok())
                 .map(|sc| {
                     let db = search::delta_bic(
@@ -254,49 +314,146 @@ pub fn analyze(
                     );
                     (sc, db)
                 });
-            tried.push((id, scored));
+            tried.push(Tried { id, scored, cv: None });
             // round r fills the r-th half of what is left: monotonic without knowing how many rounds there will be
             let (start, end) = (1.0 - 0.5f64.powi(round as i32 - 1), 1.0 - 0.5f64.powi(round as i32));
             let within = (i + 1) as f64 / remaining.len() as f64;
             progress(0.05 + 0.9 * (start + (end - start) * within));
         }
-        let before = current.validation.score(family);
-        let scored: Vec<(&'static str, &Scored, f64)> =
-            tried.iter().filter_map(|(id, sc)| sc.as_ref().map(|(sc, db)| (*id, sc, *db))).collect();
-        let lowest = scored.iter().map(|c| c.1.validation.score(family)).fold(f64::INFINITY, f64::min);
-        // Among candidates indistinguishable in score (within 0.5 %), the first in catalogue order, so that exactly
-        // equivalent effects (leakage and slip) are named the same way every time.
-        let best = scored.iter().copied().find(|c| c.1.validation.score(family) <= lowest * 1.005);
-        let accept = best.filter(|(_, sc, db)| {
-            let after = sc.validation.score(family);
-            1.0 - (after / before).sqrt() >= opts.min_relative_drop && *db >= opts.min_delta_bic
-        });
-        for (id, sc) in &tried {
-            candidates.push(CandidateScore {
-                round,
-                effect: id.to_string(),
-                validation_score: sc.as_ref().map(|x| x.0.validation.score(family)),
-                delta_bic: sc.as_ref().map(|x| x.1),
-                kept: accept.is_some_and(|a| a.0 == *id),
+        // the candidates that pass the BIC margin, the largest ΔBIC first, are cross-validated (at most
+        // `max_cross_validated` a round: the cost of the folds stays bounded)
+        if cv {
+            let mut order: Vec<usize> = (0..tried.len())
+                .filter(|&i| tried[i].scored.as_ref().is_some_and(|x| x.1 >= opts.min_delta_bic))
+                .collect();
+            order.sort_by(|&a, &b| {
+                let db = |i: usize| tried[i].scored.as_ref().map_or(f64::NEG_INFINITY, |x| x.1);
+                db(b).total_cmp(&db(a))
             });
-        }
-        let Some((id, sc, db)) = accept else { break };
-        let gain = before - sc.validation.score(family);
-        for (other, osc) in &tried {
-            if let Some((o, _)) = osc
-                && *other != id
-                && before - o.validation.score(family) >= opts.tie_fraction * gain
-            {
-                ties.push((id, other));
+            for &i in order.iter().take(opts.max_cross_validated) {
+                if let Some((sc, _)) = &tried[i].scored {
+                    tried[i].cv = cross_validate(tried[i].id, sc, &fold_current, &folds, &s, opts);
+                }
             }
         }
-        kept.push((id, current.clone(), sc.clone(), db));
-        current = sc.clone();
+        let before = current.validation.score(family);
+        // the score a candidate is ranked by, and whether it passes the rule
+        let rank = |t: &Tried| -> Option<f64> {
+            if cv { t.cv.as_ref().map(|c| c.score) } else { t.scored.as_ref().map(|x| x.0.validation.score(family)) }
+        };
+        let passes = |t: &Tried| -> bool {
+            let Some((_, db)) = &t.scored else { return false };
+            if *db < opts.min_delta_bic {
+                return false;
+            }
+            if cv {
+                let (Some(c), Some(b)) = (&t.cv, cv_before) else { return false };
+                let drop = 1.0 - (c.score / b).sqrt();
+                drop >= opts.min_relative_drop
+                    || (c.score < b && c.regime.as_ref().is_some_and(|r| r.drop >= opts.min_relative_drop))
+            } else {
+                let after = t.scored.as_ref().map_or(f64::INFINITY, |x| x.0.validation.score(family));
+                1.0 - (after / before).sqrt() >= opts.min_relative_drop
+            }
+        };
+        let lowest = tried.iter().filter_map(rank).fold(f64::INFINITY, f64::min);
+        let accept: Option<usize> = if cv {
+            // among the candidates that pass, the lowest out-of-fold score (within 0.5 %: the first in catalogue
+            // order)
+            let low = tried.iter().filter(|t| passes(t)).filter_map(rank).fold(f64::INFINITY, f64::min);
+            tried.iter().position(|t| passes(t) && rank(t).is_some_and(|r| r <= low * 1.005))
+        } else {
+            // Among candidates indistinguishable in score (within 0.5 %), the first in catalogue order, so that
+            // exactly equivalent effects (leakage and slip) are named the same way every time.
+            tried.iter().position(|t| rank(t).is_some_and(|r| r <= lowest * 1.005)).filter(|&i| passes(&tried[i]))
+        };
+        for (i, t) in tried.iter().enumerate() {
+            candidates.push(CandidateScore {
+                round,
+                effect: t.id.to_string(),
+                validation_score: t.scored.as_ref().map(|x| x.0.validation.score(family)),
+                delta_bic: t.scored.as_ref().map(|x| x.1),
+                cross_validation_score: t.cv.as_ref().map(|c| c.score),
+                regime_drop: t.cv.as_ref().and_then(|c| c.regime.as_ref().map(|r| r.drop)),
+                kept: accept == Some(i),
+            });
+        }
+        let Some(i) = accept else { break };
+        let winner = &tried[i];
+        let Some((sc, db)) = winner.scored.clone() else { break };
+        let id = winner.id;
+        let gain_of = |t: &Tried| -> Option<f64> {
+            if cv {
+                cv_before.zip(t.cv.as_ref()).map(|(b, c)| b - c.score)
+            } else {
+                t.scored.as_ref().map(|x| before - x.0.validation.score(family))
+            }
+        };
+        if let Some(gain) = gain_of(winner) {
+            for t in &tried {
+                if t.id != id && gain_of(t).is_some_and(|g| g >= opts.tie_fraction * gain) {
+                    ties.push((id, t.id));
+                }
+            }
+        }
+        let cv_after = winner.cv.as_ref().map(|c| c.score);
+        let validated_on = match &winner.cv {
+            Some(c) if 1.0 - (c.score / cv_before.unwrap_or(f64::NAN)).sqrt() < opts.min_relative_drop => {
+                c.regime.as_ref().map_or_else(String::new, |r| {
+                    format!("out-of-fold rows at {} ({:.1} s of the recording)", r.name, r.seconds)
+                })
+            }
+            Some(_) => format!("out-of-fold free runs of all {n_folds} blocks"),
+            None => "the validation segment (last part of the recording)".to_string(),
+        };
+        kept.push(Kept {
+            id,
+            before: current.clone(),
+            after: sc.clone(),
+            delta_bic: db,
+            cv_before,
+            cv_after,
+            validated_on,
+        });
+        if let Some(c) = &winner.cv {
+            fold_current = c.models.clone();
+            cv_before = Some(c.score);
+        }
+        current = sc;
         remaining.retain(|r| *r != id);
         if remaining.is_empty() {
             break;
         }
     }
+    // the fold models of the final set, for the intervals (the other families: the named effects fitted on each
+    // fold in the order they were named)
+    if !cv {
+        fold_current = fold_baseline
+            .iter()
+            .zip(&folds)
+            .map(|(fb, r)| {
+                let (mut m, mut t) = fb.clone()?;
+                for k in &kept {
+                    (m, t) = search::candidate(k.id, &m, t, &s, r, Some(&k.after.model))?;
+                }
+                Some((m, t))
+            })
+            .collect();
+    }
+    let fitted_keys = |m: &PlantModel| -> Vec<String> {
+        parameters(m)
+            .into_keys()
+            .filter(|k| family != Family::Flow || !(k == "inertia_kg_m2" || k == "viscous_nm_s_rad"))
+            .filter(|k| {
+                !k.contains('.')
+                    || kept.iter().any(|x| k.starts_with(&format!("{}.", x.id)))
+                    || (["coulomb_friction.", "torque_offset.", "stribeck_friction."].iter().any(|p| k.starts_with(p))
+                        && family != Family::Flow)
+            })
+            .collect()
+    };
+    let baseline_intervals = jackknife(&baseline.model, &fold_baseline, &fitted_keys(&baseline.model));
+    let improved_intervals = jackknife(&current.model, &fold_current, &fitted_keys(&current.model));
     progress(0.95);
 
     let conditions = mismatch::Conditions::new(&s);
@@ -307,14 +464,73 @@ pub fn analyze(
     mismatches.truncate(mismatch::MAX_MISMATCHES);
     mismatches.sort_by(|a, b| a.t_start_s.total_cmp(&b.t_start_s));
 
-    let findings: Vec<Finding> =
-        kept.iter().map(|(id, before, after, db)| finding(id, before, after, *db, &s, &conditions)).collect();
-    let named: Vec<&str> = kept.iter().map(|k| k.0).collect();
+    let floors = noise_floors(&s);
+    let mut unexplained: Vec<mismatch::Unexplained> = residual_signals(&current, &s)
+        .iter()
+        .filter_map(|(name, r)| floors.iter().find(|f| f.0 == *name).map(|f| (name, r, f.1)))
+        .flat_map(|(name, r, floor)| mismatch::unexplained(&s, &conditions, name, r, floor))
+        .collect();
+    unexplained.sort_by(|a, b| b.share.total_cmp(&a.share));
+
+    let findings: Vec<Finding> = kept
+        .iter()
+        .map(|k| {
+            let mut f = finding(k.id, &k.before, &k.after, k.delta_bic, &s, &conditions);
+            // the torque-balance terms are refitted with every effect named after them: a finding reports its
+            // values in the improved model (as `improved.parameters` and the fitted TOML), with their intervals
+            f.parameters = effect_parameters(&current.model, k.id);
+            let (b, a) = (k.before.validation.score(family), k.after.validation.score(family));
+            f.explanation = explain(k.id, &current.model, &s, b, a);
+            f.evidence.cross_validation_score_before = k.cv_before;
+            f.evidence.cross_validation_score_after = k.cv_after;
+            f.evidence.validated_on = k.validated_on.clone();
+            let prefix = format!("{}.", k.id);
+            f.confidence_intervals = improved_intervals
+                .iter()
+                .filter_map(|(key, v)| key.strip_prefix(&prefix).map(|p| (p.to_string(), *v)))
+                .collect();
+            f
+        })
+        .collect();
+    let named: Vec<&str> = kept.iter().map(|k| k.id).collect();
     let ambiguities = ambiguities(&named, &ties, &current.model, &s);
     let not_identified = not_identified(&s);
 
     let traces = traces(&baseline, &current, &s);
     progress(1.0);
+    let validation_rule = if cv {
+        format!(
+            "blocked cross-validation: {n_folds} blocks, each run free from its measured state with the model fitted \
+             on the other blocks; an effect is kept when BIC on the fitting segment improves by ≥ {} and the \
+             out-of-fold error drops by ≥ {:.0} % overall, or on the rows of the regime where it acts (Stribeck \
+             friction: |ω| < 2 ω_s, at least {} s of them) while the overall out-of-fold error also drops",
+            opts.min_delta_bic,
+            100.0 * opts.min_relative_drop,
+            opts.regime_min_s
+        )
+    } else {
+        format!(
+            "validation segment: an effect is kept when BIC on the fitting segment improves by ≥ {} and the error \
+             on the last {:.0} % drops by ≥ {:.0} %",
+            opts.min_delta_bic,
+            100.0 * opts.validation_fraction,
+            100.0 * opts.min_relative_drop
+        )
+    };
+    let interval_method = if folds.is_empty() {
+        "none (recording too short for the blocks)".to_string()
+    } else {
+        format!(
+            "delete-one-block jackknife over the {n_folds} cross-validation blocks (each fold refits every named \
+             effect), 95 %, Student t with folds − 1 degrees of freedom, centred on the reported value"
+        )
+    };
+    let mut base_summary = summary(&baseline, &s);
+    base_summary.cross_validation_score = cv_baseline;
+    base_summary.confidence_intervals = baseline_intervals;
+    let mut improved_summary = summary(&current, &s);
+    improved_summary.cross_validation_score = if cv { cv_before } else { None };
+    improved_summary.confidence_intervals = improved_intervals;
     Ok(Analysis {
         recording: rec.source.clone(),
         samples: s.len(),
@@ -322,16 +538,224 @@ pub fn analyze(
         family: family.name(),
         speed_source: s.speed_source,
         load: s.load,
-        baseline: summary(&baseline, &s),
+        baseline: base_summary,
         mismatches,
         findings,
         ambiguities,
         not_identified,
-        improved: summary(&current, &s),
+        improved: improved_summary,
+        unexplained,
+        validation_rule,
+        interval_method,
         candidates,
         improved_model: with_nominal_load(current.model, nominal),
         traces,
     })
+}
+
+/// A candidate of one round: its fit on the fitting segment (with ΔBIC) and, when cross-validated, the folds.
+struct Tried {
+    id: &'static str,
+    scored: Option<(Scored, f64)>,
+    cv: Option<CrossValidated>,
+}
+
+/// A kept effect and the evidence for it.
+struct Kept {
+    id: &'static str,
+    before: Scored,
+    after: Scored,
+    delta_bic: f64,
+    cv_before: Option<f64>,
+    cv_after: Option<f64>,
+    validated_on: String,
+}
+
+/// A candidate fitted on every fold.
+struct CrossValidated {
+    /// Each fold's model (the fold's previous model where the effect could not be fitted on it).
+    models: Vec<Option<(PlantModel, MechTerms)>>,
+    /// Out-of-fold score (mean squared NRMSE of the blocks' free runs) with the effect.
+    score: f64,
+    regime: Option<Regime>,
+}
+
+/// The out-of-fold error on the rows of the regime where an effect acts.
+struct Regime {
+    name: String,
+    seconds: f64,
+    /// 1 − after/before of the root of the regime's share of the out-of-fold score.
+    drop: f64,
+}
+
+/// The out-of-fold prediction: block k predicted by fold k's model, run free from the block's measured state.
+fn out_of_fold(models: &[Option<(PlantModel, MechTerms)>], folds: &[Rows], s: &Series) -> Option<Prediction> {
+    let n = s.len();
+    let mut out: Option<Prediction> = None;
+    let copy = |dst: &mut Vec<f64>, src: &[f64], a: usize, b: usize| dst[a..b].copy_from_slice(&src[a..b]);
+    for (m, r) in models.iter().zip(folds) {
+        let (a, b) = r.held_out?;
+        let (m, _) = m.as_ref()?;
+        let p = predict::predict_rows(m, s, a, b, &[]).ok()?;
+        let o = out.get_or_insert_with(|| Prediction {
+            omega_rad_s: vec![f64::NAN; n],
+            dp_bar: p.dp_bar.as_ref().map(|_| vec![f64::NAN; n]),
+            torque_nm: p.torque_nm.as_ref().map(|_| vec![f64::NAN; n]),
+            f_drive_hz: p.f_drive_hz.as_ref().map(|_| vec![f64::NAN; n]),
+            dp_noise_bar2: p.dp_noise_bar2,
+        });
+        copy(&mut o.omega_rad_s, &p.omega_rad_s, a, b);
+        if let (Some(d), Some(v)) = (o.dp_bar.as_mut(), p.dp_bar.as_ref()) {
+            copy(d, v, a, b);
+        }
+        if let (Some(d), Some(v)) = (o.torque_nm.as_mut(), p.torque_nm.as_ref()) {
+            copy(d, v, a, b);
+        }
+        if let (Some(d), Some(v)) = (o.f_drive_hz.as_mut(), p.f_drive_hz.as_ref()) {
+            copy(d, v, a, b);
+        }
+    }
+    out
+}
+
+fn out_of_fold_score(models: &[Option<(PlantModel, MechTerms)>], folds: &[Rows], s: &Series) -> Option<f64> {
+    let p = out_of_fold(models, folds, s)?;
+    Some(predict::errors(&p, s, 0, s.len()).score(s.family)).filter(|v| v.is_finite())
+}
+
+/// Hydraulic score restricted to `rows`: Σ over the rows of the squared error of each judged signal, over that
+/// signal's total variance on the whole recording, averaged over the signals (the regime's share of the score).
+fn regime_score(p: &Prediction, s: &Series, rows: &[bool]) -> f64 {
+    let part = |sim: &[f64], meas: &[f64]| -> f64 {
+        let fin: Vec<(f64, f64)> =
+            sim.iter().zip(meas).map(|(a, b)| (*a, *b)).filter(|(a, b)| a.is_finite() && b.is_finite()).collect();
+        let mean = fin.iter().map(|x| x.1).sum::<f64>() / fin.len().max(1) as f64;
+        let den: f64 = fin.iter().map(|x| (x.1 - mean).powi(2)).sum();
+        let num: f64 = sim
+            .iter()
+            .zip(meas)
+            .zip(rows)
+            .filter(|((a, b), r)| **r && a.is_finite() && b.is_finite())
+            .map(|((a, b), _)| (a - b).powi(2))
+            .sum();
+        if den > 0.0 { num / den } else { f64::NAN }
+    };
+    let w = part(&p.omega_rad_s, &s.omega_rad_s);
+    match (&p.dp_bar, &s.dp_bar) {
+        (Some(sim), Some(meas)) => 0.5 * (w + part(sim, meas)),
+        _ => w,
+    }
+}
+
+/// Fits candidate `id` on every fold (on top of that fold's current model) and scores the blocks out of fold.
+fn cross_validate(
+    id: &str,
+    standard: &Scored,
+    fold_current: &[Option<(PlantModel, MechTerms)>],
+    folds: &[Rows],
+    s: &Series,
+    opts: &Options,
+) -> Option<CrossValidated> {
+    let models: Vec<Option<(PlantModel, MechTerms)>> = fold_current
+        .iter()
+        .zip(folds)
+        .map(|(cur, r)| {
+            let (m, t) = cur.as_ref()?;
+            search::candidate(id, m, *t, s, r, Some(&standard.model)).or_else(|| Some((m.clone(), *t)))
+        })
+        .collect();
+    let p = out_of_fold(&models, folds, s)?;
+    let score = predict::errors(&p, s, 0, s.len()).score(s.family);
+    if !score.is_finite() {
+        return None;
+    }
+    // the regime where the effect acts, from the standard fit
+    let regime = match (id, standard.model.effects.stribeck_friction) {
+        ("stribeck_friction", Some(st)) => {
+            let rows: Vec<bool> = s.omega_f.iter().map(|w| w.abs() < 2.0 * st.speed_rad_s).collect();
+            let seconds = rows.iter().filter(|r| **r).count() as f64 / s.sample_hz;
+            if seconds >= opts.regime_min_s {
+                let before = out_of_fold(fold_current, folds, s).map(|q| regime_score(&q, s, &rows));
+                let after = regime_score(&p, s, &rows);
+                before.filter(|b| *b > 0.0 && after.is_finite()).map(|b| Regime {
+                    name: format!("low speed (|ω| < {:.2} rad/s)", 2.0 * st.speed_rad_s),
+                    seconds,
+                    drop: 1.0 - (after / b).sqrt(),
+                })
+            } else {
+                None
+            }
+        }
+        _ => None,
+    };
+    Some(CrossValidated { models, score, regime })
+}
+
+/// Delete-one-block jackknife: 95 % interval of each `key` around the reported value, from the fold estimates.
+fn jackknife(
+    reported: &PlantModel,
+    folds: &[Option<(PlantModel, MechTerms)>],
+    keys: &[String],
+) -> BTreeMap<String, Interval> {
+    let reported = parameters(reported);
+    let fold_params: Vec<BTreeMap<String, f64>> = folds.iter().flatten().map(|(m, _)| parameters(m)).collect();
+    let mut out = BTreeMap::new();
+    for key in keys {
+        let Some(&theta) = reported.get(key) else { continue };
+        let v: Vec<f64> = fold_params.iter().filter_map(|p| p.get(key).copied()).filter(|x| x.is_finite()).collect();
+        let m = v.len();
+        if m < 3 {
+            continue;
+        }
+        let mean = v.iter().sum::<f64>() / m as f64;
+        let se = ((m as f64 - 1.0) / m as f64 * v.iter().map(|x| (x - mean).powi(2)).sum::<f64>()).sqrt();
+        // Student t, 97.5 % quantile, m − 1 degrees of freedom
+        let t = match m - 1 {
+            2 => 4.303,
+            3 => 3.182,
+            4 => 2.776,
+            5 => 2.571,
+            6 => 2.447,
+            7 => 2.365,
+            _ => 2.306,
+        };
+        out.insert(key.clone(), Interval { low: theta - t * se, high: theta + t * se });
+    }
+    out
+}
+
+/// The sensor-noise floor of each judged signal, as the residual sees it: σ of the white part of the measurement
+/// (what a zero-phase low-pass removes, robustly, scaled for the pass band); for a filtered comparison (torque)
+/// the part of that noise inside the pass band.
+fn noise_floors(s: &Series) -> Vec<(&'static str, f64)> {
+    let passed = (2.0 * s.cutoff_hz / s.sample_hz).clamp(0.0, 0.9);
+    let sigma = |raw: &[f64]| -> f64 {
+        let f = signal::filtfilt_butter4(raw, s.cutoff_hz, s.sample_hz);
+        let mut d: Vec<f64> = raw.iter().zip(&f).map(|(a, b)| (a - b).abs()).filter(|v| v.is_finite()).collect();
+        d.sort_by(f64::total_cmp);
+        let mad = d.get(d.len() / 2).copied().unwrap_or(0.0);
+        1.4826 * mad / (1.0 - passed).sqrt()
+    };
+    let mut out = Vec::new();
+    match s.family {
+        Family::Hydraulic => {
+            out.push(("omega", sigma(&s.omega_rad_s)));
+            if let Some(dp) = &s.dp_bar {
+                out.push(("dp", sigma(dp)));
+            }
+        }
+        Family::Torque => out.push(("torque", sigma(&s.drive_torque_nm) * passed.sqrt())),
+        Family::Flow => {
+            if let Some(dp) = &s.dp_bar {
+                out.push(("dp", sigma(dp)));
+            }
+            if let Some(f) = &s.f_drive_hz {
+                // the register's 0.01 Hz quantisation at least
+                out.push(("f_drive", sigma(f).max(0.01 / 12f64.sqrt())));
+            }
+        }
+    }
+    out
 }
 
 fn summary(sc: &Scored, s: &Series) -> Summary {
@@ -339,6 +763,8 @@ fn summary(sc: &Scored, s: &Series) -> Summary {
         parameters: parameters(&sc.model),
         validation: sc.validation,
         whole_recording: predict::errors(&sc.prediction, s, 0, s.len()),
+        cross_validation_score: None,
+        confidence_intervals: BTreeMap::new(),
     }
 }
 
@@ -468,6 +894,7 @@ fn finding(
     Finding {
         effect: id.to_string(),
         parameters,
+        confidence_intervals: BTreeMap::new(),
         explanation,
         evidence: Evidence {
             delta_bic,
@@ -476,6 +903,9 @@ fn finding(
             relative_drop: 1.0 - (a / b).sqrt(),
             residual_correlation: corr,
             where_it_shows,
+            cross_validation_score_before: None,
+            cross_validation_score_after: None,
+            validated_on: String::new(),
         },
     }
 }

@@ -75,11 +75,25 @@ impl Errors {
 
 /// Predicts rows `0..end` with `model`.
 pub fn predict(model: &PlantModel, s: &Series, end: usize) -> Result<Prediction, BadInput> {
+    predict_rows(model, s, 0, end, &[])
+}
+
+/// Predicts rows `start..end` with `model`, the free run starting from the measured state at `start` and
+/// restarting from it at each row of `restarts` (sorted): the blocks of cross-validation, each run free from its
+/// measured state. Rows before `start` are NaN (no error is computed for them).
+pub fn predict_rows(
+    model: &PlantModel,
+    s: &Series,
+    start: usize,
+    end: usize,
+    restarts: &[usize],
+) -> Result<Prediction, BadInput> {
     let end = end.min(s.len());
+    let start = start.min(end);
     match s.family {
         Family::Hydraulic => {
             let c = Coefficients::from_model(model).map_err(|(key, msg)| BadInput(format!("model: `{key}` {msg}")))?;
-            let (omega, dp) = free_run_hydraulic(&c, s, end);
+            let (omega, dp) = free_run_hydraulic(&c, s, start, end, restarts);
             Ok(Prediction {
                 omega_rad_s: omega,
                 dp_bar: Some(dp),
@@ -90,7 +104,7 @@ pub fn predict(model: &PlantModel, s: &Series, end: usize) -> Result<Prediction,
         }
         Family::Flow => {
             let c = Coefficients::from_model(model).map_err(|(key, msg)| BadInput(format!("model: `{key}` {msg}")))?;
-            let (f, dp) = free_run_flow(&c, s, end);
+            let (f, dp) = free_run_flow(&c, s, start, end, restarts);
             // the speed drives the flow balance: it is not predicted (NaN: no error is computed for it)
             let compare_f = s.f_drive_hz.is_some() && s.setpoint_hz.is_some();
             Ok(Prediction {
@@ -104,7 +118,7 @@ pub fn predict(model: &PlantModel, s: &Series, end: usize) -> Result<Prediction,
         Family::Torque => {
             let m = Mechanics::from_model(model);
             Ok(Prediction {
-                omega_rad_s: free_run_mechanics(&m, s, end),
+                omega_rad_s: free_run_mechanics(&m, s, start, end, restarts),
                 dp_bar: None,
                 torque_nm: Some(inverse_dynamics(&m, s, end)),
                 f_drive_hz: None,
@@ -150,17 +164,28 @@ pub fn errors(p: &Prediction, s: &Series, from: usize, to: usize) -> Errors {
 
 /// Free run of the whole plant from the recorded setpoint and load. Row k is the state at t_k; the inputs of row k
 /// hold over [t_k, t_k+1), the setpoint delayed by the dead time exactly as the simulator does.
-fn free_run_hydraulic(c: &Coefficients, s: &Series, end: usize) -> (Vec<f64>, Vec<f64>) {
-    let mut omega = Vec::with_capacity(end);
-    let mut dp = Vec::with_capacity(end);
+fn free_run_hydraulic(
+    c: &Coefficients,
+    s: &Series,
+    start: usize,
+    end: usize,
+    restarts: &[usize],
+) -> (Vec<f64>, Vec<f64>) {
+    let mut omega = vec![f64::NAN; start];
+    let mut dp = vec![f64::NAN; start];
+    omega.reserve(end - start);
+    dp.reserve(end - start);
     let empty = Vec::new();
     let u = s.setpoint_hz.as_ref().unwrap_or(&empty);
     let back = c.back_pressure_pa;
-    let mut x = PlantState {
-        f_hz: s.f0_hz,
-        p_in_pa: bar_to_pa(s.p_in0_bar).max(0.0),
-        omega_rad_s: s.omega_f.first().copied().unwrap_or(0.0),
+    // the measured state at row k (row 0: the recording's first values)
+    let measured = |k: usize| PlantState {
+        f_hz: if k == 0 { s.f0_hz } else { s.state_f_hz.get(k).copied().unwrap_or(0.0) },
+        p_in_pa: bar_to_pa(if k == 0 { s.p_in0_bar } else { s.state_p_in_bar.get(k).copied().unwrap_or(0.0) }).max(0.0),
+        omega_rad_s: s.omega_f.get(k).copied().unwrap_or(0.0),
     };
+    let mut x = measured(start);
+    let mut next_restart = restarts.iter().copied().filter(|r| *r > start).peekable();
     let dt_nominal = 1.0 / s.sample_hz;
     let delay = c.dead_time_s.max(0.0);
     let m = (delay / dt_nominal).floor() as usize;
@@ -179,7 +204,11 @@ fn free_run_hydraulic(c: &Coefficients, s: &Series, end: usize) -> (Vec<f64>, Ve
             *x = c.rk4(x, f_cmd, load, h);
         }
     };
-    for k in 0..end {
+    for k in start..end {
+        if next_restart.peek() == Some(&k) {
+            next_restart.next();
+            x = measured(k);
+        }
         omega.push(x.omega_rad_s);
         dp.push(pa_to_bar(x.p_in_pa - back));
         if k + 1 == end {
@@ -199,9 +228,11 @@ fn free_run_hydraulic(c: &Coefficients, s: &Series, end: usize) -> (Vec<f64>, Ve
 /// pressure equation `dp_in/dt = β/V·(D_p ω_pump − D_m ω − C_L Δp)` with ω the measured (low-passed) speed and
 /// ω_pump from `f_drive_hz` where recorded, else from the drive model. Inputs are linear between rows. After a gap
 /// the state restarts from the measured values. Returns the drive model's frequency and ΔP (bar) per row.
-fn free_run_flow(c: &Coefficients, s: &Series, end: usize) -> (Vec<f64>, Vec<f64>) {
-    let mut f_out = Vec::with_capacity(end);
-    let mut dp_out = Vec::with_capacity(end);
+fn free_run_flow(c: &Coefficients, s: &Series, start: usize, end: usize, restarts: &[usize]) -> (Vec<f64>, Vec<f64>) {
+    let mut f_out = vec![f64::NAN; start];
+    let mut dp_out = vec![f64::NAN; start];
+    f_out.reserve(end - start);
+    dp_out.reserve(end - start);
     let back = c.back_pressure_pa;
     let meas_dp = s.dp_bar.as_deref().unwrap_or(&[]);
     let f_meas = s.f_drive_hz.as_deref();
@@ -232,13 +263,21 @@ fn free_run_flow(c: &Coefficients, s: &Series, end: usize) -> (Vec<f64>, Vec<f64
     let dfdt = |f: f64, cmd: f64| ((cmd - f) / c.time_constant_s).clamp(-c.ramp_hz_per_s, c.ramp_hz_per_s);
     let mut f = s.f0_hz;
     let mut p = bar_to_pa(s.p_in0_bar).max(0.0);
-    let mut next_restart = s.restarts.iter().copied().peekable();
-    for k in 0..end {
+    let mut all_restarts: Vec<usize> = s.restarts.iter().chain(restarts).copied().collect();
+    if start > 0 {
+        all_restarts.push(start);
+    }
+    all_restarts.sort_unstable();
+    all_restarts.dedup();
+    let mut next_restart = all_restarts.into_iter().filter(|r| *r >= start).peekable();
+    for k in start..end {
         if next_restart.peek() == Some(&k) {
             next_restart.next();
             p = (bar_to_pa(meas_dp[k]) + back).max(0.0);
             if let Some(fm) = f_meas {
                 f = fm[k];
+            } else if k == start && start > 0 {
+                f = s.state_f_hz.get(k).copied().unwrap_or(f);
             }
         }
         f_out.push(f);
@@ -314,10 +353,16 @@ fn noise_in_dp_bar2(c: &Coefficients, s: &Series) -> f64 {
 }
 
 /// Free run of the mechanics from the recorded drive and load torques, starting at the measured speed.
-fn free_run_mechanics(m: &Mechanics, s: &Series, end: usize) -> Vec<f64> {
-    let mut omega = Vec::with_capacity(end);
-    let mut w = s.omega_f.first().copied().unwrap_or(0.0);
-    for k in 0..end {
+fn free_run_mechanics(m: &Mechanics, s: &Series, start: usize, end: usize, restarts: &[usize]) -> Vec<f64> {
+    let mut omega = vec![f64::NAN; start];
+    omega.reserve(end - start);
+    let mut w = s.omega_f.get(start).copied().unwrap_or(0.0);
+    let mut next_restart = restarts.iter().copied().filter(|r| *r > start).peekable();
+    for k in start..end {
+        if next_restart.peek() == Some(&k) {
+            next_restart.next();
+            w = s.omega_f[k];
+        }
         omega.push(w);
         if k + 1 == end {
             break;

@@ -162,7 +162,14 @@ pub fn html(a: &Analysis) -> String {
         out.push_str("<p>Nothing is missing: no catalogue effect lowers the validation error by a clear margin.</p>");
     }
     for f in &a.findings {
-        let params: Vec<String> = f.parameters.iter().map(|(k, v)| format!("{k} = {v:.4}")).collect();
+        let params: Vec<String> = f
+            .parameters
+            .iter()
+            .map(|(k, v)| match f.confidence_intervals.get(k) {
+                Some(ci) => format!("{k} = {v:.4} (95 %: {:.4} … {:.4})", ci.low, ci.high),
+                None => format!("{k} = {v:.4}"),
+            })
+            .collect();
         let ev = &f.evidence;
         let _ = write!(
             out,
@@ -181,6 +188,61 @@ pub fn html(a: &Analysis) -> String {
             escape(&ev.where_it_shows)
         );
     }
+    let _ = write!(out, "<p><b>Validation:</b> {}</p>", escape(&a.validation_rule));
+    for f in a.findings.iter().filter(|f| !f.evidence.validated_on.is_empty()) {
+        let _ = write!(
+            out,
+            "<p>{} validated on {} (cross-validation score {} → {}).</p>",
+            escape(&f.effect),
+            escape(&f.evidence.validated_on),
+            fmt_opt(f.evidence.cross_validation_score_before),
+            fmt_opt(f.evidence.cross_validation_score_after)
+        );
+    }
+
+    out.push_str("<h2>Fitted parameters and their confidence intervals</h2>");
+    let _ = write!(
+        out,
+        "<p>{}.</p><table><tr><th>parameter</th><th>value</th><th>95 % low</th><th>95 % high</th></tr>",
+        escape(&a.interval_method)
+    );
+    for (k, v) in &a.improved.parameters {
+        let ci = a.improved.confidence_intervals.get(k);
+        let _ = write!(
+            out,
+            "<tr><td>{}</td><td class=num>{v:.5}</td><td class=num>{}</td><td class=num>{}</td></tr>",
+            escape(k),
+            ci.map_or("not fitted".into(), |c| format!("{:.5}", c.low)),
+            ci.map_or("".into(), |c| format!("{:.5}", c.high))
+        );
+    }
+    out.push_str("</table>");
+
+    out.push_str("<h2>What the improved model still leaves unexplained</h2>");
+    if a.unexplained.is_empty() {
+        out.push_str("<p>Nothing: the improved model's residual stays within twice the sensor-noise floor.</p>");
+    } else {
+        out.push_str(
+            "<table><tr><th>signal</th><th>condition</th><th>share of the recording</th><th>RMS</th>\
+             <th>noise floor</th><th>windows (s)</th></tr>",
+        );
+        for u in &a.unexplained {
+            let windows: Vec<String> = u.windows.iter().map(|w| format!("{:.1}–{:.1}", w[0], w[1])).collect();
+            let _ = write!(
+                out,
+                "<tr><td>{}</td><td>{}</td><td class=num>{:.1} %</td><td class=num>{:.3}</td><td class=num>{:.3}</td>\
+                 <td>{}</td></tr>",
+                escape(&u.signal),
+                escape(&u.condition),
+                100.0 * u.share,
+                u.rms,
+                u.noise_floor,
+                escape(&windows.join(", "))
+            );
+        }
+        out.push_str("</table>");
+    }
+
     if !a.ambiguities.is_empty() {
         out.push_str("<h2>What this recording cannot tell apart</h2><ul>");
         for amb in &a.ambiguities {
@@ -288,16 +350,19 @@ pub fn html(a: &Analysis) -> String {
     }
     out.push_str(
         "<h2>Every candidate tried</h2><table><tr><th>round</th><th>effect</th><th>validation score</th>\
-                  <th>ΔBIC</th><th>kept</th></tr>",
+                  <th>ΔBIC</th><th>cross-validation score</th><th>regime drop</th><th>kept</th></tr>",
     );
     for c in &a.candidates {
         let _ = write!(
             out,
-            "<tr><td>{}</td><td>{}</td><td class=num>{}</td><td class=num>{}</td><td>{}</td></tr>",
+            "<tr><td>{}</td><td>{}</td><td class=num>{}</td><td class=num>{}</td><td class=num>{}</td>\
+             <td class=num>{}</td><td>{}</td></tr>",
             c.round,
             escape(&c.effect),
             c.validation_score.map_or("not fittable".into(), |v| format!("{v:.5}")),
             c.delta_bic.map_or("—".into(), |v| format!("{v:.1}")),
+            c.cross_validation_score.map_or("—".into(), |v| format!("{v:.5}")),
+            c.regime_drop.map_or("—".into(), |v| format!("{:.1} %", 100.0 * v)),
             if c.kept { "yes" } else { "" }
         );
     }

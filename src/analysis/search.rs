@@ -7,7 +7,7 @@ use crate::plant::effects::{
     CoulombFriction, DeadTime, EFFECT_IDS, EntrainedAir, InternalLeakage, MotorSlip, StribeckFriction, TorqueOffset,
 };
 
-use super::predict::{Errors, Prediction, errors, predict};
+use super::predict::{Errors, Prediction, errors, predict, predict_rows};
 use super::series::{Family, Series};
 use super::signal::{least_squares, minimize_1d};
 
@@ -39,11 +39,109 @@ impl Scored {
     }
 }
 
-/// Rows of the torque balance used by least squares: the fitting segment without its filter edges, decimated.
-fn ls_rows(s: &Series) -> Vec<usize> {
-    let edge = ((s.sample_hz / s.cutoff_hz) as usize * 2).min(s.split / 4);
+/// Which rows a fit may use: the least-squares rows, and the free-run search over rows `0..search_end` restarted
+/// from the measured state at `restarts`, judged only on `search` (ranges). The documented fit uses the fitting
+/// segment ([`Rows::standard`]); cross-validation fits each fold on the recording without one block ([`Rows::fold`]).
+#[derive(Debug, Clone)]
+pub struct Rows {
+    pub ls: Vec<(usize, usize)>,
+    pub search: Vec<(usize, usize)>,
+    pub search_start: usize,
+    pub search_end: usize,
+    pub restarts: Vec<usize>,
+    /// Cross-validation: the held-out block (rows), none for the standard fit.
+    pub held_out: Option<(usize, usize)>,
+}
+
+impl Rows {
+    /// The fitting segment `0..split`; the free-run search on its first `search_end` rows.
+    pub fn standard(s: &Series, search_end: usize) -> Rows {
+        Rows {
+            ls: vec![(0, s.split)],
+            search: vec![(0, search_end)],
+            search_start: 0,
+            search_end,
+            restarts: Vec::new(),
+            held_out: None,
+        }
+    }
+
+    /// Fold `k` of `folds`: every row but block `k` (the recording cut into `folds` equal blocks). The free-run
+    /// search uses about `search_len` rows of the training data from the start, restarting at the block's edges.
+    pub fn fold(s: &Series, k: usize, folds: usize, search_len: usize) -> Rows {
+        let n = s.len();
+        let (a, b) = (k * n / folds, (k + 1) * n / folds);
+        let ranges = |end: usize| -> Vec<(usize, usize)> {
+            [(0, a.min(end)), (b.min(end), end)].into_iter().filter(|(p, q)| q > p).collect()
+        };
+        // the search window: the first `search_len` rows when the block lies beyond them, else as many rows from
+        // the block's end; a short recording: its training rows around the block
+        let (search_start, search_end) = if a >= search_len {
+            (0, search_len)
+        } else if b + search_len <= n {
+            (b, b + search_len)
+        } else {
+            (0, (search_len + (b - a)).min(n))
+        };
+        let search =
+            if search_start > 0 || search_end <= a { vec![(search_start, search_end)] } else { ranges(search_end) };
+        Rows {
+            ls: ranges(n),
+            search,
+            search_start,
+            search_end,
+            restarts: [a, b].into_iter().filter(|r| *r > 0 && *r < n).collect(),
+            held_out: Some((a, b)),
+        }
+    }
+
+    /// Sets the rows of `p` outside the search ranges to NaN, so that errors are computed on training rows only.
+    fn mask(&self, p: &mut Prediction) {
+        if self.search.len() == 1 && self.search[0] == (self.search_start, self.search_end) {
+            return;
+        }
+        let keep = |k: usize| self.search.iter().any(|(a, b)| (*a..*b).contains(&k));
+        let blank = |v: &mut Vec<f64>| {
+            for (k, x) in v.iter_mut().enumerate() {
+                if !keep(k) {
+                    *x = f64::NAN;
+                }
+            }
+        };
+        blank(&mut p.omega_rad_s);
+        if let Some(v) = p.dp_bar.as_mut() {
+            blank(v);
+        }
+        if let Some(v) = p.torque_nm.as_mut() {
+            blank(v);
+        }
+        if let Some(v) = p.f_drive_hz.as_mut() {
+            blank(v);
+        }
+    }
+
+    /// The free-run error of `m` on the search rows.
+    pub fn search_cost(&self, m: &PlantModel, s: &Series) -> f64 {
+        let restarts: Vec<usize> = self.restarts.iter().copied().filter(|r| *r > self.search_start).collect();
+        match predict_rows(m, s, self.search_start, self.search_end, &restarts) {
+            Ok(mut p) => {
+                self.mask(&mut p);
+                errors(&p, s, self.search_start, self.search_end).score(s.family)
+            }
+            Err(_) => f64::INFINITY,
+        }
+    }
+}
+
+/// Rows of the torque balance used by least squares: each range without its filter edges, decimated.
+fn ls_rows(s: &Series, ranges: &[(usize, usize)]) -> Vec<usize> {
     let step = ((s.sample_hz / (5.0 * s.cutoff_hz)).round() as usize).max(1);
-    (edge..s.split.saturating_sub(edge)).step_by(step).collect()
+    let mut rows = Vec::new();
+    for &(lo, hi) in ranges {
+        let edge = ((s.sample_hz / s.cutoff_hz) as usize * 2).min((hi - lo) / 4);
+        rows.extend((lo + edge..hi.saturating_sub(edge)).step_by(step));
+    }
+    rows
 }
 
 /// Stribeck speeds tried, as fractions of the recording's speed scale.
@@ -52,7 +150,17 @@ const STRIBECK_FRACTIONS: [f64; 8] = [0.005, 0.01, 0.02, 0.04, 0.07, 0.1, 0.15, 
 /// Fits J, B and the chosen terms on the fitting segment; `None` when the data do not determine them or the fit is
 /// not physical (negative inertia or friction).
 pub fn fit_mechanics(base: &PlantModel, s: &Series, terms: MechTerms) -> Option<PlantModel> {
-    let rows = ls_rows(s);
+    fit_mechanics_on(base, s, terms, &[(0, s.split)])
+}
+
+/// [`fit_mechanics`] on the rows of `ranges`.
+pub fn fit_mechanics_on(
+    base: &PlantModel,
+    s: &Series,
+    terms: MechTerms,
+    ranges: &[(usize, usize)],
+) -> Option<PlantModel> {
+    let rows = ls_rows(s, ranges);
     let y: Vec<f64> = rows.iter().map(|&k| s.drive_torque_f[k] - s.load_f[k]).collect();
     let mut cols =
         vec![rows.iter().map(|&k| s.alpha_f[k]).collect::<Vec<f64>>(), rows.iter().map(|&k| s.omega_f[k]).collect()];
@@ -155,10 +263,32 @@ fn flow_grid(id: &str, nominal_bulk_bar: f64) -> Option<(Vec<f64>, SetEffect)> {
     }
 }
 
-/// Builds the candidate that adds effect `id` to `current`, with its parameters fitted on the fitting segment
-/// (`search_end` rows at most for the free-run search). `None` when it does not apply or cannot be fitted.
-pub fn candidate(id: &str, current: &Scored, s: &Series, search_end: usize) -> Option<(PlantModel, MechTerms)> {
-    let mut terms = current.terms;
+/// The flow-side effect's search variable in `m` (as [`flow_grid`] sets it), when present and positive (log ratio
+/// for the bulk modulus).
+fn flow_value(id: &str, m: &PlantModel, nominal_bulk_bar: f64) -> Option<f64> {
+    let e = &m.effects;
+    match id {
+        "internal_leakage" => e.internal_leakage.map(|x| x.l_min_per_bar).filter(|v| *v > 0.0),
+        "motor_slip" => e.motor_slip.map(|x| x.rpm_per_nm).filter(|v| *v > 0.0),
+        "dead_time" => e.dead_time.map(|x| x.ms).filter(|v| *v > 0.0),
+        "entrained_air" => e.entrained_air.map(|x| (x.bulk_modulus_bar / nominal_bulk_bar).ln()),
+        _ => None,
+    }
+}
+
+/// Builds the candidate that adds effect `id` to `current` (with its torque-balance `terms`), its parameters fitted
+/// on `rows`. `None` when it does not apply or cannot be fitted. `hint`, a model with the effect already fitted on
+/// other rows (cross-validation folds start from the documented fit), narrows the free-run searches to ×0.5…2
+/// around its value.
+pub fn candidate(
+    id: &str,
+    current: &PlantModel,
+    terms: MechTerms,
+    s: &Series,
+    rows: &Rows,
+    hint: Option<&PlantModel>,
+) -> Option<(PlantModel, MechTerms)> {
+    let mut terms = terms;
     match id {
         "coulomb_friction" => terms.coulomb = true,
         "torque_offset" => terms.offset = true,
@@ -167,63 +297,98 @@ pub fn candidate(id: &str, current: &Scored, s: &Series, search_end: usize) -> O
             if s.family == Family::Torque {
                 return None;
             }
-            let nominal_bulk = current.model.hydraulics.as_ref()?.bulk_modulus_bar;
+            let nominal_bulk = current.hydraulics.as_ref()?.bulk_modulus_bar;
             // Slip takes flow exactly as leakage does (C = D_p²·k_s): searched as leakage and converted, the two
             // candidates score the same, and which one is named is the catalogue order's choice, not the search's
-            if id == "motor_slip" && current.model.effects.internal_leakage.is_none() {
-                let per_rpm = super::slip_as_leakage(&current.model, 1.0).filter(|v| *v > 0.0)?;
-                let (leak, _) = candidate("internal_leakage", current, s, search_end)?;
+            if id == "motor_slip" && current.effects.internal_leakage.is_none() {
+                let per_rpm = super::slip_as_leakage(current, 1.0).filter(|v| *v > 0.0)?;
+                // the hint's slip as the equivalent leakage
+                let leak_hint = hint.and_then(|h| h.effects.motor_slip).map(|k| {
+                    let mut h = current.clone();
+                    h.effects.internal_leakage = Some(InternalLeakage { l_min_per_bar: k.rpm_per_nm * per_rpm });
+                    h
+                });
+                let (leak, _) = candidate("internal_leakage", current, terms, s, rows, leak_hint.as_ref())?;
                 let extra = leak.effects.internal_leakage.map_or(0.0, |l| l.l_min_per_bar);
-                let mut m = current.model.clone();
+                let mut m = current.clone();
                 m.effects.motor_slip = Some(MotorSlip { rpm_per_nm: extra / per_rpm });
                 return Some((m, terms));
             }
-            let (grid, set) = flow_grid(id, nominal_bulk)?;
+            let (mut grid, set) = flow_grid(id, nominal_bulk)?;
+            let mut iterations = 10;
+            if let Some(x0) = hint.and_then(|h| flow_value(id, h, nominal_bulk)) {
+                grid = if id == "entrained_air" {
+                    [-0.7f64, -0.35, 0.0, 0.35, 0.7].iter().map(|d| (x0 + d).min(0.0)).collect()
+                } else {
+                    [0.5, 0.7, 1.0, 1.4, 2.0].iter().map(|f| f * x0).collect()
+                };
+                grid.dedup();
+                iterations = 6;
+            }
             let mut cost = |x: f64| {
-                let mut m = current.model.clone();
+                let mut m = current.clone();
                 set(&mut m, x);
-                match predict(&m, s, search_end) {
-                    Ok(p) => errors(&p, s, 0, search_end).score(s.family),
-                    Err(_) => f64::INFINITY,
-                }
+                rows.search_cost(&m, s)
             };
-            let (x, _) = minimize_1d(&mut cost, &grid, 10);
-            let mut m = current.model.clone();
+            let (x, _) = minimize_1d(&mut cost, &grid, iterations);
+            let mut m = current.clone();
             set(&mut m, x);
             return Some((m, terms));
         }
     }
-    let fitted = fit_mechanics(&current.model, s, terms)?;
     if id == "stribeck_friction" && s.family == Family::Hydraulic {
-        return Some((refine_stribeck(fitted, s, search_end), terms));
+        // With dry friction already in, least squares on the 10 Hz-filtered speed often puts the low-speed excess
+        // into the Coulomb term (extra ≤ 0): the free run then starts from a guess (excess = the Coulomb
+        // friction, at least 0.1 N·m; ω_s = 4 % of the speed scale) over a wider range
+        let hinted = hint.and_then(|h| h.effects.stribeck_friction.map(|st| (st, h.effects.coulomb_friction)));
+        if let Some((st, tc_hint)) = hinted {
+            // start from the hint's low-speed excess and ω_s, J, B and Coulomb friction fitted on these rows
+            let mut m = fit_mechanics_on(current, s, terms, &rows.ls)
+                .or_else(|| fit_mechanics_on(current, s, MechTerms { stribeck: false, ..terms }, &rows.ls))?;
+            let tc = m.effects.coulomb_friction.map_or(0.0, |c| c.torque_nm);
+            let extra = (st.breakaway_nm - tc_hint.map_or(0.0, |c| c.torque_nm)).max(1e-3);
+            m.effects.stribeck_friction =
+                Some(StribeckFriction { breakaway_nm: tc + extra, speed_rad_s: st.speed_rad_s });
+            return Some((refine_stribeck(m, s, rows, false, 1), terms));
+        }
+        let (fitted, wide) = match fit_mechanics_on(current, s, terms, &rows.ls) {
+            Some(m) => (m, false),
+            None => {
+                let mut m = fit_mechanics_on(current, s, MechTerms { stribeck: false, ..terms }, &rows.ls)?;
+                let tc = m.effects.coulomb_friction.map_or(0.0, |c| c.torque_nm);
+                let ws = (0.04 * s.speed_scale()).max(3.0 * s.sign_speed);
+                m.effects.stribeck_friction =
+                    Some(StribeckFriction { breakaway_nm: tc + tc.max(0.1), speed_rad_s: ws });
+                (m, true)
+            }
+        };
+        return Some((refine_stribeck(fitted, s, rows, wide, 2), terms));
     }
+    let fitted = fit_mechanics_on(current, s, terms, &rows.ls)?;
     Some((fitted, terms))
 }
 
 /// Low-speed friction shows in brief transients, where the low-passed speed of the torque balance smears it; the
 /// free run does not. Coordinate descent on (breakaway, ω_s) around the least-squares values, by golden section on
-/// the free-run error of the search window.
-fn refine_stribeck(mut m: PlantModel, s: &Series, search_end: usize) -> PlantModel {
-    let cost = |m: &PlantModel| match predict(m, s, search_end) {
-        Ok(p) => errors(&p, s, 0, search_end).score(s.family),
-        Err(_) => f64::INFINITY,
-    };
-    for _ in 0..2 {
+/// the free-run error of the search window (factors 0.5–2 per pass, or 0.25–4 from a guess).
+fn refine_stribeck(mut m: PlantModel, s: &Series, rows: &Rows, wide: bool, passes: usize) -> PlantModel {
+    let factors: &[f64] = if wide { &[0.25, 0.5, 0.7, 1.0, 1.4, 2.0, 4.0] } else { &[0.5, 0.7, 1.0, 1.4, 2.0] };
+    let grid: Vec<f64> = factors.iter().map(|f| f.ln()).collect();
+    for _ in 0..passes {
         let Some(st) = m.effects.stribeck_friction else { return m };
         let tc = m.effects.coulomb_friction.map_or(0.0, |c| c.torque_nm);
         let extra = (st.breakaway_nm - tc).max(1e-6);
         let mut with_extra = |x: f64| {
             let mut t = m.clone();
             t.effects.stribeck_friction = Some(StribeckFriction { breakaway_nm: tc + extra * x.exp(), ..st });
-            cost(&t)
+            rows.search_cost(&t, s)
         };
-        let grid: Vec<f64> = [0.5f64, 0.7, 1.0, 1.4, 2.0].iter().map(|f| f.ln()).collect();
         let (x, _) = minimize_1d(&mut with_extra, &grid, 6);
         let st = StribeckFriction { breakaway_nm: tc + extra * x.exp(), ..st };
         let mut with_speed = |x: f64| {
             let mut t = m.clone();
             t.effects.stribeck_friction = Some(StribeckFriction { speed_rad_s: st.speed_rad_s * x.exp(), ..st });
-            cost(&t)
+            rows.search_cost(&t, s)
         };
         let (x, _) = minimize_1d(&mut with_speed, &grid, 6);
         m.effects.stribeck_friction = Some(StribeckFriction { speed_rad_s: st.speed_rad_s * x.exp(), ..st });

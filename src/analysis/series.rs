@@ -79,6 +79,10 @@ pub struct Series {
     /// Initial drive frequency and inlet pressure for the free run.
     pub f0_hz: f64,
     pub p_in0_bar: f64,
+    /// The measured state a free run restarts from at a block boundary (cross-validation): drive frequency (Hz,
+    /// `f_drive_hz`, else the setpoint) and inlet pressure (bar) per row; empty for the torque family.
+    pub state_f_hz: Vec<f64>,
+    pub state_p_in_bar: Vec<f64>,
     pub cutoff_hz: f64,
     /// Where the speed came from (`omega_rad_s` or `theta_rad`), for the report.
     pub speed_source: &'static str,
@@ -110,6 +114,8 @@ impl Series {
             _ => false,
         };
         let f_drive = col("f_drive_hz");
+        let mut state_f_hz = Vec::new();
+        let mut state_p_in_bar = Vec::new();
         let (family, drive_torque_nm, dp_bar, setpoint_hz, p_in0_bar, f0_hz) = if let Some(tq) = col("torque_nm") {
             (Family::Torque, tq, None, None, 0.0, 0.0)
         } else {
@@ -135,6 +141,8 @@ impl Series {
             let dp: Vec<f64> = p_in.iter().zip(&p_out).map(|(a, b)| a - b).collect();
             let torque = dp.iter().map(|d| d_m * d * 1e5).collect();
             let f0 = f_drive.as_ref().or(f_set.as_ref()).map_or(0.0, |f| f[0]);
+            state_f_hz = f_drive.as_ref().or(f_set.as_ref()).cloned().unwrap_or_else(|| vec![0.0; n]);
+            state_p_in_bar = p_in.clone();
             let family = if load_unknown { Family::Flow } else { Family::Hydraulic };
             (family, torque, Some(dp), f_set, p_in[0], f0)
         };
@@ -204,6 +212,8 @@ impl Series {
             setpoint_hz,
             f0_hz,
             p_in0_bar,
+            state_f_hz,
+            state_p_in_bar,
             cutoff_hz,
             speed_source,
             sign_speed: SIGN_SPEED_RAD_S,

@@ -161,6 +161,185 @@ fn clean_runs_name_nothing() {
     }
 }
 
+/// Setpoint of "a program that runs slowly at times" (issue 18): the seeded slow program (steps and ramps at
+/// 1.5–30 Hz) for the first `slow_until_s`, then the test stand's program (mostly 10–50 Hz, one stop per cycle).
+fn slow_at_times(seed: u64, slow_until_s: f64) -> impl Fn(f64) -> f64 {
+    let slow =
+        hydrolens::plant::scenario::Scenario::generate(hydrolens::plant::scenario::Family::Slow, seed, slow_until_s);
+    move |t| if t < slow_until_s { slow.setpoint_hz(t) } else { hydrolens::plant::excitation::setpoint_hz(t) }
+}
+
+/// Simulates `truth` on [`slow_at_times`] (brake-load steps) and analyses it with the nominal reference model.
+fn concealed_on_slow_program(truth: &PlantModel, seed: u64, run_s: f64, slow_until_s: f64) -> Analysis {
+    let setpoint = slow_at_times(seed, slow_until_s);
+    let load = truth.load.clone();
+    let inputs = hydrolens::plant::simulate::Inputs { setpoint_hz: &setpoint, load_nm: &move |t| load.torque_nm(t) };
+    let rec = hydrolens::plant::simulate::run(truth, run_s, seed, &inputs, &mut |_| {}).expect("simulable");
+    analysis::analyze(&rec, &PlantModel::reference(), &Options::default(), &mut |_| {}).expect("analysable")
+}
+
+/// Issue 18's recording: Coulomb friction 2 N·m, Stribeck breakaway 6 N·m (ω_s 3 rad/s) and a 25 ms dead time, on
+/// a program that runs slowly at times (down to 1.5 Hz) but hardly in its last 30 %. All three are named.
+#[test]
+fn stribeck_with_coulomb_and_dead_time_on_a_slow_program_names_all_three() {
+    let mut truth = PlantModel::reference();
+    truth.effects.coulomb_friction = Some(CoulombFriction { torque_nm: 2.0 });
+    truth.effects.stribeck_friction = Some(StribeckFriction { breakaway_nm: 6.0, speed_rad_s: 3.0 });
+    truth.effects.dead_time = Some(DeadTime { ms: 25.0 });
+    let a = concealed_on_slow_program(&truth, 41, 80.0, 50.0);
+    let mut n = named(&a);
+    n.sort();
+    let tried: Vec<String> = a
+        .candidates
+        .iter()
+        .map(|c| format!("{} {} {:?} {:?} {}", c.round, c.effect, c.validation_score, c.delta_bic, c.kept))
+        .collect();
+    assert_eq!(n, vec!["coulomb_friction", "dead_time", "stribeck_friction"], "{tried:#?}");
+    assert!((parameter(&a, "coulomb_friction", "torque_nm") - 2.0).abs() <= 0.3 * 2.0, "{:#?}", a.findings);
+    assert!((parameter(&a, "stribeck_friction", "breakaway_nm") - 6.0).abs() <= 0.3 * 6.0, "{:#?}", a.findings);
+    assert!((parameter(&a, "dead_time", "ms") - 25.0).abs() <= 0.3 * 25.0, "{:#?}", a.findings);
+}
+
+/// The truth of issue 18's recording at `scale` × (Coulomb 2 N·m, breakaway 6 N·m, dead time 25 ms; ω_s 3 rad/s).
+fn issue_18_truth(scale: f64) -> PlantModel {
+    let mut truth = PlantModel::reference();
+    truth.effects.coulomb_friction = Some(CoulombFriction { torque_nm: 2.0 * scale });
+    truth.effects.stribeck_friction = Some(StribeckFriction { breakaway_nm: 6.0 * scale, speed_rad_s: 3.0 });
+    truth.effects.dead_time = Some(DeadTime { ms: 25.0 * scale });
+    truth
+}
+
+/// With nothing allowed to be named, the improved model is the nominal one and what it misses is listed: on issue
+/// 18's recording, ΔP at low speed, where the Stribeck friction acts, above the noise floor.
+#[test]
+fn unexplained_locates_what_the_model_still_misses() {
+    let truth = issue_18_truth(1.0);
+    let setpoint = slow_at_times(41, 50.0);
+    let load = truth.load.clone();
+    let inputs = hydrolens::plant::simulate::Inputs { setpoint_hz: &setpoint, load_nm: &move |t| load.torque_nm(t) };
+    let rec = hydrolens::plant::simulate::run(&truth, 80.0, 41, &inputs, &mut |_| {}).expect("simulable");
+    let opts = Options { min_relative_drop: f64::INFINITY, ..Options::default() };
+    let a = analysis::analyze(&rec, &PlantModel::reference(), &opts, &mut |_| {}).expect("analysable");
+    assert!(a.findings.is_empty());
+    let low = a
+        .unexplained
+        .iter()
+        .find(|u| u.signal == "dp" && u.condition.contains("low speed"))
+        .unwrap_or_else(|| panic!("{:#?}", a.unexplained));
+    assert!(low.rms > 2.0 * low.noise_floor && low.share > 0.0 && !low.windows.is_empty(), "{low:#?}");
+    assert!(low.windows.iter().all(|w| w[0] <= w[1]), "{low:#?}");
+    // the noise floor of ΔP is the sensors' (σ 0.3 bar on each pressure: 0.42 bar)
+    assert!((0.3..0.6).contains(&low.noise_floor), "{low:#?}");
+}
+
+/// Every fitted parameter has a finite, ordered interval that holds its reported value; over the issue's recording
+/// the truth lies inside for the three effects.
+#[test]
+fn confidence_intervals_are_finite_ordered_and_hold_the_truth() {
+    let truth = issue_18_truth(1.0);
+    let a = concealed_on_slow_program(&truth, 41, 80.0, 50.0);
+    for (k, v) in &a.improved.parameters {
+        let ci = a.improved.confidence_intervals.get(k).unwrap_or_else(|| panic!("no interval for {k}"));
+        assert!(ci.low.is_finite() && ci.high.is_finite() && ci.low <= *v && *v <= ci.high, "{k}: {v} {ci:?}");
+    }
+    for (effect, name, value) in
+        [("coulomb_friction", "torque_nm", 2.0), ("stribeck_friction", "breakaway_nm", 6.0), ("dead_time", "ms", 25.0)]
+    {
+        let f = a.findings.iter().find(|f| f.effect == effect).unwrap_or_else(|| panic!("{effect} not named"));
+        let ci = f.confidence_intervals[name];
+        assert!(ci.low <= value && value <= ci.high, "{effect}.{name}: truth {value} outside {ci:?}");
+    }
+}
+
+/// Coverage of the intervals and the slow-program cases over seeds and magnitudes (minutes, release):
+/// `cargo test --release --locked --test it -- --ignored slow_program_sweep --nocapture`. Seeds 41, 42 were looked
+/// at while the method was built (tuned); 301–304 were not (held out).
+#[test]
+#[ignore]
+fn slow_program_sweep() {
+    let mut failures = Vec::new();
+    for (set, seeds) in [("tuned", vec![41u64, 42]), ("held-out", vec![301, 302, 303, 304])] {
+        println!("\n**{set} seeds — {seeds:?}**\n");
+        println!(
+            "| scale | seed | named | Coulomb N·m (95 %) | breakaway N·m (95 %) | ω_s rad/s | dead time ms (95 %) | CV score nominal → improved | unexplained |"
+        );
+        println!("|---|---|---|---|---|---|---|---|---|");
+        let (mut inside, mut total) = (0, 0);
+        for scale in [0.5, 1.0] {
+            for &seed in &seeds {
+                let a = concealed_on_slow_program(&issue_18_truth(scale), seed, 80.0, 50.0);
+                let mut n = named(&a);
+                n.sort();
+                let cell = |effect: &str, name: &str, truth: f64, inside: &mut usize, total: &mut usize| -> String {
+                    match a.findings.iter().find(|f| f.effect == effect) {
+                        Some(f) => {
+                            let v = f.parameters[name];
+                            match f.confidence_intervals.get(name) {
+                                Some(ci) => {
+                                    *total += 1;
+                                    let ok = ci.low <= truth && truth <= ci.high;
+                                    *inside += usize::from(ok);
+                                    format!("{v:.3} ({:.3}…{:.3}){}", ci.low, ci.high, if ok { "" } else { " ✗" })
+                                }
+                                None => format!("{v:.3} (—)"),
+                            }
+                        }
+                        None => "—".into(),
+                    }
+                };
+                let c = cell("coulomb_friction", "torque_nm", 2.0 * scale, &mut inside, &mut total);
+                let st = cell("stribeck_friction", "breakaway_nm", 6.0 * scale, &mut inside, &mut total);
+                let dt = cell("dead_time", "ms", 25.0 * scale, &mut inside, &mut total);
+                let ws = a
+                    .findings
+                    .iter()
+                    .find(|f| f.effect == "stribeck_friction")
+                    .map_or("—".into(), |f| format!("{:.2}", f.parameters["speed_rad_s"]));
+                let un: Vec<String> = a
+                    .unexplained
+                    .iter()
+                    .map(|u| format!("{} {} {:.1} %", u.signal, u.condition, 100.0 * u.share))
+                    .collect();
+                println!(
+                    "| ×{scale} | {seed} | {} | {c} | {st} | {ws} | {dt} | {:.5} → {:.5} | {} |",
+                    n.join(", "),
+                    a.baseline.cross_validation_score.unwrap_or(f64::NAN),
+                    a.improved.cross_validation_score.unwrap_or(f64::NAN),
+                    if un.is_empty() { "none".into() } else { un.join("; ") }
+                );
+                if n != vec!["coulomb_friction", "dead_time", "stribeck_friction"] {
+                    failures.push(format!("{set} seed {seed} ×{scale}: {n:?}"));
+                }
+                for (effect, name, truth) in [
+                    ("coulomb_friction", "torque_nm", 2.0),
+                    ("stribeck_friction", "breakaway_nm", 6.0),
+                    ("dead_time", "ms", 25.0),
+                ] {
+                    if let Some(f) = a.findings.iter().find(|f| f.effect == effect)
+                        && (f.parameters[name] - truth * scale).abs() > 0.3 * truth * scale
+                    {
+                        failures.push(format!("{set} seed {seed} ×{scale}: {effect}.{name} {}", f.parameters[name]));
+                    }
+                }
+            }
+        }
+        // clean slow programs: nothing named
+        let mut clean = Vec::new();
+        for &seed in &seeds {
+            let a = concealed_on_slow_program(&PlantModel::reference(), seed, 80.0, 50.0);
+            clean.push(format!(
+                "{seed}: {}",
+                if a.findings.is_empty() { "nothing".into() } else { named(&a).join(", ") }
+            ));
+            if !a.findings.is_empty() {
+                failures.push(format!("{set} clean seed {seed}: {:?}", named(&a)));
+            }
+        }
+        println!("\nclean slow programs: {}; interval coverage of the truth: {inside}/{total}", clean.join("; "));
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
 /// Effect id, key parameter, its true value, and how to switch the effect on.
 type Case = (&'static str, &'static str, f64, Box<dyn Fn(&mut PlantModel)>);
 
