@@ -158,6 +158,13 @@ fn model_file(dir: &Path, poll_ms: u64) -> PathBuf {
     path
 }
 
+/// `HYDROLENS_BENCH_CONDITION=S`: every drive runs condition checks every S seconds on the last 2·S (issue 19's
+/// ten drives with checks every 60 s: `HYDROLENS_BENCH_CASES=10x10 HYDROLENS_BENCH_SECONDS=180
+/// HYDROLENS_BENCH_CONDITION=60`; the checks' thread counts under "other").
+fn condition_every_s() -> Option<f64> {
+    std::env::var("HYDROLENS_BENCH_CONDITION").ok().and_then(|s| s.parse().ok())
+}
+
 fn run_case(drives: usize, poll_ms: u64, seconds: f64, rt: Option<u8>, wrk: bool) -> String {
     let dir = tempfile::tempdir().expect("tmp");
     let model = model_file(dir.path(), poll_ms);
@@ -193,9 +200,13 @@ fn run_case(drives: usize, poll_ms: u64, seconds: f64, rt: Option<u8>, wrk: bool
         cfg += &format!(
             "[[drives]]\nname = \"d{i}\"\naddress = \"{a}\"\npoll_ms = {poll_ms}\ntimeout_ms = 200\n{}\
              [drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\n\
-             [drives.estimator]\nmethod = \"{method}\"\nmodel = {:?}\n",
+             [drives.estimator]\nmethod = \"{method}\"\nmodel = {:?}\n{}",
             rt.map_or(String::new(), |p| format!("realtime_priority = {p}\n")),
-            model.display().to_string()
+            model.display().to_string(),
+            condition_every_s().map_or(String::new(), |e| format!(
+                "[drives.condition]\nenabled = true\nwindow_s = {}\nevery_s = {e}\n",
+                2.0 * e
+            )),
         );
     }
     let cfg_path = dir.path().join("svc.toml");
