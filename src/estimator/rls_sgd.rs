@@ -226,15 +226,14 @@ impl ViscousPool {
                 let q: f64 = w.iter().map(|&(x, v)| h(x, v, tau2) * (x - fixed).powi(2) / v).sum();
                 tau2 = ((q - (sh - 1.0)) / (sw - sw2 / sw)).max(0.0);
             }
-            let (mut a, mut b) = (1.0 / pv, pb / pv);
+            let mut b = pb / pv;
             info = 1.0 / pv;
             for &(x, v) in w {
                 let hw = h(x, v, tau2) / (v + tau2);
-                a += hw;
-                b += hw * x;
                 info += hw;
+                b += hw * x;
             }
-            m = b / a;
+            m = b / info;
         }
         let [lo, hi] = self.bounds;
         if m < lo || m > hi { (m.clamp(lo, hi), pv) } else { (m, 1.0 / info) }
@@ -458,13 +457,9 @@ impl WindowRls {
             self.absorb(x_theta, info / variance * 0.5, sequence, informative)
         };
         if !misfit && !impossible && moved > SPEED_MOVED_GLR {
-            // The window's own B and its variance (each window counts half, as above).
-            let full = model;
-            let fit = full.solve(&a_m, &b_m, yy).and_then(|(x, r)| Some((full.theta(&a_m, &x)?, r)));
-            if let Some(((x_b, info_b), rss_b)) = fit
-                && let Some(c) = (info_b / sigma2.max(rss_b / (n - full.parameters()) as f64) * 0.5).try_inverse()
-            {
-                let (t0, t1) = (x_b[0], x_b[1]);
+            // The window's own B and its variance, from the fit already made (each window counts half, as above).
+            if let Some(c) = (info / variance * 0.5).try_inverse() {
+                let (t0, t1) = (x_theta[0], x_theta[1]);
                 let g = Vector2::new(-t1 * self.b0 / (t0 * t0), self.b0 / t0);
                 let (b_w, var_w) = (t1 * self.b0 / t0, g.dot(&(c * g)));
                 // A window whose B lies far outside anything physical had a load its nuisance could not follow.
