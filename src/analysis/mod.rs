@@ -342,8 +342,14 @@ pub fn analyze(
             if cv { t.cv.as_ref().map(|c| c.score) } else { t.scored.as_ref().map(|x| x.0.validation.score(family)) }
         };
         let passes = |t: &Tried| -> bool {
-            let Some((_, db)) = &t.scored else { return false };
+            let Some((sc, db)) = &t.scored else { return false };
             if *db < opts.min_delta_bic {
+                return false;
+            }
+            // a dead time shorter than one sample period is below what the recording resolves: a service recording
+            // stamps a row when the read is sent and the setpoint lands after the reply, so such a lag is the
+            // recorder's own, not the drive's
+            if sc.model.effects.dead_time.is_some_and(|d| d.ms < 1e3 / s.sample_hz) && t.id == "dead_time" {
                 return false;
             }
             if cv {

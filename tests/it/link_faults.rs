@@ -34,6 +34,15 @@ impl Injected {
         }
     }
 
+    /// How long the link holds back a request sent while the fault is on.
+    fn link_delay(&self) -> Duration {
+        match *self {
+            Injected::Link(Fault::Slow(d)) => d,
+            // the simulator applies a write before it delays or withholds the reply
+            _ => Duration::ZERO,
+        }
+    }
+
     fn clear(&self, stack: &Stack, proxy: &FaultProxy) {
         proxy.set(Fault::Pass);
         stack.sim.lock().faults = Faults::default();
@@ -80,7 +89,9 @@ async fn every_fault_is_survived_and_cleared_by_a_reset() {
             wait_for(Duration::from_secs(3), || async { readyz(&stack).await == 503 })
                 .await
                 .unwrap_or_else(|| panic!("{fault:?}: /readyz must say 503"));
-            tokio::time::sleep(Duration::from_millis(150)).await; // a write already in flight may land
+            // a write decided from fresh data and already in flight may land; a slow link holds it back by its own
+            // delay (the proxy delays every request it forwards), so wait that long too
+            tokio::time::sleep(Duration::from_millis(150) + fault.link_delay()).await;
             let writes = stack.sim.lock().writes;
             // past the drive's 1 s watchdog: it trips, and nothing is written from stale data meanwhile
             tokio::time::sleep(Duration::from_millis(1300)).await;
