@@ -163,14 +163,37 @@ pub struct Unexplained {
 /// a window RMS within a few % of the floor (0.5 s holds hundreds of samples); 2× means a model error of at least
 /// √3 ≈ 1.7× the noise.
 pub const UNEXPLAINED_X_FLOOR: f64 = 2.0;
+/// An entry (one signal, one condition) is listed when its windows add up to at least this long (s), or when its
+/// RMS reaches [`UNEXPLAINED_ALONE_X_FLOOR`]: a lone half-second at 2–4× the floor is what the clean reference plant
+/// gives where the model changes regime (the shaft stopping against the anti-cavitation limit: 1.3–1.5 bar against a
+/// 0.44 bar floor, test `analysis::clean_runs_name_nothing`), not a pattern of missing physics.
+pub const MIN_UNEXPLAINED_S: f64 = 1.0;
+/// See [`MIN_UNEXPLAINED_S`].
+pub const UNEXPLAINED_ALONE_X_FLOOR: f64 = 5.0;
 /// At most this many windows are listed per entry.
 pub const MAX_UNEXPLAINED_WINDOWS: usize = 20;
 
-/// Windows of `residual` (measured − improved model) above the floor, merged and grouped by condition.
-pub fn unexplained(s: &Series, cond: &Conditions, signal: &str, residual: &[f64], floor: f64) -> Vec<Unexplained> {
+/// Windows of `residual` (measured − improved model) above the floor, merged and grouped by condition. `timing`,
+/// when given, is a per-row variance added to the floor's square: what the uncertainty of the rows' time stamps
+/// alone makes of the signal (see `noise_floors`).
+pub fn unexplained(
+    s: &Series,
+    cond: &Conditions,
+    signal: &str,
+    residual: &[f64],
+    floor: f64,
+    timing: Option<&[f64]>,
+) -> Vec<Unexplained> {
     if !(floor > 0.0 && floor.is_finite()) {
         return Vec::new();
     }
+    let floor_at = |a: usize, b: usize| -> f64 {
+        let extra = timing.map_or(0.0, |v| {
+            let w = &v[a.min(v.len())..b.min(v.len())];
+            w.iter().filter(|x| x.is_finite()).sum::<f64>() / w.len().max(1) as f64
+        });
+        (floor * floor + extra).sqrt()
+    };
     let w = ((WINDOW_S * s.sample_hz) as usize).max(10);
     let n = residual.len();
     let rms = |a: usize, b: usize| -> (f64, usize) {
@@ -182,7 +205,7 @@ pub fn unexplained(s: &Series, cond: &Conditions, signal: &str, residual: &[f64]
     let above: Vec<Option<String>> = (0..n / w)
         .map(|i| {
             let (a, b) = (i * w, (i + 1) * w);
-            (i > 0 && rms(a, b).0 > UNEXPLAINED_X_FLOOR * floor).then(|| cond.describe(s, a, b))
+            (i > 0 && rms(a, b).0 > UNEXPLAINED_X_FLOOR * floor_at(a, b)).then(|| cond.describe(s, a, b))
         })
         .collect();
     let mut groups: Vec<(String, Vec<(usize, usize)>)> = Vec::new();
@@ -206,10 +229,11 @@ pub fn unexplained(s: &Series, cond: &Conditions, signal: &str, residual: &[f64]
     groups
         .into_iter()
         .map(|(condition, runs)| {
-            let (mut ss, mut count) = (0.0, 0usize);
+            let (mut ss, mut fs, mut count) = (0.0, 0.0, 0usize);
             for &(a, b) in &runs {
                 let (r, m) = rms(a, b);
                 ss += r * r * m as f64;
+                fs += floor_at(a, b).powi(2) * m as f64;
                 count += m;
             }
             let mut longest = runs.clone();
@@ -221,9 +245,13 @@ pub fn unexplained(s: &Series, cond: &Conditions, signal: &str, residual: &[f64]
                 condition,
                 windows: longest.iter().map(|&(a, b)| [s.t_s[a], s.t_s[b - 1]]).collect(),
                 rms: (ss / count.max(1) as f64).sqrt(),
-                noise_floor: floor,
+                noise_floor: (fs / count.max(1) as f64).sqrt(),
                 share: runs.iter().map(|(a, b)| b - a).sum::<usize>() as f64 / n.max(1) as f64,
             }
+        })
+        .filter(|u| {
+            let seconds = u.share * n as f64 / s.sample_hz;
+            seconds >= MIN_UNEXPLAINED_S - 1e-9 || u.rms >= UNEXPLAINED_ALONE_X_FLOOR * u.noise_floor
         })
         .collect()
 }

@@ -470,11 +470,15 @@ pub fn analyze(
     mismatches.truncate(mismatch::MAX_MISMATCHES);
     mismatches.sort_by(|a, b| a.t_start_s.total_cmp(&b.t_start_s));
 
-    let floors = noise_floors(&s);
+    let floors = noise_floors(&s, &current);
+    let timing = timing_variance(&s, &current);
     let mut unexplained: Vec<mismatch::Unexplained> = residual_signals(&current, &s)
         .iter()
         .filter_map(|(name, r)| floors.iter().find(|f| f.0 == *name).map(|f| (name, r, f.1)))
-        .flat_map(|(name, r, floor)| mismatch::unexplained(&s, &conditions, name, r, floor))
+        .flat_map(|(name, r, floor)| {
+            let timing = (*name == "f_drive").then_some(timing.as_deref()).flatten();
+            mismatch::unexplained(&s, &conditions, name, r, floor, timing)
+        })
         .collect();
     unexplained.sort_by(|a, b| b.share.total_cmp(&a.share));
 
@@ -732,8 +736,9 @@ fn jackknife(
 
 /// The sensor-noise floor of each judged signal, as the residual sees it: σ of the white part of the measurement
 /// (what a zero-phase low-pass removes, robustly, scaled for the pass band); for a filtered comparison (torque)
-/// the part of that noise inside the pass band.
-fn noise_floors(s: &Series) -> Vec<(&'static str, f64)> {
+/// the part of that noise inside the pass band. The flow family's ΔP is predicted from the measured speed, so its
+/// floor adds the share of the speed sensor's noise that `sc`'s prediction carries.
+fn noise_floors(s: &Series, sc: &Scored) -> Vec<(&'static str, f64)> {
     let passed = (2.0 * s.cutoff_hz / s.sample_hz).clamp(0.0, 0.9);
     let sigma = |raw: &[f64]| -> f64 {
         let f = signal::filtfilt_butter4(raw, s.cutoff_hz, s.sample_hz);
@@ -753,7 +758,7 @@ fn noise_floors(s: &Series) -> Vec<(&'static str, f64)> {
         Family::Torque => out.push(("torque", sigma(&s.drive_torque_nm) * passed.sqrt())),
         Family::Flow => {
             if let Some(dp) = &s.dp_bar {
-                out.push(("dp", sigma(dp)));
+                out.push(("dp", sigma(dp).hypot(sc.prediction.dp_noise_bar2.max(0.0).sqrt())));
             }
             if let Some(f) = &s.f_drive_hz {
                 // the register's 0.01 Hz quantisation at least
@@ -762,6 +767,26 @@ fn noise_floors(s: &Series) -> Vec<(&'static str, f64)> {
         }
     }
     out
+}
+
+/// Per row, the variance that the time stamps' own uncertainty makes of the drive frequency: a row is placed within
+/// one sample period T (a service recording stamps it when the read is sent; the setpoint it carries lands after the
+/// reply), uniform over T, so σ_t = T/√12 and the frequency the model ramps moves by ḟ·σ_t. `None` without a drive
+/// frequency prediction.
+fn timing_variance(s: &Series, sc: &Scored) -> Option<Vec<f64>> {
+    let f = sc.prediction.f_drive_hz.as_ref()?;
+    let sigma_t = 1.0 / (s.sample_hz * 12f64.sqrt());
+    let n = f.len().min(s.t_s.len());
+    Some(
+        (0..n)
+            .map(|i| {
+                let (a, b) = (i.saturating_sub(1), (i + 1).min(n - 1));
+                let dt = s.t_s[b] - s.t_s[a];
+                let rate = if dt > 0.0 { (f[b] - f[a]) / dt } else { 0.0 };
+                (rate * sigma_t).powi(2)
+            })
+            .collect(),
+    )
 }
 
 fn summary(sc: &Scored, s: &Series) -> Summary {

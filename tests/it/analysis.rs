@@ -156,6 +156,8 @@ fn clean_runs_name_nothing() {
         let a = concealed(|_| {}, seed);
         assert!(a.findings.is_empty(), "seed {seed}: {:#?}", a.findings);
         assert!(a.ambiguities.is_empty(), "seed {seed}: {:#?}", a.ambiguities);
+        // nothing is missing, so nothing stays unexplained
+        assert!(a.unexplained.is_empty(), "seed {seed}: {:#?}", a.unexplained);
         let j = a.improved.parameters["inertia_kg_m2"];
         assert!((j - 0.08).abs() < 0.1 * 0.08, "J {j}");
     }

@@ -214,6 +214,18 @@ async fn served_cases(poll_ms: u64) {
             let shows: Vec<&serde_json::Value> =
                 v["findings"].as_array().expect("findings").iter().map(|f| &f["evidence"]["where_it_shows"]).collect();
             eprintln!("TCP {poll_ms} ms {name}: shows {shows:?}; mismatch windows {windows:?}");
+            let unexplained: Vec<String> = v["unexplained"]
+                .as_array()
+                .expect("unexplained")
+                .iter()
+                .map(|u| {
+                    format!(
+                        "{} {} rms {} floor {} share {}",
+                        u["signal"], u["condition"], u["rms"], u["noise_floor"], u["share"]
+                    )
+                })
+                .collect();
+            eprintln!("TCP {poll_ms} ms {name}: unexplained {unexplained:#?}");
             eprintln!(
                 "TCP {poll_ms} ms {name}: named {named:?}, leak {:.5}, dead {:.2} ms, β {:.0} bar; dp {} → {}, f {} → {}",
                 param("internal_leakage", "l_min_per_bar"),
@@ -235,7 +247,12 @@ async fn served_cases(poll_ms: u64) {
                 assert!((got - truth).abs() <= 0.3 * truth, "{name}: {effect}.{key} {got}, truth {truth}");
             };
             match *name {
-                "clean" => assert!(named.is_empty(), "clean: {named:?}"),
+                "clean" => {
+                    assert!(named.is_empty(), "clean: {named:?}");
+                    // the flow family's ΔP floor carries the speed noise its prediction carries; the drive
+                    // frequency's, the rows' timing
+                    assert_eq!(v["unexplained"], serde_json::json!([]), "clean: nothing stays unexplained");
+                }
                 "leak" => {
                     assert_eq!(named.first().map(String::as_str), Some("internal_leakage"), "{named:?}");
                     within("internal_leakage", "l_min_per_bar", 0.012);
