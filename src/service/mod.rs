@@ -4,7 +4,6 @@
 pub mod condition;
 pub mod config;
 pub mod drive;
-pub mod estimators;
 pub mod freshness;
 pub mod metrics;
 pub mod program;
@@ -79,7 +78,8 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
             }
             None => None,
         };
-        let estimator = estimators::build(&d.estimator, &d.model);
+        tracing::info!(drive = %d.name, method = ?d.estimator.method, "estimator");
+        let estimator = crate::estimator::build(&d.estimator, &d.model);
         loops.push(DriveLoop::new(d.clone(), estimator, state.clone(), metrics.clone(), recorder, started));
         let cond = Arc::new(condition::DriveCondition::new(&d.name, &d.condition));
         if d.condition.enabled {

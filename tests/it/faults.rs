@@ -8,14 +8,10 @@ use tokio_modbus::ExceptionCode;
 
 use crate::support::{self, Stack, metric, wait_for};
 
-const SPEED: &str = "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\n";
-
-async fn readyz(stack: &Stack) -> u16 {
-    reqwest::get(format!("{}/readyz", stack.url)).await.expect("GET readyz").status().as_u16()
-}
+const SPEED: &str = crate::support::SPEED_30;
 
 async fn ready_within(stack: &Stack, limit: Duration) -> Option<Duration> {
-    wait_for(limit, || async { readyz(stack).await == 200 }).await
+    wait_for(limit, || async { stack.readyz().await == 200 }).await
 }
 
 fn set(stack: &Stack, f: impl FnOnce(&mut Faults)) {
@@ -28,7 +24,7 @@ async fn stalled_replies_time_out_drop_the_link_and_reconnect() {
         let stack = Stack::start(5.0, 10, SPEED).await;
         ready_within(&stack, Duration::from_secs(5)).await.expect("ready");
         set(&stack, |f| f.reply_delay = Some(Duration::from_millis(400))); // > timeout_ms = 100
-        wait_for(Duration::from_secs(3), || async { readyz(&stack).await == 503 })
+        wait_for(Duration::from_secs(3), || async { stack.readyz().await == 503 })
             .await
             .expect("not ready while stalled");
         let writes_stalled = stack.sim.lock().writes;
@@ -61,7 +57,7 @@ async fn frozen_counter_is_stale_and_nothing_is_written() {
         let before = stack.sim.lock().writes;
         tokio::time::sleep(Duration::from_millis(600)).await;
         assert_eq!(stack.sim.lock().writes, before, "no writes while the data are frozen");
-        assert_eq!(readyz(&stack).await, 503);
+        assert_eq!(stack.readyz().await, 503);
         let s = stack.status().await;
         assert_eq!(s["link"]["stale"], true);
         assert_eq!(s["link"]["connected"], true);
@@ -100,7 +96,7 @@ async fn exceptions_and_out_of_range_values_are_counted_and_rejected() {
         assert!(s.link.rejected_samples >= 20, "{:?}", s.link);
         let hat = s.estimate.expect("estimate");
         assert!((hat.load_hat_nm - hat_before.load_hat_nm).abs() < 3.0, "rejected samples never reach the estimator");
-        assert_eq!(readyz(&stack).await, 503);
+        assert_eq!(stack.readyz().await, 503);
         set(&stack, |f| f.inlet_pressure_override_bar = None);
         ready_within(&stack, Duration::from_secs(2)).await.expect("ready again");
         stack.stop().await;
@@ -117,7 +113,7 @@ async fn a_restarted_server_is_reconnected_within_a_second() {
         if let Some(t) = stack.sim_task.take() {
             tokio::time::timeout(Duration::from_secs(5), t).await.expect("simulator stops").expect("joins");
         }
-        wait_for(Duration::from_secs(3), || async { readyz(&stack).await == 503 }).await.expect("down");
+        wait_for(Duration::from_secs(3), || async { stack.readyz().await == 503 }).await.expect("down");
         assert_eq!(stack.status().await["link"]["connected"], false);
         tokio::time::sleep(Duration::from_millis(1500)).await; // the back-off reaches its cap
         let (sim, _, stop, task) = support::start_sim(support::test_plant(5.0), stack.modbus_addr.port()).await;

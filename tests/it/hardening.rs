@@ -16,7 +16,7 @@ use tokio_util::sync::CancellationToken;
 use crate::device::{self, Device};
 use crate::support::{TOKEN, metric, root, start_service, wait_for};
 
-const SPEED: &str = "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\n";
+const SPEED: &str = crate::support::SPEED_30;
 
 /// A service on one drive at `modbus` (a closed port is fine), with HTTP on 127.0.0.1:0.
 struct Svc {

@@ -49,11 +49,7 @@ impl Injected {
     }
 }
 
-const SPEED: &str = "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\n";
-
-async fn readyz(stack: &Stack) -> u16 {
-    reqwest::get(format!("{}/readyz", stack.url)).await.expect("GET readyz").status().as_u16()
-}
+const SPEED: &str = crate::support::SPEED_30;
 
 async fn regulating(stack: &Stack, limit: Duration) -> Option<Duration> {
     wait_for(limit, || async {
@@ -86,7 +82,7 @@ async fn every_fault_is_survived_and_cleared_by_a_reset() {
             let counter = fault.counter();
             let count_before = stack.status().await["link"][counter].as_u64().expect("counter");
             fault.apply(&stack, &proxy);
-            wait_for(Duration::from_secs(3), || async { readyz(&stack).await == 503 })
+            wait_for(Duration::from_secs(3), || async { stack.readyz().await == 503 })
                 .await
                 .unwrap_or_else(|| panic!("{fault:?}: /readyz must say 503"));
             // a write decided from fresh data and already in flight may land; a slow link holds it back by its own
@@ -103,7 +99,7 @@ async fn every_fault_is_survived_and_cleared_by_a_reset() {
 
             fault.clear(&stack, &proxy);
             let back = Instant::now();
-            wait_for(Duration::from_secs(3), || async { readyz(&stack).await == 200 })
+            wait_for(Duration::from_secs(3), || async { stack.readyz().await == 200 })
                 .await
                 .unwrap_or_else(|| panic!("{fault:?}: ready again"));
             let reconnect = back.elapsed();

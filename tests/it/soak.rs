@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use crate::proxy::Fault;
 use crate::support::{Stack, wait_for};
 
-const SPEED: &str = "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\n";
+const SPEED: &str = crate::support::SPEED_30;
 
 fn rss_kib() -> u64 {
     std::fs::read_to_string("/proc/self/status")

@@ -66,6 +66,9 @@ pub async fn start_sim(model: PlantModel, port: u16) -> (SimHandle, SocketAddr, 
 }
 
 /// Simulator + service + HTTP, all on loopback port 0.
+/// A drive regulating to 30 rad/s (`[drives.control]` in speed mode), for the fault and hardening tests.
+pub const SPEED_30: &str = "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\n";
+
 pub struct Stack {
     pub sim: SimHandle,
     pub modbus_addr: SocketAddr,
@@ -113,6 +116,11 @@ pub async fn start_service(text: &str) -> (Service, String, CancellationToken, J
 }
 
 impl Stack {
+    /// The status code of `GET /readyz`.
+    pub async fn readyz(&self) -> u16 {
+        reqwest::get(format!("{}/readyz", self.url)).await.expect("GET readyz").status().as_u16()
+    }
+
     /// A stack on a plant with a constant load; `drive_extra` as in [`config_text`].
     pub async fn start(load_nm: f64, poll_ms: u64, drive_extra: &str) -> Stack {
         let (sim, modbus_addr, sim_stop, sim_task) = start_sim(test_plant(load_nm), 0).await;
