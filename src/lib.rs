@@ -17,6 +17,7 @@
 //! - [`service`]: the poll loops per drive (modbus → estimator → control → modbus), snapshots, history, recording,
 //!   and the low-priority thread that runs each drive's [`condition`] checks on its history.
 //! - [`http`]: the axum router over the service's shared state; never uses [`modbus`].
+//! - [`server`]: the service and its HTTP front put together (what `serve`, `demo` and the tests run).
 //!
 //! `main.rs` wires the commands and is the only place `anyhow` lives.
 
@@ -30,6 +31,7 @@ pub mod modbus;
 pub mod plant;
 pub mod recording;
 pub mod replay_file;
+pub mod server;
 pub mod service;
 pub mod units;
 

@@ -9,7 +9,7 @@ use clap::{Parser, Subcommand};
 use hydrolens::modbus::simulator::Simulator;
 use hydrolens::plant::PlantModel;
 use hydrolens::service::Settings;
-use hydrolens::{BadInput, http, plant, recording, replay_file, service};
+use hydrolens::{BadInput, plant, recording, replay_file, server, service};
 use tokio_util::sync::CancellationToken;
 
 #[derive(Parser)]
@@ -389,8 +389,8 @@ fn serve(config: &Path, http_override: Option<&str>) -> anyhow::Result<()> {
     })
 }
 
-/// Binds the HTTP listener, starts the poll loops and serves until `shutdown`; then waits for every loop to close
-/// its recording.
+/// Binds the HTTP listener, starts the service ([`server::start`]), tells `announce` where it is, and serves until
+/// `shutdown`; then waits for every loop to close its recording.
 async fn run_service(
     settings: Settings,
     shutdown: CancellationToken,
@@ -398,27 +398,9 @@ async fn run_service(
 ) -> anyhow::Result<()> {
     let bind = settings.http.bind;
     let listener = tokio::net::TcpListener::bind(bind).await.with_context(|| format!("binding http {bind}"))?;
-    let url = format!("http://{}", listener.local_addr()?);
-    let svc = service::start(&settings, shutdown.clone()).context("starting the service")?;
-    let state = http::AppState {
-        service: svc.state.clone(),
-        token: settings.http.token.as_deref().map(std::sync::Arc::from),
-        max_body_bytes: settings.http.max_body_bytes,
-        shutdown: shutdown.clone(),
-        status_cache: Default::default(),
-        auth: Default::default(),
-    };
-    announce(&url, &svc.state);
-    // on the (lower-priority) workers, not on the thread that started the poll loops
-    let limits = http::ConnLimits {
-        header_timeout: settings.http.header_timeout,
-        request_timeout: settings.http.request_timeout,
-        max_connections: settings.http.max_connections,
-    };
-    let served = tokio::spawn(http::serve_with(listener, state, limits)).await;
-    shutdown.cancel();
-    svc.wait().await;
-    served.context("http server task")?.context("http server")
+    let server = server::start(listener, &settings, shutdown).context("starting the service")?;
+    announce(&server.url, &server.state);
+    server.wait().await.context("http server")
 }
 
 /// A random token for the demo (std's randomly keyed hasher: no extra dependency).

@@ -23,6 +23,16 @@ pub struct ConnLimits {
     pub max_connections: usize,
 }
 
+impl From<&crate::service::config::HttpSettings> for ConnLimits {
+    fn from(h: &crate::service::config::HttpSettings) -> ConnLimits {
+        ConnLimits {
+            header_timeout: h.header_timeout,
+            request_timeout: h.request_timeout,
+            max_connections: h.max_connections,
+        }
+    }
+}
+
 impl Default for ConnLimits {
     /// 10 s for headers and for a whole request (well inside the 30 s an idle or half-sent request may live),
     /// 512 connections (the dashboard's SSE streams each hold one).

@@ -44,6 +44,24 @@ pub struct AppState {
     pub auth: Arc<AuthThrottle>,
 }
 
+impl AppState {
+    /// The state of a router over `service`, with the token and body limit of `http`; the caches start empty.
+    pub fn new(
+        service: Arc<ServiceState>,
+        http: &crate::service::config::HttpSettings,
+        shutdown: CancellationToken,
+    ) -> AppState {
+        AppState {
+            service,
+            token: http.token.as_deref().map(Arc::from),
+            max_body_bytes: http.max_body_bytes,
+            shutdown,
+            status_cache: Default::default(),
+            auth: Default::default(),
+        }
+    }
+}
+
 /// How long a rendered `/api/status` body is served to further requests. Requests within it share one rendering
 /// (the first renders while the others wait), so a flood of requests costs at most 1000 renderings a second
 /// however many clients there are: with 50 drives one rendering is ≈ 75 kB of JSON. The snapshots themselves are

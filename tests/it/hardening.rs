@@ -7,10 +7,10 @@ use std::time::Duration;
 
 use hydrolens::modbus::Table;
 use hydrolens::modbus::client::DriveClient;
-use hydrolens::service::{self, Service};
+use hydrolens::server::Server;
+use hydrolens::service;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
-use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
 use crate::device::{self, Device};
@@ -20,10 +20,9 @@ const SPEED: &str = crate::support::SPEED_30;
 
 /// A service on one drive at `modbus` (a closed port is fine), with HTTP on 127.0.0.1:0.
 struct Svc {
-    svc: Option<Service>,
+    svc: Option<Server>,
     url: String,
     shutdown: CancellationToken,
-    http: Option<JoinHandle<std::io::Result<()>>>,
     _dir: tempfile::TempDir,
 }
 
@@ -39,8 +38,9 @@ impl Svc {
              [[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 10\ntimeout_ms = 100\n{drive_extra}\n",
             d = dir.path().display().to_string()
         );
-        let (svc, url, shutdown, http) = start_service(&text).await;
-        Svc { svc: Some(svc), url, shutdown, http: Some(http), _dir: dir }
+        let (svc, shutdown) = start_service(&text).await;
+        let url = svc.url.clone();
+        Svc { svc: Some(svc), url, shutdown, _dir: dir }
     }
 
     fn state(&self) -> &Arc<service::ServiceState> {
@@ -59,10 +59,7 @@ impl Svc {
         self.shutdown.cancel();
         let bounded = Duration::from_secs(10);
         if let Some(s) = self.svc.take() {
-            tokio::time::timeout(bounded, s.wait()).await.expect("service stops");
-        }
-        if let Some(h) = self.http.take() {
-            let _ = tokio::time::timeout(bounded, h).await.expect("http stops");
+            tokio::time::timeout(bounded, s.wait()).await.expect("service stops").expect("http server");
         }
     }
 }
@@ -652,7 +649,8 @@ async fn retention_keeps_the_recordings_within_max_total_mb_and_never_deletes_th
              [[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 1\n",
             dir.path().display().to_string()
         );
-        let (svc, url, shutdown, http) = start_service(&text).await;
+        let (svc, shutdown) = start_service(&text).await;
+        let url = svc.url.clone();
         let deleted = || async {
             let m = reqwest::get(format!("{url}/metrics")).await.expect("metrics").text().await.expect("text");
             metric(&m, "hydrolens_recording_files_deleted_total{drive=\"pump1\"}").unwrap_or(0.0)
@@ -672,8 +670,7 @@ async fn retention_keeps_the_recordings_within_max_total_mb_and_never_deletes_th
         assert!(total <= (0.3 * 1048576.0) as u64 + 110_000, "{total} bytes: {:?}", ours());
         assert!(dir.path().join("pump1-b-1000.csv").exists(), "another drive's file is not ours");
         shutdown.cancel();
-        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("stops");
-        let _ = tokio::time::timeout(Duration::from_secs(10), http).await;
+        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("stops").expect("http server");
         sim_stop.cancel();
         // the newest file (open until the stop) is still there and whole
         let mut names: Vec<String> = ours().into_iter().map(|(n, _)| n).collect();

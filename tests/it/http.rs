@@ -1,6 +1,5 @@
 //! The HTTP API: bad input gets 4xx with a JSON body (tower `oneshot`, no socket), SSE and metrics over a socket.
 
-use std::sync::Arc;
 use std::time::Duration;
 
 use axum::body::Body;
@@ -25,14 +24,10 @@ fn make_app(token: Option<&str>, mode: &str) -> (axum::Router, CancellationToken
     let settings = service::config::parse(&text, "t", None).expect("valid");
     let shutdown = CancellationToken::new();
     let svc = service::start(&settings, shutdown.clone()).expect("starts");
-    let state = AppState {
-        service: svc.state.clone(),
-        token: token.map(Arc::from),
-        max_body_bytes: 1024,
-        shutdown: shutdown.clone(),
-        status_cache: Default::default(),
-        auth: Default::default(),
-    };
+    let mut http = settings.http.clone();
+    http.token = token.map(str::to_string);
+    http.max_body_bytes = 1024;
+    let state = AppState::new(svc.state.clone(), &http, shutdown.clone());
     (router(state), shutdown, dir)
 }
 

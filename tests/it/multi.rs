@@ -22,7 +22,8 @@ async fn two_drives_are_polled_and_regulated_independently() {
             drive("pump1", addr_a, 1, 30.0),
             drive("pump2", addr_b, 2, 45.0)
         );
-        let (svc, url, shutdown, http) = start_service(&text).await;
+        let (svc, shutdown) = start_service(&text).await;
+        let url = svc.url.clone();
         let near = |sim: &hydrolens::modbus::simulator::SimHandle, target: f64| {
             (sim.lock().truth().omega_rad_s - target).abs() < 0.05 * target
         };
@@ -39,8 +40,7 @@ async fn two_drives_are_polled_and_regulated_independently() {
             assert!(metric(&m, &format!("hydrolens_polls_total{{drive=\"{d}\"}}")).expect("polls") > 100.0, "{m}");
         }
         shutdown.cancel();
-        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("service stops");
-        let _ = http.await;
+        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("service stops").expect("http server");
         let files: Vec<String> = std::fs::read_dir(dir.path())
             .expect("recordings")
             .filter_map(|e| e.ok()?.file_name().into_string().ok())

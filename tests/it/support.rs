@@ -34,10 +34,10 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
-use hydrolens::http::{self, AppState};
 use hydrolens::modbus::simulator::{SimHandle, Simulator};
 use hydrolens::plant::{LoadSpec, PlantModel};
-use hydrolens::service::{self, Service, ServiceState};
+use hydrolens::server::{self, Server};
+use hydrolens::service::{self, ServiceState};
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
@@ -78,8 +78,7 @@ pub struct Stack {
     pub sim_stop: CancellationToken,
     pub sim_task: Option<JoinHandle<()>>,
     shutdown: CancellationToken,
-    service: Option<Service>,
-    http: Option<JoinHandle<std::io::Result<()>>>,
+    server: Option<Server>,
 }
 
 /// The config of the test drive `pump1`; `drive_extra` goes under `[[drives]]` (e.g. a `[drives.control]` table).
@@ -91,28 +90,13 @@ pub fn config_text(modbus: SocketAddr, dir: &std::path::Path, poll_ms: u64, driv
     )
 }
 
-/// Starts a service from config text and serves HTTP on 127.0.0.1:0.
-pub async fn start_service(text: &str) -> (Service, String, CancellationToken, JoinHandle<std::io::Result<()>>) {
+/// Starts a service from config text and serves HTTP on 127.0.0.1:0 ([`server::start`], as `serve` does).
+pub async fn start_service(text: &str) -> (Server, CancellationToken) {
     let settings = service::config::parse(text, "test config", Some(&root())).expect("valid test config");
     let shutdown = CancellationToken::new();
-    let svc = service::start(&settings, shutdown.clone()).expect("service starts");
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind http");
-    let url = format!("http://{}", listener.local_addr().expect("addr"));
-    let state = AppState {
-        service: svc.state.clone(),
-        token: settings.http.token.as_deref().map(Arc::from),
-        max_body_bytes: settings.http.max_body_bytes,
-        shutdown: shutdown.clone(),
-        status_cache: Default::default(),
-        auth: Default::default(),
-    };
-    let limits = http::ConnLimits {
-        header_timeout: settings.http.header_timeout,
-        request_timeout: settings.http.request_timeout,
-        max_connections: settings.http.max_connections,
-    };
-    let http = tokio::spawn(http::serve_with(listener, state, limits));
-    (svc, url, shutdown, http)
+    let server = server::start(listener, &settings, shutdown.clone()).expect("service starts");
+    (server, shutdown)
 }
 
 impl Stack {
@@ -156,18 +140,17 @@ impl Stack {
     ) -> Stack {
         let dir = tempfile::tempdir().expect("tmp");
         let text = config_text(service_reaches, dir.path(), poll_ms, drive_extra);
-        let (svc, url, shutdown, http) = start_service(&text).await;
+        let (server, shutdown) = start_service(&text).await;
         Stack {
             sim,
             modbus_addr,
-            url,
-            state: svc.state.clone(),
+            url: server.url.clone(),
+            state: server.state.clone(),
             dir,
             sim_stop,
             sim_task: Some(sim_task),
             shutdown,
-            service: Some(svc),
-            http: Some(http),
+            server: Some(server),
         }
     }
 
@@ -176,11 +159,8 @@ impl Stack {
         self.shutdown.cancel();
         self.sim_stop.cancel();
         let bounded = Duration::from_secs(10);
-        if let Some(s) = self.service.take() {
-            tokio::time::timeout(bounded, s.wait()).await.expect("service stops");
-        }
-        if let Some(h) = self.http.take() {
-            let _ = tokio::time::timeout(bounded, h).await.expect("http stops");
+        if let Some(s) = self.server.take() {
+            tokio::time::timeout(bounded, s.wait()).await.expect("service stops").expect("http server");
         }
         if let Some(t) = self.sim_task.take() {
             let _ = tokio::time::timeout(bounded, t).await.expect("simulator stops");

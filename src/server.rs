@@ -1,0 +1,51 @@
+//! The service and its HTTP front put together: what `serve`, `demo` and the tests run, after mini-redis's
+//! `server::run(listener, shutdown)`. The caller binds the listener (so a test can take port 0 and a command can
+//! name the address in its error) and owns the shutdown signal.
+
+use std::sync::Arc;
+
+use tokio::net::TcpListener;
+use tokio::task::JoinHandle;
+use tokio_util::sync::CancellationToken;
+
+use crate::http::{self, AppState, ConnLimits};
+use crate::service::config::Settings;
+use crate::service::{self, Service, ServiceState};
+
+/// A running service: the poll loops on their threads, the HTTP server on the runtime's workers.
+pub struct Server {
+    /// What the loops publish and the routes read.
+    pub state: Arc<ServiceState>,
+    /// `http://<the listener's address>`.
+    pub url: String,
+    shutdown: CancellationToken,
+    service: Service,
+    http: JoinHandle<std::io::Result<()>>,
+}
+
+/// Starts the poll loops of `settings` and serves HTTP on `listener` until `shutdown` is cancelled.
+pub fn start(listener: TcpListener, settings: &Settings, shutdown: CancellationToken) -> std::io::Result<Server> {
+    let url = format!("http://{}", listener.local_addr()?);
+    let service = service::start(settings, shutdown.clone())?;
+    let state = AppState::new(service.state.clone(), &settings.http, shutdown.clone());
+    let limits = ConnLimits::from(&settings.http);
+    // on the runtime's (lower-priority) workers, not on the thread that started the poll loops
+    let http = tokio::spawn(http::serve_with(listener, state, limits));
+    Ok(Server { state: service.state.clone(), url, shutdown, service, http })
+}
+
+impl Server {
+    /// Waits until the HTTP server has stopped (a cancelled `shutdown`, or its own failure, which stops the loops
+    /// too) and every loop has closed its recording.
+    pub async fn wait(self) -> std::io::Result<()> {
+        let served = self.http.await;
+        self.shutdown.cancel();
+        self.service.wait().await;
+        served.map_err(std::io::Error::other)?
+    }
+}
+
+/// [`start`], then [`Server::wait`].
+pub async fn run(listener: TcpListener, settings: &Settings, shutdown: CancellationToken) -> std::io::Result<()> {
+    start(listener, settings, shutdown)?.wait().await
+}
