@@ -220,7 +220,10 @@ pub fn html(a: &Analysis) -> String {
 
     out.push_str("<h2>What the improved model still leaves unexplained</h2>");
     if a.unexplained.is_empty() {
-        out.push_str("<p>Nothing: the improved model's residual stays within twice the sensor-noise floor.</p>");
+        out.push_str(
+            "<p>Nothing: the improved model's residual stays within twice the sensor-noise floor (or above it for \
+             less than 1 s in all, and below 5× the floor).</p>",
+        );
     } else {
         out.push_str(
             "<table><tr><th>signal</th><th>condition</th><th>share of the recording</th><th>RMS</th>\

@@ -470,8 +470,21 @@ fn emps_real_data_gives_the_published_friction_model() {
     // the fitted model is a plant TOML the other commands accept
     let m = PlantModel::load(&fitted).expect("fitted model parses");
     assert!(m.effects.coulomb_friction.is_some() && m.effects.torque_offset.is_some());
+    // every fitted parameter carries an interval, in the JSON and in the report, and so does what stays unexplained
+    let intervals = &v["improved"]["confidence_intervals"];
+    for (k, value) in p.as_object().expect("parameters") {
+        let (lo, hi) = (intervals[k]["low"].as_f64(), intervals[k]["high"].as_f64());
+        let value = value.as_f64().unwrap_or(f64::NAN);
+        assert!(lo.zip(hi).is_some_and(|(lo, hi)| lo <= value && value <= hi), "{k}: {value} in {lo:?}..{hi:?}");
+    }
+    assert!(v["unexplained"].is_array(), "unexplained is part of the JSON");
     let html = std::fs::read_to_string(&report).expect("report");
     assert!(html.contains("<svg") && html.contains("coulomb_friction") && !html.contains("<script"));
+    assert!(html.contains("confidence intervals") && html.contains("95 % low"), "the report shows the intervals");
+    let ci = &intervals["coulomb_friction.torque_nm"];
+    let shown = format!("{:.5}", ci["low"].as_f64().unwrap_or(f64::NAN));
+    assert!(html.contains(&shown), "the report shows the interval {shown}");
+    assert!(html.contains("still leaves unexplained"), "the report has the unexplained section");
 }
 
 #[test]
