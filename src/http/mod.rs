@@ -492,9 +492,11 @@ async fn recording_file(State(s): State<AppState>, Path(file): Path<String>) -> 
     }
 }
 
-async fn metrics(State(s): State<AppState>) -> Response {
-    ([(header::CONTENT_TYPE, "application/openmetrics-text; version=1.0.0; charset=utf-8")], s.service.metrics_text())
-        .into_response()
+/// OpenMetrics when the scraper's `Accept` asks for it, the Prometheus text format 0.0.4 otherwise.
+async fn metrics(State(s): State<AppState>, headers: HeaderMap) -> Response {
+    let accept = headers.get(header::ACCEPT).and_then(|v| v.to_str().ok());
+    let format = crate::service::metrics::Format::negotiate(accept);
+    ([(header::CONTENT_TYPE, format.content_type())], s.service.metrics_text(format)).into_response()
 }
 
 async fn readyz(State(s): State<AppState>) -> Response {

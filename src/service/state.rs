@@ -308,13 +308,9 @@ impl ServiceState {
         self.drives.iter().map(|d| d.snapshot()).collect()
     }
 
-    /// The Prometheus text exposition.
-    pub fn metrics_text(&self) -> String {
-        let mut out = String::new();
-        if let Err(e) = prometheus_client::encoding::text::encode(&mut out, &self.registry) {
-            tracing::error!(error = %e, "encoding metrics");
-        }
-        out
+    /// The metrics exposition in `format` (OpenMetrics or the Prometheus text format).
+    pub fn metrics_text(&self, format: super::metrics::Format) -> String {
+        super::metrics::encode(&self.registry, format)
     }
 }
 
