@@ -14,6 +14,7 @@ mod link_faults;
 mod multi;
 mod noload;
 mod plant;
+mod prometheus;
 mod proxy;
 mod service;
 mod simulator;
