@@ -195,6 +195,9 @@ pub struct StatusBody {
     /// True when the write routes accept a token.
     pub writes_enabled: bool,
     pub drives: Vec<DriveSnapshot>,
+    /// The MQTT publisher (connected, published, dropped); absent when `[mqtt]` is not configured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mqtt: Option<crate::service::mqtt::MqttStatus>,
 }
 
 fn status_body(state: &AppState) -> StatusBody {
@@ -203,6 +206,7 @@ fn status_body(state: &AppState) -> StatusBody {
         uptime_s: state.service.started.elapsed().as_secs_f64(),
         writes_enabled: state.token.is_some(),
         drives: state.service.snapshots(),
+        mqtt: state.service.mqtt.as_ref().map(|m| m.status()),
     }
 }
 

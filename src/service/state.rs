@@ -285,6 +285,8 @@ pub struct ServiceState {
     pub conditions: Vec<Arc<super::condition::DriveCondition>>,
     pub metrics: Metrics,
     pub registry: prometheus_client::registry::Registry,
+    /// The MQTT publisher's health; None when `[mqtt]` is not configured.
+    pub mqtt: Option<Arc<super::mqtt::MqttHealth>>,
     /// Where recordings are written; None when recording is off.
     pub recording_dir: Option<PathBuf>,
     pub started: Instant,

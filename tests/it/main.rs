@@ -11,6 +11,7 @@ mod faults;
 mod hardening;
 mod http;
 mod link_faults;
+mod mqtt;
 mod multi;
 mod noload;
 mod plant;
