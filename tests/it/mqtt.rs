@@ -180,10 +180,16 @@ async fn status_goes_to_the_broker_and_a_dead_broker_never_slows_polling() {
         assert!(back.is_some(), "no status message after the broker came back: {}", api_status(&stack).await);
         assert_eq!(api_status(&stack).await["mqtt"]["connected"], true);
 
-        // a clean stop says `offline` itself
+        // a clean stop says `offline` itself (after the `online` of the reconnection, which may still be on its way)
         stack.stop().await;
-        let offline = next_on(&mut rx, "hl/status", Duration::from_secs(5)).await;
-        assert_eq!(offline.as_deref(), Some("offline"));
+        let mut said = Vec::new();
+        while let Some(p) = next_on(&mut rx, "hl/status", Duration::from_secs(5)).await {
+            said.push(p);
+            if said.last().is_some_and(|p| p == "offline") {
+                break;
+            }
+        }
+        assert!(said.last().is_some_and(|p| p == "offline") && said.len() <= 2, "{said:?}");
         sub.abort();
     };
     tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
