@@ -98,7 +98,7 @@ fn parse_url(url: &str) -> Result<(String, u16), String> {
             None => (rest, None),
         }
     };
-    if host.is_empty() || host.contains([':', ' ']) && !rest.starts_with('[') {
+    if host.is_empty() || (host.contains([':', ' ']) && !rest.starts_with('[')) {
         return Err(format!("{url:?}: no host"));
     }
     let port = match port {
@@ -373,12 +373,18 @@ async fn run(
     // a small channel: what waits for the broker waits in the outbox, where it is counted when dropped
     let (client, mut eventloop) = AsyncClient::new(options, 8);
     let outbox = Arc::new(Outbox::new(settings.queue_messages));
+    // set on every connection: the retained condition messages go again (a broker without persistence lost them,
+    // and the queue may have dropped the last one while the broker was away)
+    let resend = AtomicBool::new(false);
 
     let produce = async {
         let mut tick = tokio::time::interval(settings.interval);
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         loop {
             tick.tick().await;
+            if resend.swap(false, Ordering::Relaxed) {
+                topics.iter_mut().for_each(|t| t.last_condition = None);
+            }
             for m in interval_messages(&mut topics) {
                 if outbox.push(m) {
                     health.count_dropped();
@@ -402,6 +408,7 @@ async fn run(
                 Ok(Event::Incoming(Packet::ConnAck(_))) => {
                     tracing::info!(url = %settings.url, "MQTT connected");
                     health.set_connected(true);
+                    resend.store(true, Ordering::Relaxed);
                     backoff = Duration::from_millis(100);
                     // queued behind at most the channel's few messages; rumqttc's channel never loses it
                     let c = client.clone();

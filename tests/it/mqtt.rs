@@ -195,18 +195,21 @@ async fn status_goes_to_the_broker_and_a_dead_broker_never_slows_polling() {
     tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
 }
 
+/// `[drives.condition]` every `every_s`, publishing to the broker at `url` under `hc`.
+fn condition_extra(every_s: u32, url: &str) -> String {
+    format!(
+        "[drives.condition]\nenabled = true\nwindow_s = 5\nevery_s = {every_s}\n\n[mqtt]\nurl = \"{url}\"\n\
+         topic_prefix = \"hc\"\ninterval_ms = 100\n"
+    )
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn condition_checks_go_to_the_condition_topic() {
+async fn condition_checks_go_to_the_condition_topic_and_again_after_a_broker_restart() {
     let run = async {
         let port = free_port();
-        let broker = Broker::start(port).await;
+        let mut broker = Broker::start(port).await;
         let (mut rx, sub) = subscribe(port, "hc/#");
-        let extra = format!(
-            "[drives.condition]\nenabled = true\nwindow_s = 5\nevery_s = 1\n\n[mqtt]\nurl = \"{}\"\n\
-             topic_prefix = \"hc\"\ninterval_ms = 100\n",
-            broker.url()
-        );
-        let stack = Stack::start(5.0, 10, &extra).await;
+        let stack = Stack::start(5.0, 10, &condition_extra(1, &broker.url())).await;
         // the first message has no check yet; the next comes with the first check
         let mut with_check = None;
         for _ in 0..20 {
@@ -227,10 +230,27 @@ async fn condition_checks_go_to_the_condition_topic() {
             .expect("json");
         assert_eq!(keys(&v), keys(&from_http), "the MQTT object is GET /api/drives/pump1/condition's");
         assert_eq!(v["checks"][0]["t_s"], from_http["checks"][0]["t_s"]);
-        stack.stop().await;
+        let dir = stack.stop().await;
+
+        // a service that restores those checks from the recordings dir and checks again only in a day: its one
+        // condition message comes at the start, and again only because the broker came back without it
+        let (_sim, modbus, sim_stop, sim_task) = support::start_sim(support::test_plant(5.0), 0).await;
+        let text = support::config_text(modbus, dir.path(), 10, &condition_extra(86_400, &broker.url()));
+        let (svc, _url, shutdown, http) = support::start_service(&text).await;
+        let first = next_on(&mut rx, "hc/pump1/condition", Duration::from_secs(10)).await.expect("restored checks");
+        assert!(first.contains("\"checks\":[{"), "{first}");
+        broker.kill();
+        let _broker = Broker::start(port).await;
+        let again = next_on(&mut rx, "hc/pump1/condition", Duration::from_secs(10)).await;
+        assert_eq!(again.as_deref(), Some(first.as_str()), "the condition is sent again after the broker's restart");
+        shutdown.cancel();
+        sim_stop.cancel();
+        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("service stops");
+        let _ = tokio::time::timeout(Duration::from_secs(10), http).await.expect("http stops");
+        let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await.expect("simulator stops");
         sub.abort();
     };
-    tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+    tokio::time::timeout(Duration::from_secs(50), run).await.expect("bounded");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
