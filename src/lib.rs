@@ -15,7 +15,8 @@
 //!   against chatter (PURE), and the checks' JSON-lines history at the edge.
 //! - [`control`]: PURE control law (speed PI with load feed-forward, clamp, ramp limit, nothing on stale data).
 //! - [`service`]: the poll loops per drive (modbus → estimator → control → modbus), snapshots, history, recording,
-//!   and the low-priority thread that runs each drive's [`condition`] checks on its history.
+//!   the low-priority thread that runs each drive's [`condition`] checks on its history, the metrics registry and its
+//!   two expositions, and the MQTT publisher's thread.
 //! - [`http`]: the axum router over the service's shared state; never uses [`modbus`].
 //! - [`server`]: the service and its HTTP front put together (what `serve`, `demo` and the tests run).
 //!

@@ -213,6 +213,9 @@ pub struct StatusBody {
     /// True when the write routes accept a token.
     pub writes_enabled: bool,
     pub drives: Vec<DriveSnapshot>,
+    /// The MQTT publisher (connected, published, dropped); absent when `[mqtt]` is not configured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mqtt: Option<crate::service::mqtt::MqttStatus>,
 }
 
 fn status_body(state: &AppState) -> StatusBody {
@@ -221,6 +224,7 @@ fn status_body(state: &AppState) -> StatusBody {
         uptime_s: state.service.started.elapsed().as_secs_f64(),
         writes_enabled: state.token.is_some(),
         drives: state.service.snapshots(),
+        mqtt: state.service.mqtt.as_ref().map(|m| m.status()),
     }
 }
 
@@ -510,9 +514,11 @@ async fn recording_file(State(s): State<AppState>, Path(file): Path<String>) -> 
     }
 }
 
-async fn metrics(State(s): State<AppState>) -> Response {
-    ([(header::CONTENT_TYPE, "application/openmetrics-text; version=1.0.0; charset=utf-8")], s.service.metrics_text())
-        .into_response()
+/// OpenMetrics when the scraper's `Accept` asks for it, the Prometheus text format 0.0.4 otherwise.
+async fn metrics(State(s): State<AppState>, headers: HeaderMap) -> Response {
+    let accept = headers.get(header::ACCEPT).and_then(|v| v.to_str().ok());
+    let format = crate::service::metrics::Format::negotiate(accept);
+    ([(header::CONTENT_TYPE, format.content_type())], s.service.metrics_text(format)).into_response()
 }
 
 async fn readyz(State(s): State<AppState>) -> Response {

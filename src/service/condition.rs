@@ -229,6 +229,12 @@ pub struct Job {
 impl Job {
     /// Loads the drive's history from its store (the alarms replayed) and sets the metrics from it.
     fn restore(&mut self, metrics: &ConditionMetrics) {
+        if self.settings.enabled {
+            // the counters exist from the start, at 0, so that dashboards and alerts see them before the first check
+            let label = DriveLabel { drive: self.drive.name.clone() };
+            let _ = metrics.checks.get_or_create(&label);
+            let _ = metrics.failures.get_or_create(&label);
+        }
         let Some(store) = &self.store else {
             metrics.update(&self.drive.name, &self.condition.monitor());
             return;

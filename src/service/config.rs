@@ -40,6 +40,8 @@ struct RawConfig {
     recording: RawRecording,
     #[serde(default)]
     drives: Vec<RawDrive>,
+    /// MQTT publishing (src/service/mqtt.rs); absent: off.
+    mqtt: Option<super::mqtt::RawMqtt>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -228,6 +230,7 @@ pub struct Settings {
     pub http: HttpSettings,
     pub recording: RecordingSettings,
     pub drives: Vec<DriveSettings>,
+    pub mqtt: Option<super::mqtt::MqttSettings>,
 }
 
 #[derive(Debug, Clone)]
@@ -472,7 +475,8 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
         }
         drives.push(drive);
     }
-    Ok(Settings { http, recording, drives })
+    let mqtt = raw.mqtt.map(super::mqtt::validate).transpose()?;
+    Ok(Settings { http, recording, drives, mqtt })
 }
 
 fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSettings, Invalid> {

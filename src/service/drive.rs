@@ -17,7 +17,7 @@ use tokio_util::sync::CancellationToken;
 
 use super::config::{DriveSettings, ValidRanges};
 use super::freshness::{CounterCheck, CounterVerdict, implausible_jump};
-use super::metrics::{DriveLabel, ErrorLabels, Metrics};
+use super::metrics::{DriveLabel, ErrorLabels, Metrics, PASCALS_PER_BAR};
 use super::recorder::Recorder;
 use super::state::{DriveSnapshot, DriveState, DriveStatus, Link, Point};
 use super::timing::{LoopTiming, ThreadSetup, Ticker, TimingStats, use_realtime_priority};
@@ -453,6 +453,9 @@ impl DriveLoop {
             r.record(point);
         }
         let l = &self.label;
+        self.metrics.inlet_pressure.get_or_create(l).set(sample.p_in_bar * PASCALS_PER_BAR);
+        self.metrics.outlet_pressure.get_or_create(l).set(sample.p_out_bar * PASCALS_PER_BAR);
+        self.metrics.drive_frequency.get_or_create(l).set(sample.f_drive_hz);
         self.metrics.omega.get_or_create(l).set(sample.omega_rad_s);
         self.metrics.omega_hat.get_or_create(l).set(est.omega_hat_rad_s);
         self.metrics.load_hat.get_or_create(l).set(est.load_hat_nm);

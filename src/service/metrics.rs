@@ -1,4 +1,5 @@
-//! The service's Prometheus metrics (prometheus-client): one registry, families labelled by drive.
+//! The service's Prometheus metrics (prometheus-client): one registry, families labelled by drive, names in base
+//! units; and the exposition in the format the scraper asks for (OpenMetrics or the Prometheus text format 0.0.4).
 
 use std::sync::atomic::AtomicU64;
 
@@ -7,7 +8,7 @@ use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::metrics::histogram::{Histogram, exponential_buckets};
-use prometheus_client::registry::Registry;
+use prometheus_client::registry::{Registry, Unit};
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub struct DriveLabel {
@@ -21,6 +22,14 @@ pub struct ErrorLabels {
 }
 
 type GaugeF = Gauge<f64, AtomicU64>;
+
+/// Unit suffixes spelt out, as the Prometheus naming conventions ask (docs/metrics.md lists the old names).
+const RAD_S: &str = "radians_per_second";
+const KG_M2: &str = "kilogram_square_meters";
+const NM_S_RAD: &str = "newton_meter_seconds_per_radian";
+
+/// Pascals per bar: the registers carry bar, the metrics the SI unit.
+pub const PASCALS_PER_BAR: f64 = 1e5;
 type HistogramFamily = Family<DriveLabel, Histogram, fn() -> Histogram>;
 
 fn period_histogram() -> Histogram {
@@ -43,6 +52,10 @@ pub struct Metrics {
     pub loop_period: HistogramFamily,
     pub jitter_p50: Family<DriveLabel, GaugeF>,
     pub jitter_p99: Family<DriveLabel, GaugeF>,
+    /// The last sample's pressures (pascals: bar × 1e5) and drive output frequency.
+    pub inlet_pressure: Family<DriveLabel, GaugeF>,
+    pub outlet_pressure: Family<DriveLabel, GaugeF>,
+    pub drive_frequency: Family<DriveLabel, GaugeF>,
     pub omega: Family<DriveLabel, GaugeF>,
     pub omega_hat: Family<DriveLabel, GaugeF>,
     pub load_hat: Family<DriveLabel, GaugeF>,
@@ -80,6 +93,9 @@ impl Metrics {
             loop_period: Family::new_with_constructor(period_histogram as fn() -> Histogram),
             jitter_p50: Family::default(),
             jitter_p99: Family::default(),
+            inlet_pressure: Family::default(),
+            outlet_pressure: Family::default(),
+            drive_frequency: Family::default(),
             omega: Family::default(),
             omega_hat: Family::default(),
             load_hat: Family::default(),
@@ -111,34 +127,48 @@ impl Metrics {
         r.register("loop_overruns", "Poll cycles that took longer than the poll period", m.overruns.clone());
         r.register("stale", "1 while the drive's data are stale", m.stale.clone());
         r.register("link_up", "1 while the Modbus connection is open and answering", m.link_up.clone());
-        r.register("loop_period_seconds", "Time between poll cycle starts", m.loop_period.clone());
-        r.register(
-            "loop_jitter_p50_seconds",
+        let seconds = || Unit::Seconds;
+        let unit = |u: &str| Unit::Other(u.to_string());
+        r.register_with_unit("loop_period", "Time between poll cycle starts", seconds(), m.loop_period.clone());
+        r.register_with_unit(
+            "loop_jitter_p50",
             "Median |period − poll period| over the last 1000 cycles",
+            seconds(),
             m.jitter_p50.clone(),
         );
-        r.register(
-            "loop_jitter_p99_seconds",
+        r.register_with_unit(
+            "loop_jitter_p99",
             "99th percentile |period − poll period| over the last 1000 cycles",
+            seconds(),
             m.jitter_p99.clone(),
         );
-        r.register("omega_rad_s", "Measured shaft speed", m.omega.clone());
-        r.register("omega_hat_rad_s", "Estimated shaft speed", m.omega_hat.clone());
-        r.register("load_hat_nm", "Estimated load torque", m.load_hat.clone());
-        r.register("inertia_hat_kg_m2", "Estimated inertia J", m.inertia_hat.clone());
-        r.register(
-            "inertia_sd_kg_m2",
+        r.register_with_unit("inlet_pressure", "Measured inlet pressure", unit("pascals"), m.inlet_pressure.clone());
+        r.register_with_unit("outlet_pressure", "Measured outlet pressure", unit("pascals"), m.outlet_pressure.clone());
+        r.register_with_unit(
+            "drive_frequency",
+            "Output frequency the drive reports",
+            unit("hertz"),
+            m.drive_frequency.clone(),
+        );
+        r.register_with_unit("omega", "Measured shaft speed", unit(RAD_S), m.omega.clone());
+        r.register_with_unit("omega_hat", "Estimated shaft speed", unit(RAD_S), m.omega_hat.clone());
+        r.register_with_unit("load_hat", "Estimated load torque", unit("newton_meters"), m.load_hat.clone());
+        r.register_with_unit("inertia_hat", "Estimated inertia J", unit(KG_M2), m.inertia_hat.clone());
+        r.register_with_unit(
+            "inertia_sd",
             "Standard deviation of the estimated J (0: taken from the model)",
+            unit(KG_M2),
             m.inertia_sd.clone(),
         );
-        r.register("viscous_hat_nm_s_rad", "Estimated viscous friction B", m.viscous_hat.clone());
-        r.register(
-            "viscous_sd_nm_s_rad",
+        r.register_with_unit("viscous_hat", "Estimated viscous friction B", unit(NM_S_RAD), m.viscous_hat.clone());
+        r.register_with_unit(
+            "viscous_sd",
             "Standard deviation of the estimated B (0: taken from the model)",
+            unit(NM_S_RAD),
             m.viscous_sd.clone(),
         );
-        r.register("setpoint_hz", "Last frequency setpoint written", m.setpoint.clone());
-        r.register("target_omega_rad_s", "Speed target", m.target.clone());
+        r.register_with_unit("setpoint", "Last frequency setpoint written", unit("hertz"), m.setpoint.clone());
+        r.register_with_unit("target_omega", "Speed target", unit(RAD_S), m.target.clone());
         r.register("recording_ok", "1 while the drive's rows reach the disk", m.recording_ok.clone());
         r.register("recording_errors", "Recording write, flush or open failures", m.recording_errors.clone());
         r.register("recording_rows_lost", "Rows not recorded because writing failed", m.recording_rows_lost.clone());
@@ -155,5 +185,157 @@ impl Metrics {
             m.http_auth_throttled.clone(),
         );
         (m, r)
+    }
+}
+
+/// The two expositions `/metrics` serves.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    /// OpenMetrics 1.0.0 text, what prometheus-client writes (with `# UNIT` lines and the closing `# EOF`).
+    OpenMetrics,
+    /// The Prometheus text format 0.0.4: what every scraper reads, and what `promtool check metrics` checks.
+    Text,
+}
+
+impl Format {
+    pub fn content_type(self) -> &'static str {
+        match self {
+            Format::OpenMetrics => "application/openmetrics-text; version=1.0.0; charset=utf-8",
+            Format::Text => "text/plain; version=0.0.4; charset=utf-8",
+        }
+    }
+
+    /// The format an `Accept` header asks for: OpenMetrics when it names `application/openmetrics-text` (version
+    /// 1.0.0 or none) with a quality above 0 and at least that of any range the text format matches (`text/plain`
+    /// with version 0.0.4 or none, `text/*`, `*/*`); the text format otherwise, and when there is no header.
+    pub fn negotiate(accept: Option<&str>) -> Format {
+        let (mut om, mut text) = (0.0_f64, 0.0_f64);
+        for range in accept.unwrap_or("").split(',') {
+            let mut parts = range.split(';').map(str::trim);
+            let media = parts.next().unwrap_or("").to_ascii_lowercase();
+            let (mut q, mut version) = (1.0_f64, None);
+            for p in parts {
+                let Some((k, v)) = p.split_once('=') else { continue };
+                let v = v.trim().trim_matches('"');
+                match k.trim().to_ascii_lowercase().as_str() {
+                    "q" => q = v.parse().ok().filter(|q: &f64| (0.0..=1.0).contains(q)).unwrap_or(0.0),
+                    "version" => version = Some(v.to_string()),
+                    _ => {}
+                }
+            }
+            match media.as_str() {
+                "application/openmetrics-text" if version.as_deref().is_none_or(|v| v == "1.0.0") => om = om.max(q),
+                "text/plain" if version.as_deref().is_none_or(|v| v == "0.0.4") => text = text.max(q),
+                "text/*" | "*/*" => text = text.max(q),
+                _ => {}
+            }
+        }
+        if om > 0.0 && om >= text { Format::OpenMetrics } else { Format::Text }
+    }
+}
+
+/// The registry's exposition in `format`.
+pub fn encode(registry: &Registry, format: Format) -> String {
+    let mut out = String::new();
+    if let Err(e) = prometheus_client::encoding::text::encode(&mut out, registry) {
+        tracing::error!(error = %e, "encoding metrics");
+    }
+    match format {
+        Format::OpenMetrics => out,
+        Format::Text => openmetrics_to_text(&out),
+    }
+}
+
+/// Rewrites prometheus-client's OpenMetrics text as the Prometheus text format 0.0.4 (prometheus-client writes
+/// only OpenMetrics). The sample lines are the same in both; the metadata differs: a counter's HELP and TYPE name
+/// the `_total` series, `unknown` is `untyped`, an `info` family is a gauge named `_info`, and there is no `# UNIT`
+/// and no `# EOF`. The registry holds no exemplars and no `_created` series, so the samples pass through as they are.
+pub fn openmetrics_to_text(om: &str) -> String {
+    let mut out = String::with_capacity(om.len());
+    let mut help: Option<(&str, &str)> = None;
+    for line in om.lines() {
+        if line == "# EOF" || line.starts_with("# UNIT ") {
+            continue;
+        }
+        if let Some(rest) = line.strip_prefix("# HELP ") {
+            help = Some(rest.split_once(' ').unwrap_or((rest, "")));
+            continue;
+        }
+        if let Some(rest) = line.strip_prefix("# TYPE ") {
+            let (name, kind) = rest.split_once(' ').unwrap_or((rest, "unknown"));
+            let (name, kind) = match kind {
+                "counter" => (format!("{name}_total"), "counter"),
+                "info" => (format!("{name}_info"), "gauge"),
+                "unknown" => (name.to_string(), "untyped"),
+                other => (name.to_string(), other),
+            };
+            if let Some((_, text)) = help.take() {
+                // OpenMetrics escapes `"` in HELP; the text format knows only `\\` and `\n` there
+                out.push_str(&format!("# HELP {name} {}\n", text.replace("\\\"", "\"")));
+            }
+            out.push_str(&format!("# TYPE {name} {kind}\n"));
+            continue;
+        }
+        out.push_str(line);
+        out.push('\n');
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const PROMETHEUS_2: &str = "application/openmetrics-text;version=1.0.0,application/openmetrics-text;\
+                                version=0.0.1;q=0.75,text/plain;version=0.0.4;q=0.5,*/*;q=0.1";
+
+    #[test]
+    fn negotiation_follows_the_accept_header() {
+        assert_eq!(Format::negotiate(None), Format::Text);
+        assert_eq!(Format::negotiate(Some("*/*")), Format::Text);
+        assert_eq!(Format::negotiate(Some("text/plain;version=0.0.4")), Format::Text);
+        assert_eq!(Format::negotiate(Some(PROMETHEUS_2)), Format::OpenMetrics);
+        assert_eq!(Format::negotiate(Some("application/openmetrics-text")), Format::OpenMetrics);
+        assert_eq!(Format::negotiate(Some("Application/OpenMetrics-Text; version=\"1.0.0\"")), Format::OpenMetrics);
+        // a version we do not write, a refusal, and a preference for the text format
+        assert_eq!(Format::negotiate(Some("application/openmetrics-text;version=2.0.0")), Format::Text);
+        assert_eq!(Format::negotiate(Some("application/openmetrics-text;q=0")), Format::Text);
+        assert_eq!(Format::negotiate(Some("application/openmetrics-text;q=0.4,text/plain;q=0.9")), Format::Text);
+        assert_eq!(Format::negotiate(Some("text/plain;q=0.5,application/openmetrics-text;q=0.5")), Format::OpenMetrics);
+    }
+
+    #[test]
+    fn the_text_format_renames_counters_and_drops_units_and_eof() {
+        let om = "# HELP hydrolens_polls Poll cycles run\n# TYPE hydrolens_polls counter\n\
+                  hydrolens_polls_total{drive=\"a\"} 3\n\
+                  # HELP hydrolens_omega_radians_per_second Measured \\\"speed\\\"\n\
+                  # TYPE hydrolens_omega_radians_per_second gauge\n\
+                  # UNIT hydrolens_omega_radians_per_second radians_per_second\n\
+                  hydrolens_omega_radians_per_second{drive=\"a\"} 1.5\n# HELP x_build Build\n# TYPE x_build info\n\
+                  x_build_info{v=\"1\"} 1\n# EOF\n";
+        let text = openmetrics_to_text(om);
+        assert_eq!(
+            text,
+            "# HELP hydrolens_polls_total Poll cycles run\n# TYPE hydrolens_polls_total counter\n\
+             hydrolens_polls_total{drive=\"a\"} 3\n\
+             # HELP hydrolens_omega_radians_per_second Measured \"speed\"\n\
+             # TYPE hydrolens_omega_radians_per_second gauge\nhydrolens_omega_radians_per_second{drive=\"a\"} 1.5\n\
+             # HELP x_build_info Build\n# TYPE x_build_info gauge\nx_build_info{v=\"1\"} 1\n"
+        );
+    }
+
+    #[test]
+    fn every_unit_metric_spells_its_unit_out() {
+        let (m, r) = Metrics::new();
+        let l = DriveLabel { drive: "a".into() };
+        m.omega.get_or_create(&l).set(1.0);
+        m.inlet_pressure.get_or_create(&l).set(2.0 * PASCALS_PER_BAR);
+        let om = encode(&r, Format::OpenMetrics);
+        assert!(om.ends_with("# EOF\n"), "{om}");
+        assert!(om.contains("# UNIT hydrolens_omega_radians_per_second radians_per_second\n"), "{om}");
+        assert!(om.contains("hydrolens_inlet_pressure_pascals{drive=\"a\"} 200000.0\n"), "{om}");
+        let text = encode(&r, Format::Text);
+        assert!(!text.contains("# UNIT") && !text.contains("# EOF"), "{text}");
+        assert!(text.contains("# TYPE hydrolens_http_auth_failures_total counter\n"), "{text}");
     }
 }

@@ -6,6 +6,7 @@ pub mod config;
 pub mod drive;
 pub mod freshness;
 pub mod metrics;
+pub mod mqtt;
 pub mod program;
 pub mod recorder;
 pub mod retention;
@@ -95,15 +96,24 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
         conditions.push(cond);
         drives.push(state);
     }
+    let mut threads = Vec::with_capacity(loops.len() + 2);
+    let mqtt = match &settings.mqtt {
+        Some(m) => {
+            let (health, thread) = mqtt::start(m, &drives, &conditions, &mut registry, shutdown.clone())?;
+            threads.push(thread);
+            Some(health)
+        }
+        None => None,
+    };
     let state = Arc::new(ServiceState {
         drives,
         conditions,
         metrics,
         registry,
+        mqtt,
         recording_dir: settings.recording.dir.clone(),
         started,
     });
-    let mut threads = Vec::with_capacity(loops.len() + 1);
     let count = loops.len();
     for (index, mut l) in loops.into_iter().enumerate() {
         l.stagger(index, count);

@@ -285,6 +285,8 @@ pub struct ServiceState {
     pub conditions: Vec<Arc<super::condition::DriveCondition>>,
     pub metrics: Metrics,
     pub registry: prometheus_client::registry::Registry,
+    /// The MQTT publisher's health; None when `[mqtt]` is not configured.
+    pub mqtt: Option<Arc<super::mqtt::MqttHealth>>,
     /// Where recordings are written; None when recording is off.
     pub recording_dir: Option<PathBuf>,
     pub started: Instant,
@@ -308,13 +310,9 @@ impl ServiceState {
         self.drives.iter().map(|d| d.snapshot()).collect()
     }
 
-    /// The Prometheus text exposition.
-    pub fn metrics_text(&self) -> String {
-        let mut out = String::new();
-        if let Err(e) = prometheus_client::encoding::text::encode(&mut out, &self.registry) {
-            tracing::error!(error = %e, "encoding metrics");
-        }
-        out
+    /// The metrics exposition in `format` (OpenMetrics or the Prometheus text format).
+    pub fn metrics_text(&self, format: super::metrics::Format) -> String {
+        super::metrics::encode(&self.registry, format)
     }
 }
 

@@ -52,6 +52,9 @@ fn a_mistyped_service_config_exits_2_naming_the_key() {
         ("limits.toml", good.replace("min_hz = 0.0", "min_hz = 55.0"), "min_hz"),
         ("mode.toml", good.replace("mode = \"monitor\"", "mode = \"turbo\""), "mode"),
         ("register.toml", format!("{good}\n[drives.registers.inlet_pressure_bar]\ntype = \"f64\"\n"), "f64"),
+        ("mqtts.toml", format!("{good}\n[mqtt]\nurl = \"mqtts://broker:8883\"\n"), "mqtt.url"),
+        ("mqtt_url.toml", format!("{good}\n[mqtt]\nurl = \"broker:1883\"\n"), "mqtt.url"),
+        ("mqtt_interval.toml", format!("{good}\n[mqtt]\nurl = \"mqtt://b\"\ninterval_ms = 5\n"), "mqtt.interval_ms"),
     ];
     for (name, text, needle) in cases {
         let path = dir.path().join(name);

@@ -159,13 +159,15 @@ async fn sse_delivers_snapshots_and_metrics_are_exposed() {
             "hydrolens_rejected_samples_total",
             "hydrolens_loop_period_seconds_bucket",
             "hydrolens_loop_jitter_p99_seconds{drive=\"pump1\"}",
-            "hydrolens_omega_rad_s{drive=\"pump1\"}",
-            "hydrolens_load_hat_nm{drive=\"pump1\"}",
-            "hydrolens_inertia_hat_kg_m2{drive=\"pump1\"}",
-            "hydrolens_inertia_sd_kg_m2{drive=\"pump1\"}",
-            "hydrolens_viscous_hat_nm_s_rad{drive=\"pump1\"}",
-            "hydrolens_viscous_sd_nm_s_rad{drive=\"pump1\"}",
-            "hydrolens_setpoint_hz{drive=\"pump1\"}",
+            "hydrolens_omega_radians_per_second{drive=\"pump1\"}",
+            "hydrolens_load_hat_newton_meters{drive=\"pump1\"}",
+            "hydrolens_inertia_hat_kilogram_square_meters{drive=\"pump1\"}",
+            "hydrolens_inertia_sd_kilogram_square_meters{drive=\"pump1\"}",
+            "hydrolens_viscous_hat_newton_meter_seconds_per_radian{drive=\"pump1\"}",
+            "hydrolens_viscous_sd_newton_meter_seconds_per_radian{drive=\"pump1\"}",
+            "hydrolens_setpoint_hertz{drive=\"pump1\"}",
+            "hydrolens_inlet_pressure_pascals{drive=\"pump1\"}",
+            "hydrolens_drive_frequency_hertz{drive=\"pump1\"}",
         ] {
             assert!(m.contains(name), "metrics lack {name}:\n{m}");
         }

@@ -1,0 +1,518 @@
+//! MQTT publishing (`[mqtt]`, CONTRACT.md "Extensions"): each drive's `/api/status` object to
+//! `<prefix>/<drive>/status` every `interval_ms`, its condition to `<prefix>/<drive>/condition` when a check changed
+//! it, and `<prefix>/status` = `online` / `offline` (retained; `offline` is also the last will).
+//!
+//! The publisher runs on a thread of its own. The poll loops never wait for it: it reads their shared state, and
+//! what it has to send waits in a bounded [`Outbox`] that drops its oldest message when full (counted), so a broker
+//! that is down costs the drives nothing.
+
+use std::collections::VecDeque;
+use std::sync::Arc;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Duration;
+
+use prometheus_client::metrics::counter::Counter;
+use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::registry::Registry;
+use rumqttc::{AsyncClient, Event, LastWill, MqttOptions, Packet, QoS};
+use serde::{Deserialize, Serialize};
+use tokio::sync::Notify;
+use tokio_util::sync::CancellationToken;
+
+use super::condition::DriveCondition;
+use super::state::DriveState;
+
+/// `[mqtt]` as written.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawMqtt {
+    url: String,
+    #[serde(default = "default_prefix")]
+    topic_prefix: String,
+    #[serde(default = "default_interval")]
+    interval_ms: u64,
+    username: Option<String>,
+    password: Option<String>,
+    /// Default `hydrolens-<pid>`; two services on one broker need different ids.
+    client_id: Option<String>,
+    /// Messages waiting for the broker at most; past it the oldest is dropped (and counted).
+    #[serde(default = "default_queue")]
+    queue_messages: usize,
+}
+
+fn default_prefix() -> String {
+    "hydrolens".into()
+}
+fn default_interval() -> u64 {
+    1000
+}
+fn default_queue() -> usize {
+    1000
+}
+
+/// The bounds of `mqtt.interval_ms`: 10 messages a second per drive at most, one an hour at least.
+pub const INTERVAL_MS: std::ops::RangeInclusive<u64> = 100..=3_600_000;
+/// The bounds of `mqtt.queue_messages`.
+pub const QUEUE_MESSAGES: std::ops::RangeInclusive<usize> = 1..=100_000;
+
+/// Validated `[mqtt]`.
+#[derive(Debug, Clone)]
+pub struct MqttSettings {
+    /// As written, for `/api/status` and the logs (credentials are never in it).
+    pub url: String,
+    pub host: String,
+    pub port: u16,
+    pub topic_prefix: String,
+    pub interval: Duration,
+    /// Username and password, both or neither. Never logged.
+    pub credentials: Option<(String, String)>,
+    pub client_id: String,
+    pub queue_messages: usize,
+}
+
+/// `mqtt://host[:port]` (port 1883 by default) into host and port.
+fn parse_url(url: &str) -> Result<(String, u16), String> {
+    let lower = url.to_ascii_lowercase();
+    if lower.starts_with("mqtts://") || lower.starts_with("ssl://") {
+        return Err(format!(
+            "{url:?}: TLS (mqtts://) is not supported; use mqtt:// on a trusted network, or a TLS tunnel to the broker"
+        ));
+    }
+    let Some(rest) = lower.starts_with("mqtt://").then(|| &url["mqtt://".len()..]) else {
+        return Err(format!("{url:?} is not a URL such as mqtt://127.0.0.1:1883"));
+    };
+    let rest = rest.strip_suffix('/').unwrap_or(rest);
+    if rest.contains('@') {
+        return Err(format!("{url:?}: put credentials in mqtt.username and mqtt.password, not in the URL"));
+    }
+    if rest.contains(['/', '?', '#']) {
+        return Err(format!("{url:?}: a broker URL has no path or query (mqtt://host:port)"));
+    }
+    let (host, port) = if let Some(v6) = rest.strip_prefix('[') {
+        let (h, tail) = v6.split_once(']').ok_or_else(|| format!("{url:?}: unclosed [ in the host"))?;
+        (h, tail.strip_prefix(':'))
+    } else {
+        match rest.rsplit_once(':') {
+            Some((h, p)) => (h, Some(p)),
+            None => (rest, None),
+        }
+    };
+    if host.is_empty() || (host.contains([':', ' ']) && !rest.starts_with('[')) {
+        return Err(format!("{url:?}: no host"));
+    }
+    let port = match port {
+        None => 1883,
+        Some(p) => {
+            p.parse().ok().filter(|p| *p > 0).ok_or_else(|| format!("{url:?}: port {p:?} is not 1 ..= 65535"))?
+        }
+    };
+    Ok((host.to_string(), port))
+}
+
+/// Validates `[mqtt]`; errors name the key.
+pub fn validate(raw: RawMqtt) -> Result<MqttSettings, (String, String)> {
+    let k = |s: &str| format!("mqtt.{s}");
+    let (host, port) = parse_url(raw.url.trim()).map_err(|m| (k("url"), m))?;
+    let prefix = raw.topic_prefix;
+    if prefix.is_empty() || prefix.starts_with('/') || prefix.ends_with('/') || prefix.contains(['+', '#', '\0']) {
+        return Err((
+            k("topic_prefix"),
+            format!("{prefix:?} must be a topic without wildcards (+, #) and without a leading or trailing /"),
+        ));
+    }
+    if !INTERVAL_MS.contains(&raw.interval_ms) {
+        return Err((k("interval_ms"), format!("must be 100 ..= 3600000, got {}", raw.interval_ms)));
+    }
+    if !QUEUE_MESSAGES.contains(&raw.queue_messages) {
+        return Err((k("queue_messages"), format!("must be 1 ..= 100000, got {}", raw.queue_messages)));
+    }
+    let credentials = match (raw.username, raw.password) {
+        (Some(u), Some(p)) => Some((u, p)),
+        (None, None) => None,
+        (Some(_), None) => return Err((k("password"), "is needed with mqtt.username".into())),
+        (None, Some(_)) => return Err((k("username"), "is needed with mqtt.password".into())),
+    };
+    let client_id = raw.client_id.unwrap_or_else(|| format!("hydrolens-{}", std::process::id()));
+    if client_id.is_empty() || client_id.len() > 65535 {
+        return Err((k("client_id"), "must not be empty".into()));
+    }
+    Ok(MqttSettings {
+        url: raw.url.trim().to_string(),
+        host,
+        port,
+        topic_prefix: prefix,
+        interval: Duration::from_millis(raw.interval_ms),
+        credentials,
+        client_id,
+        queue_messages: raw.queue_messages,
+    })
+}
+
+/// One message for the broker.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Message {
+    pub topic: String,
+    pub payload: Vec<u8>,
+    pub qos: QoS,
+    pub retain: bool,
+}
+
+/// A bounded queue that drops its oldest message to take a new one when full: pushing never waits.
+#[derive(Debug)]
+pub struct Outbox {
+    queue: Mutex<VecDeque<Message>>,
+    capacity: usize,
+    ready: Notify,
+}
+
+impl Outbox {
+    pub fn new(capacity: usize) -> Outbox {
+        Outbox { queue: Mutex::new(VecDeque::with_capacity(capacity)), capacity: capacity.max(1), ready: Notify::new() }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, VecDeque<Message>> {
+        self.queue.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Queues `m`; true when the oldest message was dropped to make room.
+    pub fn push(&self, m: Message) -> bool {
+        let dropped = {
+            let mut q = self.lock();
+            let dropped = q.len() >= self.capacity && q.pop_front().is_some();
+            q.push_back(m);
+            dropped
+        };
+        self.ready.notify_one();
+        dropped
+    }
+
+    pub fn try_pop(&self) -> Option<Message> {
+        self.lock().pop_front()
+    }
+
+    pub fn len(&self) -> usize {
+        self.lock().len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The oldest message, waiting for one (a single consumer: a push while it does not wait leaves a permit).
+    pub async fn pop(&self) -> Message {
+        loop {
+            if let Some(m) = self.try_pop() {
+                return m;
+            }
+            self.ready.notified().await;
+        }
+    }
+}
+
+/// What `/api/status` and `/metrics` say of the publisher.
+#[derive(Debug)]
+pub struct MqttHealth {
+    pub url: String,
+    connected: AtomicBool,
+    published: AtomicU64,
+    dropped: AtomicU64,
+    metrics: MqttMetrics,
+}
+
+/// `mqtt` in `/api/status`.
+#[derive(Debug, Clone, Serialize)]
+pub struct MqttStatus {
+    pub url: String,
+    /// True while the broker has accepted the connection.
+    pub connected: bool,
+    /// Messages handed to the connection (QoS 0 status messages are not acknowledged).
+    pub published: u64,
+    /// Messages dropped, oldest first, because the queue was full (the broker down or too slow).
+    pub dropped: u64,
+}
+
+impl MqttHealth {
+    pub fn status(&self) -> MqttStatus {
+        MqttStatus {
+            url: self.url.clone(),
+            connected: self.connected.load(Ordering::Relaxed),
+            published: self.published.load(Ordering::Relaxed),
+            dropped: self.dropped.load(Ordering::Relaxed),
+        }
+    }
+
+    fn set_connected(&self, up: bool) {
+        self.connected.store(up, Ordering::Relaxed);
+        self.metrics.connected.set(i64::from(up));
+    }
+
+    fn count_published(&self) {
+        self.published.fetch_add(1, Ordering::Relaxed);
+        self.metrics.published.inc();
+    }
+
+    fn count_dropped(&self) {
+        self.dropped.fetch_add(1, Ordering::Relaxed);
+        self.metrics.dropped.inc();
+    }
+}
+
+/// The publisher's families, registered only when `[mqtt]` is configured.
+#[derive(Debug, Clone)]
+pub struct MqttMetrics {
+    connected: Gauge,
+    published: Counter,
+    dropped: Counter,
+}
+
+impl MqttMetrics {
+    pub fn register(r: &mut Registry) -> MqttMetrics {
+        let m = MqttMetrics { connected: Gauge::default(), published: Counter::default(), dropped: Counter::default() };
+        r.register("mqtt_connected", "1 while the MQTT broker has accepted the connection", m.connected.clone());
+        r.register("mqtt_published_messages", "Messages handed to the MQTT connection", m.published.clone());
+        r.register(
+            "mqtt_dropped_messages",
+            "MQTT messages dropped, oldest first, because the queue was full",
+            m.dropped.clone(),
+        );
+        m
+    }
+}
+
+/// The topics of one drive.
+struct DriveTopics {
+    state: Arc<DriveState>,
+    condition: Option<Arc<DriveCondition>>,
+    status: String,
+    condition_topic: String,
+    /// The condition JSON last queued: a new one is sent only when it changed (a check, an alarm).
+    last_condition: Option<Vec<u8>>,
+}
+
+/// Starts the publisher's thread; it stops when `shutdown` is cancelled, after sending `offline` (bounded: 2 s).
+pub fn start(
+    settings: &MqttSettings,
+    drives: &[Arc<DriveState>],
+    conditions: &[Arc<DriveCondition>],
+    registry: &mut Registry,
+    shutdown: CancellationToken,
+) -> std::io::Result<(Arc<MqttHealth>, std::thread::JoinHandle<()>)> {
+    let health = Arc::new(MqttHealth {
+        url: settings.url.clone(),
+        connected: AtomicBool::new(false),
+        published: AtomicU64::new(0),
+        dropped: AtomicU64::new(0),
+        metrics: MqttMetrics::register(registry),
+    });
+    let prefix = &settings.topic_prefix;
+    let topics: Vec<DriveTopics> = drives
+        .iter()
+        .zip(conditions)
+        .map(|(d, c)| DriveTopics {
+            state: d.clone(),
+            condition: c.enabled.then(|| c.clone()),
+            status: format!("{prefix}/{}/status", d.name),
+            condition_topic: format!("{prefix}/{}/condition", d.name),
+            last_condition: None,
+        })
+        .collect();
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    let (s, h) = (settings.clone(), health.clone());
+    let thread = std::thread::Builder::new().name("mqtt".into()).spawn(move || {
+        super::condition::lower_priority();
+        rt.block_on(run(s, topics, h, shutdown));
+    })?;
+    Ok((health, thread))
+}
+
+/// The payloads of one interval: every drive's status, and the condition of those whose condition changed.
+fn interval_messages(topics: &mut [DriveTopics]) -> Vec<Message> {
+    let mut out = Vec::with_capacity(topics.len() * 2);
+    for t in topics {
+        match serde_json::to_vec(&t.state.snapshot()) {
+            Ok(payload) => out.push(Message { topic: t.status.clone(), payload, qos: QoS::AtMostOnce, retain: false }),
+            Err(e) => tracing::error!(drive = %t.state.name, error = %e, "serialising the status for MQTT"),
+        }
+        if let Some(c) = &t.condition {
+            match serde_json::to_vec(&c.to_json()) {
+                Ok(payload) if t.last_condition.as_ref() != Some(&payload) => {
+                    t.last_condition = Some(payload.clone());
+                    out.push(Message {
+                        topic: t.condition_topic.clone(),
+                        payload,
+                        qos: QoS::AtLeastOnce,
+                        retain: true,
+                    });
+                }
+                Ok(_) => {}
+                Err(e) => tracing::error!(drive = %t.state.name, error = %e, "serialising the condition for MQTT"),
+            }
+        }
+    }
+    out
+}
+
+/// The longest wait between two connection attempts.
+const MAX_BACKOFF: Duration = Duration::from_secs(2);
+
+async fn run(
+    settings: MqttSettings,
+    mut topics: Vec<DriveTopics>,
+    health: Arc<MqttHealth>,
+    shutdown: CancellationToken,
+) {
+    let online_topic = format!("{}/status", settings.topic_prefix);
+    let mut options = MqttOptions::new(&settings.client_id, &settings.host, settings.port);
+    options.set_keep_alive(Duration::from_secs(5));
+    options.set_clean_session(true);
+    options.set_last_will(LastWill::new(&online_topic, "offline", QoS::AtLeastOnce, true));
+    if let Some((u, p)) = &settings.credentials {
+        options.set_credentials(u, p);
+    }
+    // a small channel: what waits for the broker waits in the outbox, where it is counted when dropped
+    let (client, mut eventloop) = AsyncClient::new(options, 8);
+    let outbox = Arc::new(Outbox::new(settings.queue_messages));
+    // set on every connection: the retained condition messages go again (a broker without persistence lost them,
+    // and the queue may have dropped the last one while the broker was away)
+    let resend = AtomicBool::new(false);
+
+    let produce = async {
+        let mut tick = tokio::time::interval(settings.interval);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        loop {
+            tick.tick().await;
+            if resend.swap(false, Ordering::Relaxed) {
+                topics.iter_mut().for_each(|t| t.last_condition = None);
+            }
+            for m in interval_messages(&mut topics) {
+                if outbox.push(m) {
+                    health.count_dropped();
+                }
+            }
+        }
+    };
+    let publish = async {
+        loop {
+            let m = outbox.pop().await;
+            // waits while rumqttc's channel is full (the broker down); the outbox keeps taking messages meanwhile
+            if client.publish(m.topic, m.qos, m.retain, m.payload).await.is_ok() {
+                health.count_published();
+            }
+        }
+    };
+    let drive_connection = async {
+        let mut backoff = Duration::from_millis(100);
+        loop {
+            match eventloop.poll().await {
+                Ok(Event::Incoming(Packet::ConnAck(_))) => {
+                    tracing::info!(url = %settings.url, "MQTT connected");
+                    health.set_connected(true);
+                    resend.store(true, Ordering::Relaxed);
+                    backoff = Duration::from_millis(100);
+                    // queued behind at most the channel's few messages; rumqttc's channel never loses it
+                    let c = client.clone();
+                    let topic = online_topic.clone();
+                    tokio::spawn(async move {
+                        let _ = c.publish(topic, QoS::AtLeastOnce, true, "online").await;
+                    });
+                }
+                Ok(_) => {}
+                Err(e) => {
+                    if health.connected.load(Ordering::Relaxed) {
+                        tracing::warn!(url = %settings.url, error = %e, "MQTT connection lost");
+                    } else {
+                        tracing::debug!(url = %settings.url, error = %e, "MQTT connection attempt failed");
+                    }
+                    health.set_connected(false);
+                    tokio::time::sleep(backoff).await;
+                    backoff = (backoff * 2).min(MAX_BACKOFF);
+                }
+            }
+        }
+    };
+    tokio::select! {
+        _ = shutdown.cancelled() => {}
+        _ = produce => {}
+        _ = publish => {}
+        _ = drive_connection => {}
+    }
+    // a clean goodbye: `offline` (retained) as the will would say it, then DISCONNECT
+    if health.connected.load(Ordering::Relaxed) {
+        let _ = client.try_publish(&online_topic, QoS::AtLeastOnce, true, "offline");
+        let _ = client.try_disconnect();
+        let goodbye = async {
+            loop {
+                match eventloop.poll().await {
+                    Ok(Event::Outgoing(rumqttc::Outgoing::Disconnect)) | Err(_) => return,
+                    Ok(_) => {}
+                }
+            }
+        };
+        let _ = tokio::time::timeout(Duration::from_secs(2), goodbye).await;
+    }
+    health.set_connected(false);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn raw(text: &str) -> RawMqtt {
+        toml::from_str(text).expect("parses")
+    }
+
+    fn err(text: &str) -> (String, String) {
+        validate(raw(text)).expect_err("invalid")
+    }
+
+    #[test]
+    fn urls_and_bounds() {
+        let s = validate(raw("url = \"mqtt://127.0.0.1:1884\"\n")).expect("valid");
+        assert_eq!((s.host.as_str(), s.port, s.topic_prefix.as_str()), ("127.0.0.1", 1884, "hydrolens"));
+        assert_eq!(s.interval, Duration::from_secs(1));
+        let s = validate(raw("url = \"mqtt://broker.plant/\"\n")).expect("valid");
+        assert_eq!((s.host.as_str(), s.port), ("broker.plant", 1883));
+        let s = validate(raw("url = \"mqtt://[::1]:1883\"\n")).expect("valid");
+        assert_eq!(s.host, "::1");
+        for bad in ["mqtts://b:8883", "http://b", "mqtt://", "mqtt://b:0", "mqtt://b:x", "mqtt://u:p@b", "mqtt://b/x"] {
+            let (key, message) = err(&format!("url = \"{bad}\"\n"));
+            assert_eq!(key, "mqtt.url", "{bad}: {message}");
+        }
+        assert!(err("url = \"mqtts://b\"\n").1.contains("TLS"));
+        assert_eq!(err("url = \"mqtt://b\"\ninterval_ms = 10\n").0, "mqtt.interval_ms");
+        assert_eq!(err("url = \"mqtt://b\"\ninterval_ms = 4000000\n").0, "mqtt.interval_ms");
+        assert_eq!(err("url = \"mqtt://b\"\nqueue_messages = 0\n").0, "mqtt.queue_messages");
+        assert_eq!(err("url = \"mqtt://b\"\ntopic_prefix = \"a/#\"\n").0, "mqtt.topic_prefix");
+        assert_eq!(err("url = \"mqtt://b\"\ntopic_prefix = \"/a\"\n").0, "mqtt.topic_prefix");
+        assert_eq!(err("url = \"mqtt://b\"\nusername = \"u\"\n").0, "mqtt.password");
+        let s = validate(raw("url = \"mqtt://b\"\nusername = \"u\"\npassword = \"p\"\n")).expect("valid");
+        assert_eq!(s.credentials, Some(("u".into(), "p".into())));
+    }
+
+    fn msg(i: u8) -> Message {
+        Message { topic: "t".into(), payload: vec![i], qos: QoS::AtMostOnce, retain: false }
+    }
+
+    #[test]
+    fn a_full_outbox_drops_its_oldest() {
+        let o = Outbox::new(3);
+        assert!(!o.push(msg(1)) && !o.push(msg(2)) && !o.push(msg(3)));
+        assert!(o.push(msg(4)));
+        assert_eq!(o.len(), 3);
+        let left: Vec<u8> = std::iter::from_fn(|| o.try_pop()).map(|m| m.payload[0]).collect();
+        assert_eq!(left, [2, 3, 4]);
+        assert!(o.is_empty());
+    }
+
+    #[tokio::test]
+    async fn pop_waits_for_a_push() {
+        let o = Arc::new(Outbox::new(2));
+        let o2 = o.clone();
+        let waiter = tokio::spawn(async move { o2.pop().await });
+        tokio::task::yield_now().await;
+        o.push(msg(7));
+        let m = tokio::time::timeout(Duration::from_secs(5), waiter).await.expect("bounded").expect("joins");
+        assert_eq!(m.payload, [7]);
+    }
+}

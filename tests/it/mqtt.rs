@@ -1,0 +1,295 @@
+//! MQTT against a real broker: Debian's `mosquitto`, started here on a free loopback port, and a rumqttc subscriber.
+//! Status messages carry the drive's `/api/status` object; a broker that dies never slows polling (its messages are
+//! dropped, oldest first, and counted); publishing resumes when it is back; the last will says `offline`.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use rumqttc::{AsyncClient, Event, MqttOptions, Packet, QoS};
+use tokio::sync::mpsc;
+
+use crate::support::{self, Stack, wait_for};
+
+fn mosquitto() -> PathBuf {
+    for dir in ["/usr/sbin", "/usr/bin", "/usr/local/sbin", "/usr/local/bin"] {
+        let p = Path::new(dir).join("mosquitto");
+        if p.exists() {
+            return p;
+        }
+    }
+    panic!("no mosquitto found: install Debian's `mosquitto` (apt-get install -y mosquitto); tests/run.sh does this");
+}
+
+/// A free loopback port (bound, then released for the broker).
+fn free_port() -> u16 {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    l.local_addr().expect("addr").port()
+}
+
+/// A mosquitto on 127.0.0.1:`port`, anonymous, no persistence; killed when dropped.
+struct Broker {
+    child: Child,
+    port: u16,
+    _dir: tempfile::TempDir,
+}
+
+impl Broker {
+    async fn start(port: u16) -> Broker {
+        let dir = tempfile::tempdir().expect("tmp");
+        let conf = dir.path().join("mosquitto.conf");
+        std::fs::write(&conf, format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"))
+            .expect("write conf");
+        let log = std::fs::File::create(dir.path().join("mosquitto.log")).expect("log");
+        let child = Command::new(mosquitto())
+            .arg("-c")
+            .arg(&conf)
+            .stdin(Stdio::null())
+            .stdout(log.try_clone().expect("log"))
+            .stderr(log)
+            .spawn()
+            .expect("start mosquitto");
+        let mut b = Broker { child, port, _dir: dir };
+        let up = wait_for(Duration::from_secs(5), || async {
+            tokio::net::TcpStream::connect(("127.0.0.1", port)).await.is_ok()
+        })
+        .await;
+        if up.is_none() {
+            let log = std::fs::read_to_string(b._dir.path().join("mosquitto.log")).unwrap_or_default();
+            b.kill();
+            panic!("mosquitto did not listen on {port} within 5 s:\n{log}");
+        }
+        b
+    }
+
+    fn url(&self) -> String {
+        format!("mqtt://127.0.0.1:{}", self.port)
+    }
+
+    fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Broker {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+/// A subscriber to `filter` that re-subscribes after every reconnect; messages arrive on the channel as
+/// (topic, payload). Stops when the returned handle is aborted or the test ends.
+fn subscribe(port: u16, filter: &str) -> (mpsc::UnboundedReceiver<(String, String)>, tokio::task::JoinHandle<()>) {
+    let mut o = MqttOptions::new(format!("test-sub-{}", free_port()), "127.0.0.1", port);
+    o.set_keep_alive(Duration::from_secs(5));
+    let (client, mut events) = AsyncClient::new(o, 16);
+    let (tx, rx) = mpsc::unbounded_channel();
+    let filter = filter.to_string();
+    let task = tokio::spawn(async move {
+        loop {
+            match events.poll().await {
+                Ok(Event::Incoming(Packet::ConnAck(_))) => {
+                    let (c, f) = (client.clone(), filter.clone());
+                    tokio::spawn(async move { c.subscribe(f, QoS::AtLeastOnce).await });
+                }
+                Ok(Event::Incoming(Packet::Publish(p))) => {
+                    let _ = tx.send((p.topic.clone(), String::from_utf8_lossy(&p.payload).into_owned()));
+                }
+                Ok(_) => {}
+                Err(_) => tokio::time::sleep(Duration::from_millis(100)).await,
+            }
+        }
+    });
+    (rx, task)
+}
+
+/// The next message on `topic` within `limit`.
+async fn next_on(rx: &mut mpsc::UnboundedReceiver<(String, String)>, topic: &str, limit: Duration) -> Option<String> {
+    let deadline = tokio::time::Instant::now() + limit;
+    loop {
+        match tokio::time::timeout_at(deadline, rx.recv()).await {
+            Ok(Some((t, p))) if t == topic => return Some(p),
+            Ok(Some(_)) => {}
+            Ok(None) | Err(_) => return None,
+        }
+    }
+}
+
+async fn api_status(stack: &Stack) -> serde_json::Value {
+    reqwest::get(format!("{}/api/status", stack.url)).await.expect("GET status").json().await.expect("json")
+}
+
+fn keys(v: &serde_json::Value) -> Vec<String> {
+    v.as_object().map(|o| o.keys().cloned().collect()).unwrap_or_default()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn status_goes_to_the_broker_and_a_dead_broker_never_slows_polling() {
+    let run = async {
+        let port = free_port();
+        let mut broker = Broker::start(port).await;
+        let (mut rx, sub) = subscribe(port, "hl/#");
+        let mqtt = format!(
+            "\n[mqtt]\nurl = \"{}\"\ntopic_prefix = \"hl\"\ninterval_ms = 100\nqueue_messages = 8\n",
+            broker.url()
+        );
+        let stack = Stack::start(5.0, 10, &format!("[drives.control]\nmode = \"monitor\"\n{mqtt}")).await;
+
+        // the retained `online`, then status messages: the drive's /api/status object, field for field
+        let online = next_on(&mut rx, "hl/status", Duration::from_secs(10)).await;
+        assert_eq!(online.as_deref(), Some("online"));
+        let mut last = serde_json::Value::Null;
+        for _ in 0..3 {
+            let p = next_on(&mut rx, "hl/pump1/status", Duration::from_secs(5)).await.expect("a status message");
+            last = serde_json::from_str(&p).expect("status JSON");
+        }
+        assert_eq!(last["name"], "pump1");
+        for field in ["mode", "link", "sample", "estimate", "timing", "recording"] {
+            assert!(last.get(field).is_some(), "status message lacks {field}: {last}");
+        }
+        let status = api_status(&stack).await;
+        assert_eq!(keys(&last), keys(&status["drives"][0]), "the MQTT object is /api/status's drive object");
+        assert_eq!(status["mqtt"]["connected"], true, "{status}");
+        assert!(status["mqtt"]["published"].as_u64().expect("published") >= 3);
+        assert!(support::metric(&stack.metrics().await, "hydrolens_mqtt_connected 1").is_some());
+
+        // the broker dies: polling goes on at its rate, the messages beyond the queue are dropped and counted
+        broker.kill();
+        let polls_before = stack.status().await["link"]["polls"].as_u64().expect("polls");
+        let dropped = wait_for(Duration::from_secs(10), || async {
+            api_status(&stack).await["mqtt"]["dropped"].as_u64().unwrap_or(0) >= 10
+        })
+        .await;
+        assert!(dropped.is_some(), "no drops counted with the broker down: {}", api_status(&stack).await);
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        let status = api_status(&stack).await;
+        let polls_after = status["drives"][0]["link"]["polls"].as_u64().expect("polls");
+        assert_eq!(status["mqtt"]["connected"], false, "{status}");
+        assert!(!status["drives"][0]["link"]["stale"].as_bool().expect("stale"), "{status}");
+        // ≥ 1 s at a 10 ms poll: 100 cycles; half of them is far beyond what a blocked loop would manage
+        assert!(polls_after >= polls_before + 50, "polling slowed: {polls_before} → {polls_after}");
+        let m = stack.metrics().await;
+        let dropped_metric = support::metric(&m, "hydrolens_mqtt_dropped_messages_total").expect("drop counter");
+        assert!(dropped_metric >= 10.0, "{m}");
+
+        // the broker is back on its port: publishing resumes (the subscriber reconnects by itself)
+        let _broker = Broker::start(port).await;
+        let back = next_on(&mut rx, "hl/pump1/status", Duration::from_secs(10)).await;
+        assert!(back.is_some(), "no status message after the broker came back: {}", api_status(&stack).await);
+        assert_eq!(api_status(&stack).await["mqtt"]["connected"], true);
+
+        // a clean stop says `offline` itself (after the `online` of the reconnection, which may still be on its way)
+        stack.stop().await;
+        let mut said = Vec::new();
+        while let Some(p) = next_on(&mut rx, "hl/status", Duration::from_secs(5)).await {
+            said.push(p);
+            if said.last().is_some_and(|p| p == "offline") {
+                break;
+            }
+        }
+        assert!(said.last().is_some_and(|p| p == "offline") && said.len() <= 2, "{said:?}");
+        sub.abort();
+    };
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
+}
+
+/// `[drives.condition]` every `every_s`, publishing to the broker at `url` under `hc`.
+fn condition_extra(every_s: u32, url: &str) -> String {
+    format!(
+        "[drives.condition]\nenabled = true\nwindow_s = 5\nevery_s = {every_s}\n\n[mqtt]\nurl = \"{url}\"\n\
+         topic_prefix = \"hc\"\ninterval_ms = 100\n"
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn condition_checks_go_to_the_condition_topic_and_again_after_a_broker_restart() {
+    let run = async {
+        let port = free_port();
+        let mut broker = Broker::start(port).await;
+        let (mut rx, sub) = subscribe(port, "hc/#");
+        let stack = Stack::start(5.0, 10, &condition_extra(1, &broker.url())).await;
+        // the first message has no check yet; the next comes with the first check
+        let mut with_check = None;
+        for _ in 0..20 {
+            let Some(p) = next_on(&mut rx, "hc/pump1/condition", Duration::from_secs(10)).await else { break };
+            let v: serde_json::Value = serde_json::from_str(&p).expect("condition JSON");
+            assert_eq!(v["drive"], "pump1");
+            if v["checks"].as_array().is_some_and(|c| !c.is_empty()) {
+                with_check = Some(v);
+                break;
+            }
+        }
+        let v = with_check.expect("a condition message with a check within the bound");
+        let from_http: serde_json::Value = reqwest::get(format!("{}/api/drives/pump1/condition", stack.url))
+            .await
+            .expect("GET condition")
+            .json()
+            .await
+            .expect("json");
+        assert_eq!(keys(&v), keys(&from_http), "the MQTT object is GET /api/drives/pump1/condition's");
+        assert_eq!(v["checks"][0]["t_s"], from_http["checks"][0]["t_s"]);
+        let dir = stack.stop().await;
+
+        // a service that restores those checks from the recordings dir and checks again only in a day: its one
+        // condition message comes at the start, and again only because the broker came back without it
+        let (_sim, modbus, sim_stop, sim_task) = support::start_sim(support::test_plant(5.0), 0).await;
+        let text = support::config_text(modbus, dir.path(), 10, &condition_extra(86_400, &broker.url()));
+        let (svc, _url, shutdown, http) = support::start_service(&text).await;
+        let first = next_on(&mut rx, "hc/pump1/condition", Duration::from_secs(10)).await.expect("restored checks");
+        assert!(first.contains("\"checks\":[{"), "{first}");
+        broker.kill();
+        let _broker = Broker::start(port).await;
+        let again = next_on(&mut rx, "hc/pump1/condition", Duration::from_secs(10)).await;
+        assert_eq!(again.as_deref(), Some(first.as_str()), "the condition is sent again after the broker's restart");
+        shutdown.cancel();
+        sim_stop.cancel();
+        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("service stops");
+        let _ = tokio::time::timeout(Duration::from_secs(10), http).await.expect("http stops");
+        let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await.expect("simulator stops");
+        sub.abort();
+    };
+    tokio::time::timeout(Duration::from_secs(50), run).await.expect("bounded");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_last_will_says_offline_when_the_service_dies() {
+    let run = async {
+        let port = free_port();
+        let broker = Broker::start(port).await;
+        let (mut rx, sub) = subscribe(port, "hw/status");
+        let (_sim, modbus, sim_stop, sim_task) = support::start_sim(support::test_plant(5.0), 0).await;
+        let dir = tempfile::tempdir().expect("tmp");
+        let config = dir.path().join("hydrolens.toml");
+        let mut f = std::fs::File::create(&config).expect("config");
+        write!(
+            f,
+            "[http]\nbind = \"127.0.0.1:0\"\n\n[recording]\nenabled = false\n\n[[drives]]\nname = \"pump1\"\n\
+             address = \"{modbus}\"\npoll_ms = 10\n\n[mqtt]\nurl = \"{}\"\ntopic_prefix = \"hw\"\ninterval_ms = 100\n",
+            broker.url()
+        )
+        .expect("write config");
+        drop(f);
+        let mut service = Command::new(support::bin())
+            .args(["serve", "--config"])
+            .arg(&config)
+            .current_dir(support::root())
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start hydrolens serve");
+        let online = next_on(&mut rx, "hw/status", Duration::from_secs(10)).await;
+        // SIGKILL: no goodbye, the broker sees the connection drop and publishes the will
+        let _ = service.kill();
+        let _ = service.wait();
+        assert_eq!(online.as_deref(), Some("online"));
+        let offline = next_on(&mut rx, "hw/status", Duration::from_secs(10)).await;
+        assert_eq!(offline.as_deref(), Some("offline"), "the last will");
+        sim_stop.cancel();
+        let _ = tokio::time::timeout(Duration::from_secs(5), sim_task).await;
+        sub.abort();
+    };
+    tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+}
