@@ -649,7 +649,7 @@ async fn retention_keeps_the_recordings_within_max_total_mb_and_never_deletes_th
         std::fs::write(dir.path().join("pump1-b-1000.csv"), "t_s\n1\n").expect("write");
         let text = format!(
             "[http]\nbind = \"127.0.0.1:0\"\n[recording]\ndir = {:?}\nmax_file_mb = 0.1\nmax_total_mb = 0.3\n\
-             [[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 1\n",
+             compress = false\n[[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 1\n",
             dir.path().display().to_string()
         );
         let (svc, url, shutdown, http) = start_service(&text).await;
