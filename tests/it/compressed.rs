@@ -280,15 +280,16 @@ async fn retention_deletes_old_csv_gz_and_the_start_compresses_what_an_earlier_r
 /// "Disk per drive"): the service regulates the reference plant (sensor noise, brake-load steps) over Modbus
 /// loopback to the simulator while the target runs the demo program, and records `HYDROLENS_DISK_S` seconds
 /// (default 20) at each poll rate; each file is then compressed by the recorder's own `gz::compress`.
-/// `cargo test --release --test it -- compressed::disk_per_drive_per_day --ignored --nocapture`
+/// `cargo test --locked --test it -- compressed::disk_per_drive_per_day --ignored --nocapture`
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "a measurement: about 90 s"]
 async fn disk_per_drive_per_day() {
     let seconds: u64 = std::env::var("HYDROLENS_DISK_S").ok().and_then(|s| s.parse().ok()).unwrap_or(20);
     println!(
-        "| poll | rows recorded | bytes/row, .csv | bytes/row, .csv.gz | ratio | per day, .csv | per day, .csv.gz |"
+        "| poll | rows | bytes/row, .csv | bytes/row, .csv.gz | ratio | per day, .csv | per day, .csv.gz | compressing |"
     );
-    println!("|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|");
+    let mut sample = Vec::new();
     for poll_ms in [1u64, 2, 5, 10] {
         let (_sim, modbus, sim_stop, sim_task) = support::start_sim(PlantModel::reference(), 0).await;
         let dir = tempfile::tempdir().expect("tmp");
@@ -311,21 +312,46 @@ async fn disk_per_drive_per_day() {
         let _ = tokio::time::timeout(Duration::from_secs(10), http).await;
         sim_stop.cancel();
         let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await;
-        let (mut rows, mut plain, mut packed) = (0u64, 0u64, 0u64);
+        let (mut rows, mut plain, mut packed, mut compress_s) = (0u64, 0u64, 0u64, 0.0);
         for path in recording::drive_files(dir.path(), "pump1").expect("recorded") {
             rows += recording::load(&path).expect("valid").len() as u64;
+            if sample.is_empty() {
+                sample = std::fs::read(&path).expect("read");
+            }
             plain += std::fs::metadata(&path).expect("meta").len();
+            let t0 = std::time::Instant::now();
             let gz = recording::gz::compress(&path).expect("compresses");
+            compress_s += t0.elapsed().as_secs_f64();
             packed += std::fs::metadata(&gz).expect("meta").len();
         }
-        assert!(rows > seconds * 100, "{rows} rows");
+        assert!(rows > seconds * 1000 / poll_ms / 2, "{rows} rows");
         let (per_row, per_row_gz) = (plain as f64 / rows as f64, packed as f64 / rows as f64);
         let rows_per_day = 86_400_000.0 / poll_ms as f64;
         println!(
-            "| {poll_ms} ms | {rows} | {per_row:.1} | {per_row_gz:.1} | {:.2} | {:.2} GB | {:.2} GB |",
+            "| {poll_ms} ms | {rows} | {per_row:.1} | {per_row_gz:.1} | {:.2} | {:.2} GB | {:.2} GB | {:.0} MB/s |",
             per_row / per_row_gz,
             per_row * rows_per_day / 1e9,
-            per_row_gz * rows_per_day / 1e9
+            per_row_gz * rows_per_day / 1e9,
+            plain as f64 / 1e6 / compress_s
         );
     }
+    // a whole 64 MB file (the default max_file_mb) as the recorder compresses it: the 1 ms recording's rows, repeated
+    let dir = tempfile::tempdir().expect("tmp");
+    let big = dir.path().join("pump1-1.csv");
+    let header_end = sample.iter().position(|&b| b == b'\n').expect("header") + 1;
+    let mut text = sample.clone();
+    while text.len() < 64 << 20 {
+        text.extend_from_slice(&sample[header_end..]);
+    }
+    std::fs::write(&big, &text).expect("write");
+    let t0 = std::time::Instant::now();
+    let gz = recording::gz::compress(&big).expect("compresses");
+    let took = t0.elapsed().as_secs_f64();
+    let packed = std::fs::metadata(&gz).expect("meta").len();
+    println!(
+        "a {:.1} MB file: compressed in {took:.2} s ({:.0} MB/s), to {:.1} MB",
+        text.len() as f64 / 1e6,
+        text.len() as f64 / 1e6 / took,
+        packed as f64 / 1e6
+    );
 }
