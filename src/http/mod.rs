@@ -482,13 +482,18 @@ async fn recordings(State(s): State<AppState>) -> Result<Json<serde_json::Value>
     Ok(Json(serde_json::json!({ "enabled": true, "files": files })))
 }
 
-/// A recording's file name: letters, digits, `-`, `_`, `.`, ending in `.csv`, never a path.
+/// A recording's file name: letters, digits, `-`, `_`, `.`, ending in `.csv` or `.csv.gz`, never a path.
 fn valid_file_name(name: &str) -> bool {
     name.len() <= 128
-        && name.ends_with(".csv")
+        && (name.ends_with(".csv") || name.ends_with(".csv.gz"))
         && !name.starts_with('.')
         && !name.contains("..")
         && name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '-' | '_' | '.'))
+}
+
+/// The media type of a recording file, by its name.
+fn content_type(name: &str) -> &'static str {
+    if name.ends_with(".gz") { "application/gzip" } else { "text/csv; charset=utf-8" }
 }
 
 async fn recording_file(State(s): State<AppState>, Path(file): Path<String>) -> Result<Response, ApiError> {
@@ -503,7 +508,8 @@ async fn recording_file(State(s): State<AppState>, Path(file): Path<String>) -> 
     match read {
         Ok(Some(bytes)) => Ok((
             [
-                (header::CONTENT_TYPE, "text/csv; charset=utf-8".to_string()),
+                // a compressed recording goes as the file it is (no Content-Encoding: saved, it stays .csv.gz)
+                (header::CONTENT_TYPE, content_type(&file).to_string()),
                 (header::CONTENT_DISPOSITION, format!("attachment; filename=\"{file}\"")),
             ],
             bytes,
@@ -542,6 +548,8 @@ mod tests {
     fn recording_names_are_never_paths() {
         assert!(valid_file_name("pump1-1700000000000.csv"));
         assert!(valid_file_name("pump1-1700000000000-1.csv"));
+        assert!(valid_file_name("pump1-1700000000000-1.csv.gz"));
+        assert!(!valid_file_name(".pump1-1700000000000.csv.gz.tmp") && !valid_file_name("pump1-1.gz"));
         for bad in ["../etc/passwd", "a/b.csv", ".hidden.csv", "x..csv", "x.txt", "%2e%2e.csv", ""] {
             assert!(!valid_file_name(bad), "{bad}");
         }

@@ -1,29 +1,54 @@
 //! Opening a recording whose last line may have been cut mid-row (the service stopped, or the disk filled, while
 //! a row was being written): the bytes after the last newline are dropped with a warning, so every reader sees
 //! whole lines. A cut anywhere else is still the parser's error. Our writers end every row with a newline.
+//! A compressed recording (gzip, told by its first bytes whatever its name) is read through [`super::gz`], which
+//! drops a cut last line, or the rest of a stream cut short, the same way.
 
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom, Take};
 use std::path::Path;
 
+use flate2::read::MultiGzDecoder;
+
 use super::RecordingError;
+use super::gz::{self, WholeLines};
 
-/// A recording file as the readers take it: the file up to its last newline.
-pub type RecordingFile = Take<File>;
+/// A recording file as the readers take it: its text up to its last newline.
+pub struct RecordingFile(Text);
 
-/// Opens `path`, leaving out a last line that has no newline.
+enum Text {
+    Plain(Take<File>),
+    Gzip(Box<WholeLines<MultiGzDecoder<File>>>),
+}
+
+impl Read for RecordingFile {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        match &mut self.0 {
+            Text::Plain(f) => f.read(buf),
+            Text::Gzip(g) => g.read(buf),
+        }
+    }
+}
+
+/// Opens `path`, leaving out a last line that has no newline; a gzip file is decompressed as it is read.
 pub fn open(path: &Path) -> Result<RecordingFile, RecordingError> {
     let name = path.display().to_string();
     let io = |source| RecordingError::Io { path: name.clone(), source };
     let mut file = File::open(path).map_err(io)?;
     let len = file.metadata().map_err(io)?.len();
+    let mut head = [0u8; 2];
+    let got = file.read(&mut head).map_err(io)?;
+    if gz::starts_gzip(&head[..got]) {
+        file.seek(SeekFrom::Start(0)).map_err(io)?;
+        return Ok(RecordingFile(Text::Gzip(Box::new(gz::decoder(file, &name)))));
+    }
     let keep = whole_lines_len(&mut file, len).map_err(io)?;
     if keep < len {
         tracing::warn!(recording = %name, dropped_bytes = len - keep,
             "the last line was cut mid-row (writing was interrupted): dropped it");
     }
     file.seek(SeekFrom::Start(0)).map_err(io)?;
-    Ok(file.take(keep))
+    Ok(RecordingFile(Text::Plain(file.take(keep))))
 }
 
 /// The length up to and including the last newline: `len` when the file ends with one, is empty, or has none at

@@ -55,28 +55,43 @@ pub fn join(mut parts: Vec<Recording>) -> Result<Recording, RecordingError> {
     Ok(Recording::from_columns(&source, names, columns))
 }
 
-/// The files `<drive>-<unix ms>[-<n>].csv` the service wrote for `drive` in `dir`, oldest first.
+/// Where `name` sorts among `drive`'s recording files `<drive>-<unix ms>[-<n>].csv[.gz]`: the stamp and the
+/// counter, and whether it is compressed; None for any other name (`pump1-…` never picks up `pump1-a-…`).
+pub fn drive_file_key(name: &str, drive: &str) -> Option<(Vec<u64>, bool)> {
+    let rest = name.strip_prefix(drive)?.strip_prefix('-')?;
+    let (stem, compressed) = match rest.strip_suffix(".csv.gz") {
+        Some(stem) => (stem, true),
+        None => (rest.strip_suffix(".csv")?, false),
+    };
+    // the stamp and an optional counter, all digits
+    if stem.split('-').any(|p| p.is_empty() || !p.bytes().all(|b| b.is_ascii_digit())) {
+        return None;
+    }
+    let key: Vec<u64> = stem.split('-').map(|p| p.parse().ok()).collect::<Option<_>>()?;
+    (key.len() <= 2).then_some((key, compressed))
+}
+
+/// The files `<drive>-<unix ms>[-<n>].csv[.gz]` the service wrote for `drive` in `dir`, oldest first. A file
+/// found both plain and compressed (compressing was cut short after its rename) is taken once, plain.
 pub fn drive_files(dir: &Path, drive: &str) -> Result<Vec<PathBuf>, RecordingError> {
     let io = |source| RecordingError::Io { path: dir.display().to_string(), source };
-    let prefix = format!("{drive}-");
-    let mut found: Vec<(Vec<u64>, PathBuf)> = Vec::new();
+    let mut found: Vec<((Vec<u64>, bool), PathBuf)> = Vec::new();
     for entry in std::fs::read_dir(dir).map_err(io)? {
         let entry = entry.map_err(io)?;
         let name = entry.file_name().to_string_lossy().into_owned();
-        let Some(stem) = name.strip_prefix(&prefix).and_then(|r| r.strip_suffix(".csv")) else { continue };
-        // the stamp and an optional counter, all digits: `pump1-…` never picks up `pump1-a-…`
-        let key: Option<Vec<u64>> = stem.split('-').map(|p| p.parse().ok()).collect();
-        if let Some(key) = key.filter(|k| !k.is_empty() && k.len() <= 2) {
+        if let Some(key) = drive_file_key(&name, drive) {
             found.push((key, entry.path()));
         }
     }
     if found.is_empty() {
         return Err(RecordingError::File {
             path: dir.display().to_string(),
-            message: format!("no recording of drive `{drive}` (files named {drive}-<unix ms>.csv)"),
+            message: format!("no recording of drive `{drive}` (files named {drive}-<unix ms>.csv or .csv.gz)"),
         });
     }
     found.sort();
+    // plain sorts before compressed: a compressed twin follows its plain file
+    found.dedup_by(|b, a| a.0.0 == b.0.0);
     Ok(found.into_iter().map(|f| f.1).collect())
 }
 
@@ -141,13 +156,24 @@ mod tests {
     #[test]
     fn finds_a_drives_files_and_nothing_else() {
         let dir = tempfile::tempdir().expect("tmp");
-        for n in ["pump1-200.csv", "pump1-100.csv", "pump1-200-1.csv", "pump1-a-5.csv", "pump10-1.csv", "x.csv"] {
+        for n in [
+            "pump1-200.csv",
+            "pump1-100.csv.gz",
+            "pump1-200-1.csv",
+            "pump1-200-1.csv.gz",
+            "pump1-300.csv.gz",
+            ".pump1-400.csv.gz.tmp",
+            "pump1-a-5.csv",
+            "pump1-5.csv.gz.tmp",
+            "pump10-1.csv",
+            "x.csv",
+        ] {
             std::fs::write(dir.path().join(n), "t_s\n0\n").expect("write");
         }
         let files = drive_files(dir.path(), "pump1").expect("found");
         let names: Vec<String> =
             files.iter().map(|p| p.file_name().expect("name").to_string_lossy().into_owned()).collect();
-        assert_eq!(names, vec!["pump1-100.csv", "pump1-200.csv", "pump1-200-1.csv"]);
+        assert_eq!(names, vec!["pump1-100.csv.gz", "pump1-200.csv", "pump1-200-1.csv", "pump1-300.csv.gz"]);
         let e = drive_files(dir.path(), "pump2").expect_err("none").to_string();
         assert!(e.contains("pump2"), "{e}");
     }

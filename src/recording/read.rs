@@ -19,10 +19,13 @@ pub enum RecordingError {
 }
 
 impl RecordingError {
-    /// True when the user can fix it: the file's content, or a path that does not exist (exit code 2).
+    /// True when the user can fix it: the file's content (corrupt compressed data too), or a path that does not
+    /// exist (exit code 2).
     pub fn is_bad_input(&self) -> bool {
         match self {
-            RecordingError::Io { source, .. } => source.kind() == std::io::ErrorKind::NotFound,
+            RecordingError::Io { source, .. } => {
+                matches!(source.kind(), std::io::ErrorKind::NotFound | std::io::ErrorKind::InvalidData)
+            }
             _ => true,
         }
     }

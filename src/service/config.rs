@@ -84,6 +84,8 @@ struct RawRecording {
     max_total_mb: Option<f64>,
     /// Closed recordings older than this are deleted; absent: kept.
     keep_days: Option<f64>,
+    /// Closed files are gzip-compressed to `.csv.gz`.
+    compress: bool,
 }
 
 impl Default for RawRecording {
@@ -95,6 +97,7 @@ impl Default for RawRecording {
             rotate_hours: 1.0,
             max_total_mb: None,
             keep_days: None,
+            compress: true,
         }
     }
 }
@@ -255,6 +258,8 @@ pub struct RecordingSettings {
     pub max_total_bytes: Option<u64>,
     /// Closed recordings older than this go.
     pub keep: Option<Duration>,
+    /// Closed files are compressed to `<name>.csv.gz`, off the poll loop; readers take either.
+    pub compress: bool,
 }
 
 /// Plausible ranges of decoded values; anything outside (or non-finite) is rejected before the estimator.
@@ -450,6 +455,7 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
         rotate_after: Duration::from_secs_f64(hours * 3600.0),
         max_total_bytes,
         keep,
+        compress: r.compress,
     };
 
     if raw.drives.is_empty() {

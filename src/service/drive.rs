@@ -539,6 +539,8 @@ impl DriveLoop {
             lost.inc_by(h.rows_lost.saturating_sub(lost.get()));
             let deleted = self.metrics.recording_files_deleted.get_or_create(l);
             deleted.inc_by(h.files_deleted.saturating_sub(deleted.get()));
+            let compressed = self.metrics.recording_files_compressed.get_or_create(l);
+            compressed.inc_by(h.files_compressed.saturating_sub(compressed.get()));
         }
         // skipped when a reader holds it: the next cycle publishes again
         let _ = self.state.publish(DriveSnapshot {

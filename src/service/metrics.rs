@@ -71,6 +71,7 @@ pub struct Metrics {
     pub recording_errors: Family<DriveLabel, Counter>,
     pub recording_rows_lost: Family<DriveLabel, Counter>,
     pub recording_files_deleted: Family<DriveLabel, Counter>,
+    pub recording_files_compressed: Family<DriveLabel, Counter>,
     /// The HTTP side's (no drive label): open connections, wrong tokens, requests refused while throttled.
     pub http_connections: Gauge,
     pub http_auth_failures: Counter,
@@ -109,6 +110,7 @@ impl Metrics {
             recording_errors: Family::default(),
             recording_rows_lost: Family::default(),
             recording_files_deleted: Family::default(),
+            recording_files_compressed: Family::default(),
             http_connections: Gauge::default(),
             http_auth_failures: Counter::default(),
             http_auth_throttled: Counter::default(),
@@ -176,6 +178,11 @@ impl Metrics {
             "recording_files_deleted",
             "Old recordings deleted by retention (max_total_mb, keep_days)",
             m.recording_files_deleted.clone(),
+        );
+        r.register(
+            "recording_files_compressed",
+            "Closed recordings compressed to .csv.gz (recording.compress)",
+            m.recording_files_compressed.clone(),
         );
         r.register("http_connections", "Open HTTP connections", m.http_connections.clone());
         r.register("http_auth_failures", "Write requests with a wrong Bearer token", m.http_auth_failures.clone());

@@ -75,7 +75,7 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
                     max_bytes: r.max_total_bytes.map(|t| t / settings.drives.len().max(1) as u64),
                     keep: r.keep,
                 };
-                Some(Recorder::start(dir, &d.name, r.rotate_after, r.max_file_bytes, retention)?)
+                Some(Recorder::start(dir, &d.name, r.rotate_after, r.max_file_bytes, retention, r.compress)?)
             }
             None => None,
         };

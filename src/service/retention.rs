@@ -1,4 +1,5 @@
-//! Retention of a drive's recordings: the oldest closed files go first, when they are older than
+//! Retention of a drive's recordings (plain and compressed alike, each counted at its size on disk): the oldest
+//! closed files go first, when they are older than
 //! `recording.keep_days` or while the drive's files together exceed its share of `recording.max_total_mb`; the open
 //! file never goes. [`expired`] is the pure choice, [`prune`] lists the directory and deletes.
 
@@ -42,11 +43,9 @@ pub fn expired(mut files: Vec<FileInfo>, open: Option<&Path>, rule: Retention, n
     out
 }
 
-/// Whether `name` is one of `drive`'s recording files: `<drive>-<digits>[-<digits>].csv`.
+/// Whether `name` is one of `drive`'s recording files: `<drive>-<digits>[-<digits>].csv[.gz]`.
 fn is_drive_file(name: &str, drive: &str) -> bool {
-    let Some(rest) = name.strip_prefix(drive).and_then(|r| r.strip_prefix('-')) else { return false };
-    let Some(stem) = rest.strip_suffix(".csv") else { return false };
-    !stem.is_empty() && stem.split('-').all(|p| !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit()))
+    crate::recording::drive_file_key(name, drive).is_some()
 }
 
 /// Deletes what [`expired`] chooses among `drive`'s files in `dir`; returns how many went. Each deletion is logged.
@@ -104,7 +103,16 @@ mod tests {
     fn only_the_drives_own_files() {
         assert!(is_drive_file("pump1-1700000000000.csv", "pump1"));
         assert!(is_drive_file("pump1-1700000000000-2.csv", "pump1"));
-        for other in ["pump1-b-1700000000000.csv", "pump12-1.csv", "pump1-.csv", "pump1-1.txt", "x.csv"] {
+        assert!(is_drive_file("pump1-1700000000000-2.csv.gz", "pump1"));
+        for other in [
+            "pump1-b-1700000000000.csv",
+            "pump12-1.csv",
+            "pump1-.csv",
+            "pump1-1.txt",
+            "x.csv",
+            ".pump1-1.csv.gz.tmp",
+            "pump1-1.gz",
+        ] {
             assert!(!is_drive_file(other, "pump1"), "{other}");
         }
     }

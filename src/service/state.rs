@@ -145,6 +145,8 @@ pub struct RecordingHealth {
     pub last_error: Option<String>,
     /// Old recordings deleted by retention.
     pub files_deleted: u64,
+    /// Closed recordings compressed to `.csv.gz` (`recording.compress`).
+    pub files_compressed: u64,
 }
 
 /// Requests from the HTTP side, taken by the loop at its next cycle.

@@ -223,15 +223,16 @@ async fn recording_download_serves_only_regular_files_inside_the_directory() {
     let secret = outside.path().join("secret.csv");
     std::fs::write(&secret, "t_s\nSECRET\n").expect("write");
     std::os::unix::fs::symlink(&secret, dir.path().join("link.csv")).expect("symlink");
-    std::fs::write(dir.path().join("pump1-1.csv"), "t_s\n1\n").expect("write");
-    std::os::unix::fs::symlink(dir.path().join("pump1-1.csv"), dir.path().join("inner-link.csv")).expect("symlink");
+    // not a file of the drive `pump1`, so the recorder does not compress it as an earlier run's leftover
+    std::fs::write(dir.path().join("bench-1.csv"), "t_s\n1\n").expect("write");
+    std::os::unix::fs::symlink(dir.path().join("bench-1.csv"), dir.path().join("inner-link.csv")).expect("symlink");
     std::fs::create_dir(dir.path().join("dir.csv")).expect("mkdir");
     let fifo = std::process::Command::new("mkfifo").arg(dir.path().join("fifo.csv")).status().expect("mkfifo");
     assert!(fifo.success());
     let s = Svc::start_in(dir, "127.0.0.1:9".parse().expect("addr"), "", "").await;
     let client = reqwest::Client::builder().timeout(Duration::from_secs(5)).build().expect("client");
     let get = |f: &str| client.get(format!("{}/api/recordings/{f}", s.url)).send();
-    let ok = get("pump1-1.csv").await.expect("answered");
+    let ok = get("bench-1.csv").await.expect("answered");
     assert_eq!(ok.status(), 200);
     assert_eq!(ok.text().await.expect("body"), "t_s\n1\n");
     for f in ["link.csv", "inner-link.csv", "fifo.csv", "dir.csv"] {
@@ -242,7 +243,7 @@ async fn recording_download_serves_only_regular_files_inside_the_directory() {
     let list: serde_json::Value =
         client.get(format!("{}/api/recordings", s.url)).send().await.expect("list").json().await.expect("json");
     let names: Vec<&str> = list["files"].as_array().expect("files").iter().filter_map(|f| f["name"].as_str()).collect();
-    assert!(names.contains(&"pump1-1.csv"), "{names:?}");
+    assert!(names.contains(&"bench-1.csv"), "{names:?}");
     for f in ["link.csv", "inner-link.csv", "fifo.csv", "dir.csv"] {
         assert!(!names.contains(&f), "{f} listed: {names:?}");
     }
@@ -646,7 +647,7 @@ async fn retention_keeps_the_recordings_within_max_total_mb_and_never_deletes_th
         std::fs::write(dir.path().join("pump1-b-1000.csv"), "t_s\n1\n").expect("write");
         let text = format!(
             "[http]\nbind = \"127.0.0.1:0\"\n[recording]\ndir = {:?}\nmax_file_mb = 0.1\nmax_total_mb = 0.3\n\
-             [[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 1\n",
+             compress = false\n[[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 1\n",
             dir.path().display().to_string()
         );
         let (svc, shutdown) = start_service(&text).await;

@@ -190,7 +190,9 @@ async fn recordings_hold_every_fresh_sample_and_are_readable() {
         );
         let bad = reqwest::get(format!("{}/api/recordings/..%2Fsecret.csv", stack.url)).await.expect("GET");
         assert!(bad.status().is_client_error());
-        let dir = stack.stop().await; // closes the file: every row written
+        let dir = stack.stop().await; // closes the file: every row written, then compressed (recording.compress)
+        assert!(!dir.path().join(&name).exists(), "the closed file was compressed");
+        let name = format!("{name}.gz");
         let rec = hydrolens::recording::load(&dir.path().join(&name)).expect("a valid recording");
         assert!(rec.len() > 100, "{} rows", rec.len());
         for col in hydrolens::service::state::COLUMNS {

@@ -1,0 +1,233 @@
+//! Compressed recordings: a closed file `<name>.csv` becomes `<name>.csv.gz` (gzip, which pandas and every shell
+//! tool open as it is), and readers take either. Compression goes through a temporary file that is synced and
+//! renamed before the original goes, so a process that dies mid-way loses nothing: it leaves the original and at
+//! most a temporary `.<name>.csv.gz.tmp`, which the service removes on start.
+
+use std::fs::File;
+use std::io::{BufWriter, ErrorKind, Read};
+use std::path::{Path, PathBuf};
+
+use flate2::Compression;
+use flate2::read::MultiGzDecoder;
+use flate2::write::GzEncoder;
+
+/// The first two bytes of every gzip stream (RFC 1952).
+pub const GZIP_MAGIC: [u8; 2] = [0x1f, 0x8b];
+
+/// The suffix a compressed recording has beyond the plain file's name.
+pub const GZ_SUFFIX: &str = ".gz";
+
+/// The temporary name `path` is compressed under: hidden, and never taken for a recording.
+pub fn temp_path(path: &Path) -> PathBuf {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    path.with_file_name(format!(".{name}{GZ_SUFFIX}.tmp"))
+}
+
+/// Whether `name` is a temporary file left by compressing one of `drive`'s recordings.
+pub fn is_temp_of(name: &str, drive: &str) -> bool {
+    name.strip_prefix('.').and_then(|n| n.strip_prefix(drive)).is_some_and(|n| n.starts_with('-'))
+        && name.ends_with(".csv.gz.tmp")
+}
+
+/// Compresses the closed recording `path` to `path` + `.gz` and removes `path`; returns the new path. On failure
+/// `path` is untouched and no temporary file is left. An existing `.gz` of the same name (from a run that died
+/// after its rename) is replaced.
+pub fn compress(path: &Path) -> std::io::Result<PathBuf> {
+    let mut gz = path.as_os_str().to_owned();
+    gz.push(GZ_SUFFIX);
+    let gz = PathBuf::from(gz);
+    let temp = temp_path(path);
+    let written = (|| {
+        let mut source = File::open(path)?;
+        let out = File::create(&temp)?;
+        let mut encoder = GzEncoder::new(BufWriter::with_capacity(1 << 16, out), Compression::default());
+        std::io::copy(&mut source, &mut encoder)?;
+        let out = encoder.finish()?.into_inner().map_err(std::io::IntoInnerError::into_error)?;
+        out.sync_all()
+    })();
+    if let Err(e) = written.and_then(|()| std::fs::rename(&temp, &gz)) {
+        let _ = std::fs::remove_file(&temp);
+        return Err(e);
+    }
+    // the rename reaches the disk before the original goes
+    if let Some(dir) = gz.parent().filter(|d| !d.as_os_str().is_empty()) {
+        File::open(dir)?.sync_all()?;
+    }
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != ErrorKind::NotFound => Err(e),
+        _ => Ok(gz),
+    }
+}
+
+/// Whether the file starts as a gzip stream does.
+pub fn starts_gzip(head: &[u8]) -> bool {
+    head.starts_with(&GZIP_MAGIC)
+}
+
+/// The text of a compressed recording, up to its last newline: a last line cut mid-row, or a gzip stream cut
+/// short (the process died, or the disk filled, while it was written), is dropped with a warning. Corrupt data is
+/// an error of kind `InvalidData` naming the line it follows.
+pub fn decoder(file: File, origin: &str) -> WholeLines<MultiGzDecoder<File>> {
+    WholeLines::new(MultiGzDecoder::new(file), origin)
+}
+
+/// Hands out the text of `inner` a whole line at a time (see [`decoder`]).
+pub struct WholeLines<R> {
+    inner: R,
+    origin: String,
+    buf: Vec<u8>,
+    /// `buf[start..ready]` is whole lines not yet handed out; `buf[ready..end]` a line still being read.
+    start: usize,
+    ready: usize,
+    end: usize,
+    done: bool,
+    /// Newlines read so far, for messages.
+    lines: u64,
+}
+
+impl<R: Read> WholeLines<R> {
+    pub fn new(inner: R, origin: &str) -> WholeLines<R> {
+        WholeLines {
+            inner,
+            origin: origin.to_string(),
+            buf: vec![0; 1 << 17],
+            start: 0,
+            ready: 0,
+            end: 0,
+            done: false,
+            lines: 0,
+        }
+    }
+
+    /// The end of the text: a partial last line goes, with a warning, unless the text has no newline at all (a
+    /// header alone: the parser says what is wrong with it).
+    fn finish(&mut self, cut_stream: bool) {
+        self.done = true;
+        let tail = self.end - self.ready;
+        if cut_stream {
+            tracing::warn!(recording = %self.origin, line = self.lines + 1, dropped_bytes = tail,
+                "the compressed stream was cut short (writing was interrupted): kept the rows before it");
+        } else if tail > 0 && self.lines > 0 {
+            tracing::warn!(recording = %self.origin, dropped_bytes = tail,
+                "the last line was cut mid-row (writing was interrupted): dropped it");
+        } else {
+            self.ready = self.end;
+        }
+    }
+}
+
+impl<R: Read> Read for WholeLines<R> {
+    fn read(&mut self, out: &mut [u8]) -> std::io::Result<usize> {
+        loop {
+            if self.start < self.ready {
+                let n = out.len().min(self.ready - self.start);
+                out[..n].copy_from_slice(&self.buf[self.start..self.start + n]);
+                self.start += n;
+                return Ok(n);
+            }
+            if self.done || out.is_empty() {
+                return Ok(0);
+            }
+            // the partial line to the front, room behind it
+            self.buf.copy_within(self.ready..self.end, 0);
+            self.end -= self.ready;
+            (self.start, self.ready) = (0, 0);
+            if self.end == self.buf.len() {
+                self.buf.resize(2 * self.buf.len(), 0);
+            }
+            match self.inner.read(&mut self.buf[self.end..]) {
+                Ok(0) => self.finish(false),
+                Ok(n) => {
+                    let new = &self.buf[self.end..self.end + n];
+                    if let Some(i) = memchr::memrchr(b'\n', new) {
+                        self.lines += memchr::memchr_iter(b'\n', new).count() as u64;
+                        self.ready = self.end + i + 1;
+                    }
+                    self.end += n;
+                }
+                Err(e) if e.kind() == ErrorKind::Interrupted => {}
+                Err(e) if e.kind() == ErrorKind::UnexpectedEof => self.finish(true),
+                Err(e) => {
+                    return Err(std::io::Error::new(
+                        ErrorKind::InvalidData,
+                        format!("corrupt gzip data after line {}: {e}", self.lines),
+                    ));
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::Write;
+
+    fn gzip(text: &[u8]) -> Vec<u8> {
+        let mut e = GzEncoder::new(Vec::new(), Compression::default());
+        e.write_all(text).expect("compress");
+        e.finish().expect("finish")
+    }
+
+    fn read_all(bytes: Vec<u8>) -> std::io::Result<String> {
+        let mut s = String::new();
+        WholeLines::new(MultiGzDecoder::new(bytes.as_slice()), "t").read_to_string(&mut s)?;
+        Ok(s)
+    }
+
+    #[test]
+    fn whole_lines_pass_and_a_cut_tail_goes() {
+        assert_eq!(read_all(gzip(b"t_s,a\n1,2\n")).expect("reads"), "t_s,a\n1,2\n");
+        assert_eq!(read_all(gzip(b"t_s,a\n1,2\n3,")).expect("reads"), "t_s,a\n1,2\n");
+        assert_eq!(read_all(gzip(b"t_s,a")).expect("reads"), "t_s,a");
+        assert_eq!(read_all(gzip(b"")).expect("reads"), "");
+        // lines longer than the buffer
+        let long = format!("t_s,a\n{}\n", "1".repeat(300_000));
+        assert_eq!(read_all(gzip(long.as_bytes())).expect("reads"), long);
+    }
+
+    #[test]
+    fn a_stream_cut_short_keeps_the_whole_lines_before_the_cut() {
+        let text: String = (0..20_000).map(|k| format!("{k},{}\n", k * 7)).collect();
+        let text = format!("t_s,a\n{text}");
+        let full = gzip(text.as_bytes());
+        for keep in [full.len() - 4, full.len() / 2, 100] {
+            let got = read_all(full[..keep].to_vec()).expect("a cut stream reads");
+            assert!(
+                text.starts_with(&got) && got.ends_with('\n'),
+                "{keep}: {:?}",
+                &got[got.len().saturating_sub(20)..]
+            );
+        }
+    }
+
+    #[test]
+    fn corrupt_data_is_invalid_data() {
+        let text: String = (0..20_000).map(|k| format!("{k},{}\n", k * 7)).collect();
+        let mut bytes = gzip(text.as_bytes());
+        let n = bytes.len();
+        for b in &mut bytes[n / 2..n / 2 + 16] {
+            *b ^= 0x55;
+        }
+        let e = read_all(bytes).expect_err("corrupt");
+        assert_eq!(e.kind(), ErrorKind::InvalidData, "{e}");
+        assert!(e.to_string().contains("after line"), "{e}");
+    }
+
+    #[test]
+    fn compress_replaces_the_file_and_leaves_no_temporary() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let plain = dir.path().join("pump1-1.csv");
+        std::fs::write(&plain, "t_s,a\n1,2\n").expect("write");
+        let gz = compress(&plain).expect("compresses");
+        assert_eq!(gz, dir.path().join("pump1-1.csv.gz"));
+        assert!(!plain.exists() && !temp_path(&plain).exists());
+        let mut s = String::new();
+        MultiGzDecoder::new(File::open(&gz).expect("open")).read_to_string(&mut s).expect("gunzip");
+        assert_eq!(s, "t_s,a\n1,2\n");
+        assert!(compress(&dir.path().join("missing.csv")).is_err());
+        assert_eq!(std::fs::read_dir(dir.path()).expect("dir").count(), 1);
+        assert!(is_temp_of(".pump1-1.csv.gz.tmp", "pump1"));
+        assert!(!is_temp_of(".pump12-1.csv.gz.tmp", "pump1") && !is_temp_of("pump1-1.csv.gz", "pump1"));
+    }
+}
