@@ -49,7 +49,7 @@ fn wearing_plant() -> PlantModel {
 /// 120 s of the wearing plant on the test stand (after 300 s of wear), kept as the service keeps its ring: the
 /// recorder's columns, every 5th plant sample (5 ms), no load column (the load is unknown).
 fn window_120_s_at_5_ms() -> Recording {
-    let rec = hydrolens::plant::simulate::test_stand(&wearing_plant(), 420.0, 3, &mut |_| {}).expect("simulable");
+    let rec = hydrolens::recording::simulated::test_stand(&wearing_plant(), 420.0, 3, &mut |_| {}).expect("simulable");
     let t = rec.t_s();
     let from = t.partition_point(|v| *v < 300.0);
     let names = service::state::COLUMNS;

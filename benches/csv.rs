@@ -4,6 +4,7 @@
 #[path = "support/cpu_time.rs"]
 mod cpu_time;
 
+use hydrolens::recording::simulated;
 use std::hint::black_box;
 use std::time::Duration;
 
@@ -16,7 +17,7 @@ use hydrolens::recording::{self, Recording, RowWriter};
 fn recording_of(rows: usize) -> Recording {
     let model = PlantModel::reference();
     let duration_s = (rows - 1) as f64 * model.sample_s();
-    let rec = simulate::test_stand(&model, duration_s, 1, &mut |_| {}).expect("reference plant is hydraulic");
+    let rec = simulated::test_stand(&model, duration_s, 1, &mut |_| {}).expect("reference plant is hydraulic");
     assert_eq!(rec.len(), rows);
     rec
 }

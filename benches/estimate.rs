@@ -7,12 +7,13 @@
 #[path = "support/cpu_time.rs"]
 mod cpu_time;
 
+use hydrolens::recording::simulated;
 use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use hydrolens::estimator::{self, EstimatorSettings, Method, Plan, Replayer};
-use hydrolens::plant::{PlantModel, simulate};
+use hydrolens::plant::PlantModel;
 use hydrolens::recording::{self, Batch, StreamReader};
 
 const ROWS: usize = 100_000;
@@ -20,7 +21,7 @@ const ROWS: usize = 100_000;
 fn bench_estimate(c: &mut Criterion<cpu_time::Clock>) {
     let model = PlantModel::reference();
     let duration_s = (ROWS - 1) as f64 * model.sample_s();
-    let rec = simulate::test_stand(&model, duration_s, 1, &mut |_| {}).expect("reference plant is hydraulic");
+    let rec = simulated::test_stand(&model, duration_s, 1, &mut |_| {}).expect("reference plant is hydraulic");
     let mut text = Vec::new();
     recording::write_csv(&mut text, &rec).expect("writing to memory");
 
@@ -81,7 +82,7 @@ fn bench_estimate(c: &mut Criterion<cpu_time::Clock>) {
 fn bench_estimate_file(c: &mut Criterion) {
     let model = PlantModel::reference();
     let duration_s = (ROWS - 1) as f64 * model.sample_s();
-    let rec = simulate::test_stand(&model, duration_s, 1, &mut |_| {}).expect("reference plant is hydraulic");
+    let rec = simulated::test_stand(&model, duration_s, 1, &mut |_| {}).expect("reference plant is hydraulic");
     let dir = tempfile::tempdir().expect("temporary directory");
     let path = dir.path().join("rec.csv");
     let mut text = Vec::new();

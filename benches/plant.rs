@@ -4,11 +4,12 @@
 #[path = "support/cpu_time.rs"]
 mod cpu_time;
 
+use hydrolens::recording::simulated;
 use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use hydrolens::plant::{Coefficients, Plant, PlantModel, simulate};
+use hydrolens::plant::{Coefficients, Plant, PlantModel};
 
 fn bench_plant(c: &mut Criterion<cpu_time::Clock>) {
     let model = PlantModel::reference();
@@ -43,7 +44,7 @@ fn bench_plant(c: &mut Criterion<cpu_time::Clock>) {
         let samples = (seconds / model.sample_s()) as u64 + 1;
         g.throughput(Throughput::Elements(samples));
         g.bench_function(format!("test_stand_{seconds}s"), |b| {
-            b.iter(|| simulate::test_stand(&model, black_box(seconds), 1, &mut |_| {}).expect("hydraulic").len())
+            b.iter(|| simulated::test_stand(&model, black_box(seconds), 1, &mut |_| {}).expect("hydraulic").len())
         });
     }
     g.finish();

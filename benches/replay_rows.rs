@@ -7,12 +7,13 @@
 //! usage: `cargo bench --bench replay_rows -- [REC.csv [REPEATS (5)] [METHOD (rls-sgd)] [MODEL (config/plant.toml)]]`;
 //! without a recording (as in `cargo bench`), a test-stand run of the model, 100 k rows, simulated in memory.
 
+use hydrolens::recording::simulated;
 use std::hint::black_box;
 use std::path::Path;
 use std::time::Instant;
 
 use hydrolens::estimator::{self, EstimatorSettings, Method, Plan, Replayer};
-use hydrolens::plant::{PlantModel, simulate};
+use hydrolens::plant::PlantModel;
 
 const BATCH_ROWS: usize = 4096;
 
@@ -34,7 +35,7 @@ fn main() {
     };
     let rec = match args.first() {
         Some(path) => hydrolens::recording::load(Path::new(path)).expect("recording"),
-        None => simulate::test_stand(&model, 99_999.0 * model.sample_s(), 1, &mut |_| {}).expect("a hydraulic model"),
+        None => simulated::test_stand(&model, 99_999.0 * model.sample_s(), 1, &mut |_| {}).expect("a hydraulic model"),
     };
     let plan = Plan::choose(rec.names(), |ask| ask.iter().map(|c| rec.present(c).is_some()).collect());
     let columns: Vec<&[f64]> = plan.columns().iter().map(|c| rec.column(c).expect("a column of the plan")).collect();

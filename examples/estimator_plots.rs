@@ -4,8 +4,9 @@
 //! `[estimator]` table (e.g. `eta=0.05`), for trying settings.
 
 use hydrolens::estimator::{self, Estimate, EstimatorSettings, Method};
-use hydrolens::plant::{PlantModel, simulate};
+use hydrolens::plant::PlantModel;
 use hydrolens::recording::Recording;
+use hydrolens::recording::simulated;
 use plotters::prelude::*;
 
 const SCORE_FROM_S: f64 = 5.0;
@@ -51,7 +52,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let (j_factor, b_factor) = (factor("j=", 1.3), factor("b=", 0.7));
     let seed = args.iter().find_map(|a| a.strip_prefix("seed=")).and_then(|s| s.parse().ok()).unwrap_or(7);
-    let rec = simulate::test_stand(&truth, 60.0, seed, &mut |_| {}).map_err(|e| format!("{e:?}"))?;
+    let rec = simulated::test_stand(&truth, 60.0, seed, &mut |_| {}).map_err(|e| format!("{e:?}"))?;
     let t = rec.t_s().to_vec();
     let true_w = rec.column("true_omega_rad_s").ok_or("true_omega")?.to_vec();
     let true_l = rec.column("true_load_nm").ok_or("true_load")?.to_vec();

@@ -6,7 +6,8 @@
 //! The rooms, and which may use which (a room uses only those listed before it):
 //! - [`units`], [`error`]: conversions and the bad-input marker shared by everyone.
 //! - [`plant`]: PURE physics (model file, effects, loads, RK4 integrator, test-stand run). No clock, no I/O.
-//! - [`recording`]: the contract's CSV, read strictly and written streaming with rotation.
+//! - [`recording`]: the contract's CSV, read strictly and written streaming with rotation; a simulated run kept as
+//!   a recording (`recording::simulated`).
 //! - [`modbus`]: the register map (pure), the client, and the plant simulator server.
 //! - [`estimator`]: PURE RLS+SGD and Kalman estimators; fed Δt and samples.
 //! - [`replay_file`]: `hydrolens estimate`: a recording file streamed through an estimator into a CSV, two threads.

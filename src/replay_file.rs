@@ -578,7 +578,7 @@ impl Drop for Output {
 mod tests {
     use super::*;
     use crate::estimator::{EstimatorSettings, Method, try_build};
-    use crate::plant::simulate;
+    use crate::recording::simulated;
 
     fn estimator(method: Method) -> Box<dyn Estimator> {
         let settings = EstimatorSettings { method, ..EstimatorSettings::default() };
@@ -587,7 +587,7 @@ mod tests {
 
     /// A test-stand recording of `seconds` as CSV text.
     fn stand_csv(seconds: f64) -> String {
-        let rec = simulate::test_stand(&PlantModel::reference(), seconds, 7, &mut |_| {}).expect("simulate");
+        let rec = simulated::test_stand(&PlantModel::reference(), seconds, 7, &mut |_| {}).expect("simulate");
         let mut text = Vec::new();
         crate::recording::write_csv(&mut text, &rec).expect("to memory");
         String::from_utf8(text).expect("UTF-8")

@@ -1161,7 +1161,7 @@ mod tests {
         let mut m = noiseless(PlantModel::reference());
         m.effects.dead_time = Some(DeadTime { ms: 12.4 });
         m.effects.stribeck_friction = Some(StribeckFriction { breakaway_nm: 1.0, speed_rad_s: 2.0 });
-        let rec = crate::plant::simulate::test_stand(&m, 30.0, 1, &mut |_| {}).expect("simulable");
+        let rec = crate::recording::simulated::test_stand(&m, 30.0, 1, &mut |_| {}).expect("simulable");
         let s = Series::extract(&rec, &m, 0.3).expect("signals");
         let p = predict::predict(&m, &s, s.len()).expect("prediction");
         let e = predict::errors(&p, &s, 0, s.len());

@@ -5,7 +5,8 @@
 use super::{Estimate, EstimatorSettings, Measurement, Method, try_build};
 use crate::plant::PlantModel;
 use crate::plant::scenario::Scenario;
-use crate::plant::simulate::{self, Inputs};
+use crate::plant::simulate::Inputs;
+use crate::recording::simulated;
 use crate::units::{bar_to_pa, cm3_per_rev_to_m3_per_rad};
 
 /// Scores start this long after the start: both estimators begin from a standstill guess.
@@ -83,7 +84,7 @@ pub fn poll(scenario: &Scenario, truth: &PlantModel, poll_ms: u32) -> Polled {
     let inputs = Inputs { setpoint_hz: &|t| scenario.setpoint_hz(t), load_nm: &|t| scenario.load.torque_nm(t) };
     let mut model = truth.clone();
     model.sensors.sample_ms = 1.0;
-    let rec = match simulate::run(&model, scenario.duration_s, scenario.seed, &inputs, &mut |_| {}) {
+    let rec = match simulated::run(&model, scenario.duration_s, scenario.seed, &inputs, &mut |_| {}) {
         Ok(rec) => rec,
         Err((key, msg)) => unreachable!("the battery's plant is valid: {key}: {msg}"),
     };

@@ -1,13 +1,12 @@
-//! The offline test-stand run behind `hydrolens simulate`: the plant, the built-in program, noisy sensors.
+//! The offline test-stand run behind `hydrolens simulate`: the plant, the built-in program, noisy sensors. Rows go
+//! to a sink ([`run_into`]); `recording::simulated` keeps them as a recording.
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
 use super::dynamics::{Coefficients, Plant};
-use super::excitation;
 use super::model::PlantModel;
-use crate::recording::Recording;
 use crate::units::pa_to_bar;
 
 /// The columns `simulate` writes, in order (CONTRACT.md: measured columns, then `true_*`).
@@ -29,43 +28,6 @@ pub const COLUMNS: [&str; 11] = [
 pub struct Inputs<'a> {
     pub setpoint_hz: &'a dyn Fn(f64) -> f64,
     pub load_nm: &'a dyn Fn(f64) -> f64,
-}
-
-/// Runs the test stand for `duration_s` with the built-in setpoint program and the model's `[load]`
-/// (the brake-load steps for `recorded`). Deterministic for a seed.
-pub fn test_stand(
-    model: &PlantModel,
-    duration_s: f64,
-    seed: u64,
-    progress: &mut dyn FnMut(f64),
-) -> Result<Recording, (String, String)> {
-    let load = model.load.clone();
-    let inputs = Inputs { setpoint_hz: &excitation::setpoint_hz, load_nm: &move |t| load.torque_nm(t) };
-    run(model, duration_s, seed, &inputs, progress)
-}
-
-/// Runs the plant for `duration_s` with given inputs, sampling every `sensors.sample_ms`. Row k holds the state at
-/// t_k and the inputs applied over [t_k, t_k+1).
-pub fn run(
-    model: &PlantModel,
-    duration_s: f64,
-    seed: u64,
-    inputs: &Inputs<'_>,
-    progress: &mut dyn FnMut(f64),
-) -> Result<Recording, (String, String)> {
-    let n = (duration_s / model.sample_s()).floor() as usize + 1;
-    let mut columns: Vec<Vec<f64>> = (0..COLUMNS.len()).map(|_| Vec::with_capacity(n)).collect();
-    let mut sink = |row: &[f64; COLUMNS.len()]| {
-        for (col, v) in columns.iter_mut().zip(row) {
-            col.push(*v);
-        }
-        Ok(())
-    };
-    run_into(model, duration_s, seed, inputs, progress, &mut sink).map_err(|e| match e {
-        RunError::Model(key, msg) => (key, msg),
-        RunError::Sink(e) => ("(memory)".into(), e.to_string()),
-    })?;
-    Ok(Recording::from_columns("simulate", COLUMNS.iter().map(|c| c.to_string()).collect(), columns))
 }
 
 /// Why a streamed run stopped.
@@ -175,8 +137,13 @@ mod tests {
         worn.sensors.sample_ms = 1.0;
         let inputs = Inputs { setpoint_hz: &|_| 40.0, load_nm: &|_| 10.0 };
         let final_speed = |m: &PlantModel| -> f64 {
-            let rec = run(m, 20.0, 1, &inputs, &mut |_| {}).expect("runs");
-            let w = rec.column("true_omega_rad_s").expect("truth");
+            let truth = COLUMNS.iter().position(|c| *c == "true_omega_rad_s").expect("truth column");
+            let mut w = Vec::new();
+            let mut sink = |row: &[f64; COLUMNS.len()]| {
+                w.push(row[truth]);
+                Ok(())
+            };
+            run_into(m, 20.0, 1, &inputs, &mut |_| {}, &mut sink).expect("runs");
             w[w.len() - 500..].iter().sum::<f64>() / 500.0
         };
         // 3600 l/min/bar an hour is 0.001 per second: 0.02 after 20 s, as much again as the nominal leakage.

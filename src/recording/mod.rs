@@ -5,6 +5,7 @@ pub mod cut;
 pub mod gz;
 mod join;
 mod read;
+pub mod simulated;
 pub mod stream;
 mod write;
 

@@ -19,7 +19,7 @@ const RUN_S: f64 = 80.0;
 fn concealed(effect: impl Fn(&mut PlantModel), seed: u64) -> Analysis {
     let mut truth = PlantModel::reference();
     effect(&mut truth);
-    let rec = hydrolens::plant::simulate::test_stand(&truth, RUN_S, seed, &mut |_| {}).expect("simulable");
+    let rec = hydrolens::recording::simulated::test_stand(&truth, RUN_S, seed, &mut |_| {}).expect("simulable");
     analysis::analyze(&rec, &PlantModel::reference(), &Options::default(), &mut |_| {}).expect("analysable")
 }
 
@@ -176,7 +176,7 @@ fn concealed_on_slow_program(truth: &PlantModel, seed: u64, run_s: f64, slow_unt
     let setpoint = slow_at_times(seed, slow_until_s);
     let load = truth.load.clone();
     let inputs = hydrolens::plant::simulate::Inputs { setpoint_hz: &setpoint, load_nm: &move |t| load.torque_nm(t) };
-    let rec = hydrolens::plant::simulate::run(truth, run_s, seed, &inputs, &mut |_| {}).expect("simulable");
+    let rec = hydrolens::recording::simulated::run(truth, run_s, seed, &inputs, &mut |_| {}).expect("simulable");
     analysis::analyze(&rec, &PlantModel::reference(), &Options::default(), &mut |_| {}).expect("analysable")
 }
 
@@ -219,7 +219,7 @@ fn unexplained_locates_what_the_model_still_misses() {
     let setpoint = slow_at_times(41, 50.0);
     let load = truth.load.clone();
     let inputs = hydrolens::plant::simulate::Inputs { setpoint_hz: &setpoint, load_nm: &move |t| load.torque_nm(t) };
-    let rec = hydrolens::plant::simulate::run(&truth, 80.0, 41, &inputs, &mut |_| {}).expect("simulable");
+    let rec = hydrolens::recording::simulated::run(&truth, 80.0, 41, &inputs, &mut |_| {}).expect("simulable");
     let opts = Options { min_relative_drop: f64::INFINITY, ..Options::default() };
     let a = analysis::analyze(&rec, &PlantModel::reference(), &opts, &mut |_| {}).expect("analysable");
     assert!(a.findings.is_empty());

@@ -94,7 +94,8 @@ async fn the_service_compresses_each_closed_file_and_serves_it() {
 
 /// A short test-stand recording written as the service writes it, `rec.csv` and its gzip `rec.csv.gz`.
 fn recording_pair(dir: &Path) -> (PathBuf, PathBuf, Recording) {
-    let rec = hydrolens::plant::simulate::test_stand(&PlantModel::reference(), 30.0, 7, &mut |_| {}).expect("runs");
+    let rec =
+        hydrolens::recording::simulated::test_stand(&PlantModel::reference(), 30.0, 7, &mut |_| {}).expect("runs");
     let plain = dir.join("rec.csv");
     recording::write_csv(std::fs::File::create(&plain).expect("create"), &rec).expect("write");
     let gz = dir.join("rec.csv.gz");

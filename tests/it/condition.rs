@@ -35,7 +35,7 @@ fn window(rec: &Recording, from: f64, to: f64) -> Recording {
 /// Runs the checks over `seconds` of the plant, returning the monitor and the true leakage at each check's
 /// window centre.
 fn monitor(truth: &PlantModel, seconds: f64, seed: u64, limits: Limits) -> (Monitor, Vec<f64>) {
-    let rec = hydrolens::plant::simulate::test_stand(truth, seconds, seed, &mut |_| {}).expect("simulable");
+    let rec = hydrolens::recording::simulated::test_stand(truth, seconds, seed, &mut |_| {}).expect("simulable");
     let rec = as_the_service_records(&rec, POLL_MS, seed);
     let mut m = Monitor::new(limits);
     let mut centres = Vec::new();

@@ -1,11 +1,12 @@
 //! `hydrolens estimate` streams: its output is byte for byte the whole-recording path's (load, replay, RowWriter),
 //! for every shape of recording the contract allows, and its errors name file, line and column with exit code 2.
 
+use hydrolens::recording::simulated;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use hydrolens::estimator::{self, EstimatorSettings, Method};
-use hydrolens::plant::{PlantModel, simulate};
+use hydrolens::plant::PlantModel;
 use hydrolens::recording::{self, Recording, RowWriter};
 use proptest::prelude::*;
 
@@ -82,7 +83,7 @@ fn csv_of(rec: &Recording) -> String {
 }
 
 fn test_stand(seconds: f64) -> Recording {
-    simulate::test_stand(&PlantModel::reference(), seconds, 3, &mut |_| {}).expect("simulate")
+    simulated::test_stand(&PlantModel::reference(), seconds, 3, &mut |_| {}).expect("simulate")
 }
 
 /// Rewrites each line of CSV text: `cell(row, column, text)` gives the new cell (row 0 is the header).

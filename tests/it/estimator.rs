@@ -1,11 +1,12 @@
 //! The estimators against the simulator's ground truth, the `estimate` command end to end, and their invariants.
 
+use hydrolens::recording::simulated;
 use std::process::Command;
 
 use hydrolens::estimator::{
     self, Estimate, Estimator, EstimatorSettings, Kalman, Measurement, Method, PaperLiteral, RlsSgd,
 };
-use hydrolens::plant::simulate::{self, Inputs};
+use hydrolens::plant::simulate::Inputs;
 use hydrolens::plant::{LoadSpec, PlantModel};
 use hydrolens::recording::Recording;
 use proptest::prelude::*;
@@ -30,7 +31,7 @@ struct Score {
 fn test_stand(load: LoadSpec, seconds: f64) -> Recording {
     let mut truth = PlantModel::reference();
     truth.load = load;
-    simulate::test_stand(&truth, seconds, 7, &mut |_| {}).expect("simulate")
+    simulated::test_stand(&truth, seconds, 7, &mut |_| {}).expect("simulate")
 }
 
 /// Replays a recording through `method` with a nominal model whose J and B are scaled by the factors.
@@ -101,7 +102,7 @@ fn constant_operation(seconds: f64, load_nm: f64) -> Vec<Measurement> {
     let model = PlantModel::reference();
     let load = move |_t: f64| load_nm;
     let inputs = Inputs { setpoint_hz: &|_t| 30.0, load_nm: &load };
-    let rec = simulate::run(&model, seconds, 3, &inputs, &mut |_| {}).expect("run");
+    let rec = simulated::run(&model, seconds, 3, &inputs, &mut |_| {}).expect("run");
     estimator::replay::measurements(&rec, &model, "model").expect("measurements")
 }
 

@@ -1,6 +1,7 @@
 //! What a hostile tester found (issue 20), each as a test through real parts: a misbehaving Modbus device of our
 //! own (`device.rs`), real sockets on 127.0.0.1, the real router and config parser.
 
+use hydrolens::recording::simulated;
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -488,9 +489,9 @@ fn serve_with_a_recording_dir_that_is_a_file_exits_2_naming_the_key() {
 
 #[test]
 fn a_recording_cut_mid_row_at_its_end_is_read_without_that_line_and_a_cut_inside_is_an_error() {
-    use hydrolens::plant::{PlantModel, simulate};
+    use hydrolens::plant::PlantModel;
     use hydrolens::recording::{self, Batch, StreamReader};
-    let rec = simulate::test_stand(&PlantModel::reference(), 2.0, 3, &mut |_| {}).expect("simulate");
+    let rec = simulated::test_stand(&PlantModel::reference(), 2.0, 3, &mut |_| {}).expect("simulate");
     let mut text = Vec::new();
     recording::write_csv(&mut text, &rec).expect("write");
     let rows = rec.len();

@@ -63,7 +63,7 @@ pub fn as_the_service_records(rec: &Recording, poll_ms: usize, seed: u64) -> Rec
 pub fn no_load(effect: &dyn Fn(&mut PlantModel), seed: u64, poll_ms: usize) -> Analysis {
     let mut truth = PlantModel::reference();
     effect(&mut truth);
-    let rec = hydrolens::plant::simulate::test_stand(&truth, RUN_S, seed, &mut |_| {}).expect("simulable");
+    let rec = hydrolens::recording::simulated::test_stand(&truth, RUN_S, seed, &mut |_| {}).expect("simulable");
     let rec = as_the_service_records(&rec, poll_ms, seed);
     analysis::analyze(&rec, &PlantModel::reference(), &Options::default(), &mut |_| {}).expect("analysable")
 }
@@ -485,7 +485,7 @@ fn no_load_sweep_held_out_seeds() {
 fn without_a_setpoint_the_leak_is_found_and_the_dead_time_is_not_identified() {
     let mut truth = PlantModel::reference();
     truth.effects.internal_leakage = Some(InternalLeakage { l_min_per_bar: 0.012 });
-    let rec = hydrolens::plant::simulate::test_stand(&truth, RUN_S, 31, &mut |_| {}).expect("simulable");
+    let rec = hydrolens::recording::simulated::test_stand(&truth, RUN_S, 31, &mut |_| {}).expect("simulable");
     let mut rec = as_the_service_records(&rec, 5, 31);
     rec.set_column("f_set_hz", vec![f64::NAN; rec.len()]);
     let a = analysis::analyze(&rec, &PlantModel::reference(), &Options::default(), &mut |_| {}).expect("analysable");
@@ -504,7 +504,7 @@ fn without_a_setpoint_the_leak_is_found_and_the_dead_time_is_not_identified() {
 fn kind_unknown_is_the_load_unknown_and_a_torque_recording_needs_its_load() {
     let mut truth = PlantModel::reference();
     truth.effects.dead_time = Some(DeadTime { ms: 25.0 });
-    let rec = hydrolens::plant::simulate::test_stand(&truth, RUN_S, 32, &mut |_| {}).expect("simulable");
+    let rec = hydrolens::recording::simulated::test_stand(&truth, RUN_S, 32, &mut |_| {}).expect("simulable");
     let mut nominal = PlantModel::reference();
     nominal.load = hydrolens::plant::LoadSpec::Unknown;
     let a = analysis::analyze(&rec, &nominal, &Options::default(), &mut |_| {}).expect("analysable");
@@ -590,7 +590,7 @@ fn analyze_joins_files_and_refuses_what_cannot_be_joined() {
     let tmp = tempfile::tempdir().expect("tmp");
     let mut truth = PlantModel::reference();
     truth.effects.internal_leakage = Some(InternalLeakage { l_min_per_bar: 0.012 });
-    let rec = hydrolens::plant::simulate::test_stand(&truth, RUN_S, 33, &mut |_| {}).expect("simulable");
+    let rec = hydrolens::recording::simulated::test_stand(&truth, RUN_S, 33, &mut |_| {}).expect("simulable");
     let rec = as_the_service_records(&rec, 5, 33);
     // split in three as rotation would, written out of order
     let n = rec.len();

@@ -1,11 +1,12 @@
 //! The plant model against its own physics: steady states, each effect's signature, convergence, determinism,
 //! and an independent implementation of PHYSICS.md §1.
 
+use hydrolens::recording::simulated;
 use std::f64::consts::PI;
 
 use hydrolens::plant::dynamics::{Coefficients, Plant};
 use hydrolens::plant::effects::*;
-use hydrolens::plant::simulate::{self, Inputs};
+use hydrolens::plant::simulate::Inputs;
 use hydrolens::plant::{LoadSpec, PlantModel};
 use hydrolens::units::{bar_to_pa, cm3_per_rev_to_m3_per_rad, l_min_per_bar_to_si, pa_to_bar, rpm_to_rad_s};
 
@@ -169,9 +170,9 @@ fn integrator_agrees_with_a_much_finer_step() {
 #[test]
 fn runs_are_deterministic_by_seed() {
     let m = reference();
-    let a = simulate::test_stand(&m, 5.0, 7, &mut |_| {}).expect("run");
-    let b = simulate::test_stand(&m, 5.0, 7, &mut |_| {}).expect("run");
-    let c = simulate::test_stand(&m, 5.0, 8, &mut |_| {}).expect("run");
+    let a = simulated::test_stand(&m, 5.0, 7, &mut |_| {}).expect("run");
+    let b = simulated::test_stand(&m, 5.0, 7, &mut |_| {}).expect("run");
+    let c = simulated::test_stand(&m, 5.0, 8, &mut |_| {}).expect("run");
     assert_eq!(a, b);
     assert_ne!(a.column("omega_rad_s"), c.column("omega_rad_s"));
     assert_eq!(a.column("true_omega_rad_s"), c.column("true_omega_rad_s"), "noise never feeds back into the plant");
@@ -252,7 +253,7 @@ fn an_independent_implementation_agrees_with_simulate() {
         m
     };
     for model in [reference(), with_effects] {
-        let rec = simulate::test_stand(&model, 30.0, 3, &mut |_| {}).expect("run");
+        let rec = simulated::test_stand(&model, 30.0, 3, &mut |_| {}).expect("run");
         let f_set = rec.column("f_set_hz").expect("setpoint");
         let load = rec.column("true_load_nm").expect("load");
         let (omega, p_in) = independent(&model, f_set, load, model.sample_s());
@@ -271,7 +272,7 @@ fn an_independent_implementation_agrees_with_simulate() {
 fn simulate_inputs_drive_the_run() {
     let m = reference();
     let inputs = Inputs { setpoint_hz: &|t| if t > 0.5 { 25.0 } else { 0.0 }, load_nm: &|_| 3.0 };
-    let rec = simulate::run(&m, 4.0, 1, &inputs, &mut |_| {}).expect("run");
+    let rec = simulated::run(&m, 4.0, 1, &inputs, &mut |_| {}).expect("run");
     let f = rec.column("true_f_drive_hz").expect("f");
     assert_eq!(f[400], 0.0);
     assert!((f[3999] - 25.0).abs() < 1e-6);
