@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
-# The README's test command: installs from Debian what the tests drive when it is missing (today: chromium, for the
-# dashboard test), then runs the whole suite. Extra arguments go to `cargo test` (e.g. `-- --ignored`).
+# The README's test command: installs from Debian what the tests drive when it is missing (chromium, for the
+# dashboard test; socat, for the Modbus RTU tests' virtual serial line), then runs the whole suite. Extra arguments go to `cargo test` (e.g. `-- --ignored`).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 need=()
 command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || need+=(chromium)
+command -v socat >/dev/null 2>&1 || need+=(socat)
 if [ ${#need[@]} -gt 0 ]; then
   echo "tests/run.sh: installing ${need[*]} from Debian" >&2
   sudo_=""

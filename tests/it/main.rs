@@ -15,6 +15,7 @@ mod multi;
 mod noload;
 mod plant;
 mod proxy;
+mod rtu;
 mod service;
 mod simulator;
 mod soak;
