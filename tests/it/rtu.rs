@@ -171,6 +171,66 @@ async fn two_drives_on_one_line_take_turns() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_silent_device_does_not_starve_its_neighbour_on_the_line() {
+    let run = async {
+        let dir = tempfile::tempdir().expect("tmp");
+        let line = SocatLine::plug(dir.path());
+        let (sim, sim_stop) = serial_sim(&[1, 2]);
+        let (one, two) = (plant(&sim, 1), plant(&sim, 2));
+        let sim_task = spawn_serial(sim, &line.end("b"), &sim_stop);
+        let drives = format!(
+            "{}{}",
+            rtu_drive("vfd1", &line.end("a"), 1, 40, 30.0),
+            rtu_drive("vfd2", &line.end("a"), 2, 40, 20.0)
+        );
+        let (service, url, shutdown, http) = start_service(&service_text(dir.path(), &drives)).await;
+        assert!(regulates(&url, 0, &one, 30.0, Duration::from_secs(15)).await, "vfd1 regulates");
+        assert!(regulates(&url, 1, &two, 20.0, Duration::from_secs(15)).await, "vfd2 regulates");
+
+        // unit 2 stops answering: it goes stale and trips; unit 1 keeps being polled and regulated throughout
+        two.lock().faults.no_reply = true;
+        let polls_before = status(&url).await["drives"][0]["link"]["polls"].as_u64().unwrap_or(0);
+        let fresh_checks = std::sync::atomic::AtomicUsize::new(0);
+        let tripped = wait_for(Duration::from_secs(5), || {
+            let (url, two, checks) = (&url, &two, &fresh_checks);
+            async move {
+                let s = status(url).await;
+                assert_eq!(s["drives"][0]["link"]["stale"], false, "vfd1 went stale beside a silent vfd2: {s}");
+                checks.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                s["drives"][1]["link"]["stale"] == true && two.lock().truth().tripped
+            }
+        })
+        .await;
+        let fresh_checks = fresh_checks.into_inner();
+        assert!(tripped.is_some(), "vfd2 stale and tripped: {}", status(&url).await);
+        let s = status(&url).await;
+        assert!(s["drives"][1]["link"]["errors"].as_u64().unwrap_or(0) >= 1, "vfd2's timeouts counted: {s}");
+        assert!(s["drives"][0]["link"]["polls"].as_u64().unwrap_or(0) > polls_before + 10, "{s}");
+        assert!(fresh_checks > 10, "vfd1 checked {fresh_checks} times");
+        let t = one.lock().truth();
+        assert!(!t.tripped && (t.omega_rad_s - 30.0).abs() < 2.0, "vfd1 still regulated: {t:?}");
+        // the silent device is held back on its own: vfd1 keeps most of its polls (25 in a second at 40 ms)
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        let h: serde_json::Value = reqwest::get(format!("{url}/api/history?drive=vfd1&seconds=1"))
+            .await
+            .expect("GET history")
+            .json()
+            .await
+            .expect("json");
+        let samples = h["t_s"].as_array().map_or(0, Vec::len);
+        // measured: 25 with the device held back alone, 7 when the whole line backs off after each of its timeouts
+        assert!(samples >= 17, "vfd1 kept {samples} of 25 polls in the last second");
+        assert_eq!(readyz(&url).await, 503, "not ready while vfd2 is stale");
+
+        stop(service, shutdown, http).await;
+        sim_stop.cancel();
+        tokio::time::timeout(Duration::from_secs(5), sim_task).await.expect("sim stops").expect("sim task");
+        drop(line);
+    };
+    tokio::time::timeout(Duration::from_secs(40), run).await.expect("within 40 s");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_unplugged_line_goes_stale_trips_the_drive_and_comes_back() {
     let run = async {
         let dir = tempfile::tempdir().expect("tmp");
