@@ -346,3 +346,62 @@ fn configs_a_line_cannot_serve_are_refused() {
     let text = refused(dir.path(), "mixed.toml", &mixed);
     assert!(text.contains("one setting") && text.contains("vfd2"), "{text}");
 }
+
+/// A device that answers every read with zeros and notes when each request reached it.
+#[derive(Clone)]
+struct Stopwatch(std::sync::Arc<std::sync::Mutex<Vec<std::time::Instant>>>);
+
+impl tokio_modbus::server::Service for Stopwatch {
+    type Request = tokio_modbus::SlaveRequest<'static>;
+    type Response = tokio_modbus::Response;
+    type Exception = tokio_modbus::ExceptionCode;
+    type Future = std::future::Ready<Result<tokio_modbus::Response, tokio_modbus::ExceptionCode>>;
+
+    fn call(&self, req: Self::Request) -> Self::Future {
+        self.0.lock().unwrap_or_else(|e| e.into_inner()).push(std::time::Instant::now());
+        std::future::ready(match req.request {
+            tokio_modbus::Request::ReadInputRegisters(_, n) => {
+                Ok(tokio_modbus::Response::ReadInputRegisters(vec![0; usize::from(n)]))
+            }
+            _ => Err(tokio_modbus::ExceptionCode::IllegalFunction),
+        })
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn requests_on_a_line_keep_the_inter_frame_gap() {
+    use hydrolens::modbus::client::{DriveClient, Endpoint, open_serial};
+    use hydrolens::modbus::map::Table;
+    let run = async {
+        let dir = tempfile::tempdir().expect("tmp");
+        let line = SocatLine::plug(dir.path());
+        // at 9600 baud, even parity: 3.5 characters of 11 bits = 4.0 ms of silence between frames
+        let slow = SerialLine { baud_rate: 9600, parity: Parity::Even, stop_bits: 1 };
+        let gap = slow.inter_frame_gap();
+        assert!((gap.as_secs_f64() - 3.5 * 11.0 / 9600.0).abs() < 1e-6);
+        let seen = Stopwatch(Default::default());
+        let device = tokio_modbus::server::rtu::Server::new(
+            open_serial(&line.end("b").display().to_string(), &slow).expect("open b"),
+        );
+        let stop = CancellationToken::new();
+        let s = stop.clone();
+        let served = seen.clone();
+        let task = tokio::spawn(async move { device.serve_until(served, async move { s.cancelled().await }).await });
+        let endpoint = Endpoint::Serial { port: line.end("a").display().to_string(), line: slow };
+        let mut client = DriveClient::on(endpoint, 1, Duration::from_millis(500));
+        for _ in 0..20 {
+            client.read(Table::Input, 0, 6).await.expect("a reply");
+        }
+        client.close().await;
+        stop.cancel();
+        let _ = tokio::time::timeout(Duration::from_secs(5), task).await.expect("device stops");
+        let times = seen.0.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        assert_eq!(times.len(), 20);
+        // each request reached the device at least a gap after it had answered the one before (the answer went
+        // out after the time noted, so this is a lower bound that holds however slow the machine)
+        let shortest = times.windows(2).map(|w| w[1] - w[0]).min().expect("pairs");
+        assert!(shortest >= gap, "requests {shortest:?} apart, the gap is {gap:?}");
+        drop(line);
+    };
+    tokio::time::timeout(Duration::from_secs(20), run).await.expect("within 20 s");
+}
