@@ -405,3 +405,68 @@ async fn requests_on_a_line_keep_the_inter_frame_gap() {
     };
     tokio::time::timeout(Duration::from_secs(20), run).await.expect("within 20 s");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sim_serves_rtu_on_a_serial_device_from_the_command_line() {
+    use hydrolens::modbus::client::{ClientError, DriveClient, Endpoint};
+    use hydrolens::modbus::map::Table;
+    let dir = tempfile::tempdir().expect("tmp");
+    let line = SocatLine::plug(dir.path());
+    let bad = Command::new(bin())
+        .args(["sim", "--serial"])
+        .arg(line.end("b"))
+        .args(["--parity", "mark"])
+        .output()
+        .expect("runs");
+    assert_eq!(bad.status.code(), Some(2), "{}", String::from_utf8_lossy(&bad.stderr));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--parity"));
+    let mut sim = Command::new(bin())
+        .args(["sim", "--model"])
+        .arg(crate::support::root().join("config/plant.toml"))
+        .args(["--serial"])
+        .arg(line.end("b"))
+        .args(["--baud", "115200", "--parity", "even", "--units", "1,2"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("sim starts");
+    let run = async {
+        let a = line.end("a").display().to_string();
+        let endpoint = Endpoint::Serial { port: a, line: LINE };
+        let mut client = DriveClient::on(endpoint, 2, Duration::from_millis(100));
+        let mut answered = false;
+        for _ in 0..50 {
+            if client.read(Table::Input, 0, 6).await.is_ok() {
+                answered = true;
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        assert!(answered, "unit 2 answers");
+        // a unit id the simulator does not serve: nobody answers
+        client.set_unit_id(5);
+        let mut last = None;
+        for _ in 0..20 {
+            match client.read(Table::Input, 0, 6).await {
+                Err(ClientError::Backoff(d)) => tokio::time::sleep(d).await,
+                other => {
+                    last = Some(other);
+                    break;
+                }
+            }
+        }
+        assert!(matches!(last, Some(Err(ClientError::Timeout(_)))), "unit 5: {last:?}");
+        client.close().await;
+    };
+    let result = tokio::time::timeout(Duration::from_secs(20), run).await;
+    let _ = Command::new("kill").args(["-TERM", &sim.id().to_string()]).status();
+    let deadline = std::time::Instant::now() + Duration::from_secs(5);
+    while sim.try_wait().expect("wait").is_none() {
+        if std::time::Instant::now() > deadline {
+            let _ = sim.kill();
+            panic!("sim did not stop on SIGTERM");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    result.expect("within 20 s");
+}
