@@ -27,7 +27,7 @@ use drive::DriveLoop;
 use metrics::Metrics;
 use recorder::Recorder;
 use state::{DriveStatus, Link};
-use timing::TimingStats;
+use timing::{TimingStats, use_realtime_priority};
 
 /// The running poll loops.
 pub struct Service {
@@ -128,7 +128,21 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
         let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
         let stop = shutdown.clone();
         let name = format!("bus-{}", bus.endpoint().name().rsplit('/').next().unwrap_or("line"));
-        match std::thread::Builder::new().name(name).spawn(move || rt.block_on(bus.run(stop))) {
+        // the line serves its drives' poll threads: it runs at the highest real-time priority any of them asks for
+        let priority = settings
+            .drives
+            .iter()
+            .filter(|d| d.line().is_some_and(|(e, _)| e.same_line(bus.endpoint())))
+            .filter_map(|d| d.realtime_priority)
+            .max();
+        let what = name.clone();
+        let run = move || {
+            if let Some(p) = priority {
+                use_realtime_priority(p, &what);
+            }
+            rt.block_on(bus.run(stop))
+        };
+        match std::thread::Builder::new().name(name).spawn(run) {
             Ok(t) => threads.push(t),
             Err(e) => {
                 shutdown.cancel();
