@@ -509,8 +509,9 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
         if let Some(o) = drives.iter().find(|o: &&DriveSettings| {
             drive.mode.writes() && o.mode.writes() && o.address == drive.address && o.unit_id == drive.unit_id
         }) {
+            let key = if matches!(drive.transport, Transport::Rtu { .. }) { "serial_port" } else { "address" };
             return Err((
-                format!("drives[{i}].address"),
+                format!("drives[{i}].{key}"),
                 format!(
                     "{} with unit_id {} is already written by drive {:?}: two writing loops would fight over one \
                      drive (one may watch it in monitor mode)",
@@ -1029,6 +1030,10 @@ address = "127.0.0.1:5020"
         // one line, two settings
         let e = err(&format!("{}{}", rtu("a", 1, "poll_ms = 50"), rtu("b", 2, "poll_ms = 50\nbaud_rate = 9600")));
         assert!(e.contains("drives[1].serial_port") && e.contains("one setting") && e.contains("9600"), "{e}");
+        // two writing loops on one device of a line
+        let speed2 = speed.replace("name = \"a\"", "name = \"b\"").replace("poll_ms = 50", "poll_ms = 500");
+        let e = err(&format!("{}{speed2}", speed.replace("poll_ms = 50", "poll_ms = 500")));
+        assert!(e.contains("drives[1].serial_port") && e.contains("already written"), "{e}");
         // other ports are other lines
         let other = rtu("c", 3, "poll_ms = 50").replace("ttyUSB0", "ttyUSB1");
         parse(&format!("{two}{other}"), "t", None).expect("a second line");
