@@ -1,4 +1,4 @@
-//! hydrolens watches and drives an electro-hydraulic drive (VFD → pump → hydraulic motor) over Modbus TCP:
+//! hydrolens watches and drives an electro-hydraulic drive (VFD → pump → hydraulic motor) over Modbus TCP or RTU:
 //! it polls, estimates speed and load torque, regulates the speed, records, serves a dashboard, and explains
 //! where a plant model and a recording disagree.
 //!
@@ -8,7 +8,8 @@
 //! - [`plant`]: PURE physics (model file, effects, loads, RK4 integrator, test-stand run). No clock, no I/O.
 //! - [`recording`]: the contract's CSV, read strictly and written streaming with rotation; a simulated run kept as
 //!   a recording (`recording::simulated`).
-//! - [`modbus`]: the register map (pure), the client, and the plant simulator server.
+//! - [`modbus`]: the register map and the RTU line's timing (pure), the client (TCP, RTU, RTU over TCP), the bus task
+//!   that shares an RTU line among its drives, and the plant simulator server.
 //! - [`estimator`]: PURE RLS+SGD and Kalman estimators; fed Δt and samples.
 //! - [`replay_file`]: `hydrolens estimate`: a recording file streamed through an estimator into a CSV, two threads.
 //! - [`analysis`]: PURE mismatch analysis (fit, free-run residuals, effect search) + its HTML report at the edge.

@@ -21,7 +21,7 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// The plant simulator as a Modbus TCP server, in real time.
+    /// The plant simulator as a Modbus TCP server (or RTU on a serial device, or RTU over TCP), in real time.
     Sim {
         #[arg(long, default_value = "config/plant.toml")]
         model: PathBuf,
@@ -30,6 +30,25 @@ enum Command {
         /// Seed of the sensor noise.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// Serve Modbus RTU on this serial device instead of TCP (e.g. one end of a `socat` pty pair).
+        #[arg(long, conflicts_with = "rtu_over_tcp")]
+        serial: Option<String>,
+        /// The serial line's baud rate (with --serial).
+        #[arg(long, default_value_t = 19200, requires = "serial")]
+        baud: u32,
+        /// The serial line's parity: none, even or odd (with --serial).
+        #[arg(long, default_value = "even", requires = "serial")]
+        parity: String,
+        /// The serial line's stop bits: 1 or 2 (with --serial).
+        #[arg(long, default_value_t = 1, requires = "serial")]
+        stop_bits: u8,
+        /// Serve RTU framing over TCP on --listen (what a serial gateway passes through) instead of Modbus TCP.
+        #[arg(long)]
+        rtu_over_tcp: bool,
+        /// One plant per unit id, e.g. `--units 1,2` (several drives on one line); the others get no answer.
+        /// Default: one plant answering every unit id.
+        #[arg(long, value_delimiter = ',')]
+        units: Vec<u8>,
     },
     /// Offline test-stand run (setpoint steps and ramps, brake-load steps) written as a recording CSV.
     Simulate {
@@ -156,7 +175,14 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
-        Command::Sim { model, listen, seed } => sim(&model, &listen, seed),
+        Command::Sim { model, listen, seed, serial, baud, parity, stop_bits, rtu_over_tcp, units } => {
+            let transport = match serial {
+                Some(path) => SimTransport::Serial { path, baud, parity, stop_bits },
+                None if rtu_over_tcp => SimTransport::RtuOverTcp,
+                None => SimTransport::Tcp,
+            };
+            sim(&model, &listen, seed, transport, &units)
+        }
         Command::Simulate { model, duration, seed, out } => simulate(&model, duration, seed, &out),
         Command::Estimate { recording, model, out, flags } => estimate(&recording, &model, &out, &flags),
         Command::Analyze { recording, drive, model, json, report, model_out } => {
@@ -219,17 +245,48 @@ fn load_model(path: &Path) -> anyhow::Result<PlantModel> {
     Ok(PlantModel::load(path)?)
 }
 
-fn sim(model_path: &Path, listen: &str, seed: u64) -> anyhow::Result<()> {
+/// Where `sim` serves.
+enum SimTransport {
+    Tcp,
+    RtuOverTcp,
+    Serial { path: String, baud: u32, parity: String, stop_bits: u8 },
+}
+
+fn sim(model_path: &Path, listen: &str, seed: u64, transport: SimTransport, units: &[u8]) -> anyhow::Result<()> {
+    use hydrolens::modbus::line::{Parity, SerialLine};
     let model = load_model(model_path)?;
-    let simulator = Simulator::new(model, seed)
+    if let Some(u) = units.iter().find(|&&u| !(1..=247).contains(&u)) {
+        return Err(BadInput(format!("--units: unit id {u} is outside 1 ..= 247")).into());
+    }
+    let simulator = Simulator::with_units(model, seed, units)
         .map_err(|(key, msg)| BadInput(format!("model file {}: {key} {msg}", model_path.display())))?;
+    if let SimTransport::Serial { path, baud, parity, stop_bits } = transport {
+        if baud == 0 {
+            return Err(BadInput("--baud: must be positive, got 0".into()).into());
+        }
+        let parity = Parity::parse(&parity)
+            .ok_or_else(|| BadInput(format!("--parity {parity:?}: expected none, even or odd")))?;
+        if !(1..=2).contains(&stop_bits) {
+            return Err(BadInput(format!("--stop-bits {stop_bits}: expected 1 or 2")).into());
+        }
+        let line = SerialLine { baud_rate: baud, parity, stop_bits };
+        return runtime()?.block_on(async move {
+            eprintln!("hydrolens sim: plant simulator on modbus rtu {path} ({baud} baud, parity {})", parity.name());
+            simulator.run_serial(&path, line, shutdown_on_signal()).await.context("simulator")
+        });
+    }
     let addr: std::net::SocketAddr = listen
         .parse()
         .map_err(|e| BadInput(format!("--listen {listen:?}: not an address such as 127.0.0.1:5020 ({e})")))?;
     runtime()?.block_on(async move {
         let listener = tokio::net::TcpListener::bind(addr).await.with_context(|| format!("binding {addr}"))?;
-        eprintln!("hydrolens sim: plant simulator on modbus tcp://{}", listener.local_addr()?);
-        simulator.run(listener, shutdown_on_signal()).await.context("simulator")
+        if let SimTransport::RtuOverTcp = transport {
+            eprintln!("hydrolens sim: plant simulator on modbus rtu-over-tcp://{}", listener.local_addr()?);
+            simulator.run_rtu_over_tcp(listener, shutdown_on_signal()).await.context("simulator")
+        } else {
+            eprintln!("hydrolens sim: plant simulator on modbus tcp://{}", listener.local_addr()?);
+            simulator.run(listener, shutdown_on_signal()).await.context("simulator")
+        }
     })
 }
 

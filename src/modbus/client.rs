@@ -1,5 +1,6 @@
-//! The Modbus TCP client of one drive: every call under a timeout, the connection dropped after any failure and
-//! re-opened with capped exponential back-off.
+//! The Modbus client of one drive or one RTU line: every call under a timeout, the connection dropped after any
+//! failure and re-opened with capped exponential back-off. The same code speaks Modbus TCP, RTU on a serial port
+//! (with the inter-frame gap kept between requests) and RTU framing over TCP (serial gateways).
 //!
 //! tokio-modbus has no timeout of its own (upstream issue 113), and a reply that arrives after a timeout is taken
 //! as the answer to the next request (issue 324). So after a timeout, a transport error or a protocol error the
@@ -12,7 +13,38 @@ use tokio_modbus::client::{Client, Context};
 use tokio_modbus::{ExceptionCode, Slave};
 use tokio_modbus::{Request, Response};
 
+use super::line::{Parity, SerialLine};
 use super::map::Table;
+
+/// Where and how a client talks to its device(s).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Endpoint {
+    /// Modbus TCP to `host:port`.
+    Tcp(String),
+    /// RTU framing over a TCP connection to `host:port` (a serial gateway in transparent mode).
+    RtuOverTcp(String),
+    /// RTU on a serial port.
+    Serial { port: String, line: SerialLine },
+}
+
+impl Endpoint {
+    /// The address or serial port, for logs and errors.
+    pub fn name(&self) -> &str {
+        match self {
+            Endpoint::Tcp(a) | Endpoint::RtuOverTcp(a) => a,
+            Endpoint::Serial { port, .. } => port,
+        }
+    }
+
+    /// Whether two endpoints are one RTU line: the same serial port (whatever the settings), or the same gateway.
+    pub fn same_line(&self, other: &Endpoint) -> bool {
+        match (self, other) {
+            (Endpoint::Serial { port: a, .. }, Endpoint::Serial { port: b, .. }) => a == b,
+            (Endpoint::RtuOverTcp(a), Endpoint::RtuOverTcp(b)) => a == b,
+            _ => false,
+        }
+    }
+}
 
 /// The first back-off after a failure; it doubles up to [`BACKOFF_CAP`].
 pub const BACKOFF_START: Duration = Duration::from_millis(50);
@@ -53,9 +85,13 @@ impl ClientError {
     }
 }
 
-/// One drive's connection.
+/// One drive's connection, or one RTU line's (then [`DriveClient::set_unit_id`] picks the device of each call).
 pub struct DriveClient {
-    address: String,
+    endpoint: Endpoint,
+    /// The shortest silence between two frames on a serial line (none on TCP).
+    gap: Option<Duration>,
+    /// When the last exchange on the line ended: the next request waits out the gap from here.
+    line_quiet_since: Option<Instant>,
     unit_id: u8,
     call_timeout: Duration,
     ctx: Option<Context>,
@@ -67,10 +103,22 @@ pub struct DriveClient {
 }
 
 impl DriveClient {
-    /// A client that connects on first use. `address` is `host:port`; the host is resolved at each connect.
+    /// A Modbus TCP client that connects on first use. `address` is `host:port`; the host is resolved at each
+    /// connect.
     pub fn new(address: &str, unit_id: u8, call_timeout: Duration) -> DriveClient {
+        DriveClient::on(Endpoint::Tcp(address.to_string()), unit_id, call_timeout)
+    }
+
+    /// A client of any endpoint, connecting on first use.
+    pub fn on(endpoint: Endpoint, unit_id: u8, call_timeout: Duration) -> DriveClient {
+        let gap = match &endpoint {
+            Endpoint::Serial { line, .. } => Some(line.inter_frame_gap()),
+            _ => None,
+        };
         DriveClient {
-            address: address.to_string(),
+            endpoint,
+            gap,
+            line_quiet_since: None,
             unit_id,
             call_timeout,
             ctx: None,
@@ -86,23 +134,56 @@ impl DriveClient {
         self.ctx.is_some()
     }
 
+    /// The device the next calls go to (on a shared RTU line, set before each call).
+    pub fn set_unit_id(&mut self, unit_id: u8) {
+        self.unit_id = unit_id;
+        if let Some(ctx) = self.ctx.as_mut() {
+            tokio_modbus::slave::SlaveContext::set_slave(ctx, Slave(unit_id));
+        }
+    }
+
+    /// The timeout of the next calls (drives on a shared line may each have their own).
+    pub fn set_call_timeout(&mut self, call_timeout: Duration) {
+        self.call_timeout = call_timeout;
+    }
+
+    /// Forgets the back-off of the last failure: the next call reconnects at once. For a shared RTU line, where
+    /// the device that failed is kept back on its own and the others must not wait for it.
+    pub fn forgive(&mut self) {
+        self.next_attempt = None;
+        self.backoff = BACKOFF_START;
+    }
+
     async fn connect(&mut self) -> Result<(), ClientError> {
         if let Some(at) = self.next_attempt
             && Instant::now() < at
         {
             return Err(ClientError::Backoff(at - Instant::now()));
         }
-        let address = self.address.clone();
+        let endpoint = self.endpoint.clone();
         let slave = Slave(self.unit_id);
         let attempt = async move {
-            let mut last = None;
-            for addr in tokio::net::lookup_host(address.as_str()).await? {
-                match tokio_modbus::client::tcp::connect_slave(addr, slave).await {
-                    Ok(ctx) => return Ok(ctx),
-                    Err(e) => last = Some(e),
+            match endpoint {
+                Endpoint::Tcp(address) => {
+                    let mut last = None;
+                    for addr in tokio::net::lookup_host(address.as_str()).await? {
+                        match tokio_modbus::client::tcp::connect_slave(addr, slave).await {
+                            Ok(ctx) => return Ok(ctx),
+                            Err(e) => last = Some(e),
+                        }
+                    }
+                    Err(last.unwrap_or_else(|| std::io::Error::other("the name resolves to no address")))
+                }
+                Endpoint::RtuOverTcp(address) => {
+                    let stream = tokio::net::TcpStream::connect(address.as_str()).await?;
+                    stream.set_nodelay(true)?;
+                    Ok(tokio_modbus::client::rtu::attach_slave(stream, slave))
+                }
+                Endpoint::Serial { port, line } => {
+                    let port = open_serial(&port, &line)?;
+                    Ok(tokio_modbus::client::rtu::attach_slave(port, slave))
                 }
             }
-            Err(last.unwrap_or_else(|| std::io::Error::other("the name resolves to no address")))
         };
         match timeout(self.call_timeout, attempt).await {
             Ok(Ok(ctx)) => {
@@ -114,14 +195,15 @@ impl DriveClient {
                 // the back-off stays: a device that accepts and then answers garbage must not be reconnected
                 // to at full rate; [`DriveClient::good_poll`] resets it
                 self.next_attempt = None;
-                tracing::info!(address = %self.address, unit_id = self.unit_id, "modbus connected");
+                tracing::info!(address = %self.endpoint.name(), unit_id = self.unit_id, "modbus connected");
                 Ok(())
             }
             Ok(Err(e)) => {
-                Err(self.failed(ClientError::Connect { address: self.address.clone(), message: e.to_string() }))
+                Err(self
+                    .failed(ClientError::Connect { address: self.endpoint.name().to_string(), message: e.to_string() }))
             }
             Err(_) => Err(self.failed(ClientError::Connect {
-                address: self.address.clone(),
+                address: self.endpoint.name().to_string(),
                 message: format!("no answer within {:?}", self.call_timeout),
             })),
         }
@@ -130,7 +212,7 @@ impl DriveClient {
     /// Drops the connection and schedules the next attempt.
     fn failed(&mut self, err: ClientError) -> ClientError {
         if self.ctx.take().is_some() {
-            tracing::warn!(address = %self.address, error = %err, "modbus connection dropped");
+            tracing::warn!(address = %self.endpoint.name(), error = %err, "modbus connection dropped");
         }
         self.next_attempt = Some(Instant::now() + self.backoff);
         self.backoff = (self.backoff * 2).min(BACKOFF_CAP);
@@ -145,8 +227,16 @@ impl DriveClient {
         if self.ctx.is_none() {
             self.connect().await?;
         }
+        if let (Some(gap), Some(quiet)) = (self.gap, self.line_quiet_since) {
+            // RTU: a frame ends with 3.5 characters of silence; a request sent sooner would run into the last reply
+            tokio::time::sleep_until(quiet + gap).await;
+        }
         let Some(ctx) = self.ctx.as_mut() else { return Err(ClientError::Backoff(self.backoff)) };
-        match timeout(self.call_timeout, f(ctx)).await {
+        let result = timeout(self.call_timeout, f(ctx)).await;
+        if self.gap.is_some() {
+            self.line_quiet_since = Some(Instant::now());
+        }
+        match result {
             Ok(Ok(Ok(v))) => Ok(v),
             Ok(Ok(Err(code))) => Err(ClientError::Exception(code)),
             Ok(Err(tokio_modbus::Error::Transport(e))) => Err(self.failed(ClientError::Transport(e))),
@@ -198,10 +288,33 @@ impl DriveClient {
         self.backoff = BACKOFF_START;
     }
 
+    /// The endpoint this client talks to.
+    pub fn endpoint(&self) -> &Endpoint {
+        &self.endpoint
+    }
+
     /// Closes the connection (on shutdown).
     pub async fn close(&mut self) {
         if let Some(mut ctx) = self.ctx.take() {
             let _ = timeout(self.call_timeout, tokio_modbus::client::Client::disconnect(&mut ctx)).await;
         }
     }
+}
+
+/// Opens a serial port for RTU: 8 data bits, the line's parity and stop bits, no flow control.
+pub fn open_serial(port: &str, line: &SerialLine) -> std::io::Result<tokio_serial::SerialStream> {
+    use tokio_serial::SerialPortBuilderExt;
+    let parity = match line.parity {
+        Parity::None => tokio_serial::Parity::None,
+        Parity::Even => tokio_serial::Parity::Even,
+        Parity::Odd => tokio_serial::Parity::Odd,
+    };
+    let stop_bits = if line.stop_bits == 2 { tokio_serial::StopBits::Two } else { tokio_serial::StopBits::One };
+    tokio_serial::new(port, line.baud_rate)
+        .data_bits(tokio_serial::DataBits::Eight)
+        .parity(parity)
+        .stop_bits(stop_bits)
+        .flow_control(tokio_serial::FlowControl::None)
+        .open_native_async()
+        .map_err(std::io::Error::from)
 }

@@ -10,6 +10,8 @@ use serde::Deserialize;
 use super::freshness::RateLimits;
 use crate::control::{FeedForward, Gains, Limits, Mode};
 use crate::estimator::{EstimatorSettings, Method};
+use crate::modbus::client::Endpoint;
+use crate::modbus::line::{MAX_LINE_LOAD, Parity, SerialLine, line_load, read_frames, write_frames};
 use crate::modbus::map::{RegisterMap, RegisterSpec, Table, ValueType, WordOrder};
 use crate::plant::PlantModel;
 use crate::plant::dynamics::Coefficients;
@@ -106,7 +108,17 @@ impl Default for RawRecording {
 #[serde(deny_unknown_fields)]
 struct RawDrive {
     name: String,
-    address: String,
+    /// `host:port`: the device (tcp) or the serial gateway (rtu-over-tcp); none for rtu.
+    address: Option<String>,
+    /// "tcp" (default) | "rtu" | "rtu-over-tcp".
+    transport: Option<String>,
+    /// rtu: the serial device (drives with the same one share the line and take turns).
+    serial_port: Option<String>,
+    /// The serial line's settings (rtu, and the gateway's line for rtu-over-tcp): they size the inter-frame gap
+    /// and the line-capacity check. Signed, so that a negative value gets a message of its own.
+    baud_rate: Option<i64>,
+    parity: Option<String>,
+    stop_bits: Option<i64>,
     #[serde(default = "one_u8")]
     unit_id: u8,
     #[serde(default = "ten")]
@@ -273,10 +285,23 @@ pub struct ValidRanges {
     pub rates: RateLimits,
 }
 
+/// How a drive is reached.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Transport {
+    /// Modbus TCP to `address`.
+    Tcp,
+    /// Modbus RTU on a serial port, shared with the other drives on the same port.
+    Rtu { serial_port: String, line: SerialLine },
+    /// RTU framing over TCP to a serial gateway at `address` (the gateway's line has the settings given).
+    RtuOverTcp { line: SerialLine },
+}
+
 #[derive(Debug, Clone)]
 pub struct DriveSettings {
     pub name: String,
+    /// `host:port` (tcp, rtu-over-tcp) or the serial port (rtu): where the drive is, as the status shows it.
     pub address: String,
+    pub transport: Transport,
     pub unit_id: u8,
     pub poll: Duration,
     pub timeout: Duration,
@@ -299,6 +324,29 @@ pub struct DriveSettings {
 }
 
 impl DriveSettings {
+    /// The RTU line this drive is on (its serial port, or its gateway's address), with the line's settings;
+    /// None over Modbus TCP.
+    pub fn line(&self) -> Option<(Endpoint, SerialLine)> {
+        match &self.transport {
+            Transport::Tcp => None,
+            Transport::Rtu { serial_port, line } => {
+                Some((Endpoint::Serial { port: serial_port.clone(), line: *line }, *line))
+            }
+            Transport::RtuOverTcp { line } => Some((Endpoint::RtuOverTcp(self.address.clone()), *line)),
+        }
+    }
+
+    /// The RTU frames (request bytes, reply bytes) of one poll cycle at most: the reads, and the writes in a
+    /// writing mode (the setpoint may change every cycle).
+    pub fn cycle_frames(&self) -> Vec<(usize, usize)> {
+        let mut frames: Vec<(usize, usize)> =
+            super::drive::read_plan(&self.registers).iter().map(|&(_, _, count)| read_frames(count)).collect();
+        if self.mode.writes() {
+            frames.extend(super::drive::write_layout(&self.registers).iter().map(|&(_, n)| write_frames(n)));
+        }
+        frames
+    }
+
     /// The speed the drive reaches at `max_hz` with no load: the largest target that makes sense.
     pub fn max_target_omega_rad_s(&self) -> f64 {
         self.feed_forward.omega_rad_s(self.limits.max_hz)
@@ -470,8 +518,9 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
         if let Some(o) = drives.iter().find(|o: &&DriveSettings| {
             drive.mode.writes() && o.mode.writes() && o.address == drive.address && o.unit_id == drive.unit_id
         }) {
+            let key = if matches!(drive.transport, Transport::Rtu { .. }) { "serial_port" } else { "address" };
             return Err((
-                format!("drives[{i}].address"),
+                format!("drives[{i}].{key}"),
                 format!(
                     "{} with unit_id {} is already written by drive {:?}: two writing loops would fight over one \
                      drive (one may watch it in monitor mode)",
@@ -481,8 +530,160 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
         }
         drives.push(drive);
     }
+    check_lines(&drives)?;
     let mqtt = raw.mqtt.map(super::mqtt::validate).transpose()?;
     Ok(Settings { http, recording, drives, mqtt })
+}
+
+/// The drives on each RTU line: one setting per line, and no more traffic than the line can carry.
+fn check_lines(drives: &[DriveSettings]) -> Result<(), Invalid> {
+    let mut lines: Vec<(Endpoint, Vec<usize>)> = Vec::new();
+    for (i, d) in drives.iter().enumerate() {
+        let Some((endpoint, _)) = d.line() else { continue };
+        match lines.iter_mut().find(|(e, _)| e.same_line(&endpoint)) {
+            Some((_, members)) => members.push(i),
+            None => lines.push((endpoint, vec![i])),
+        }
+    }
+    let line_key = |i: usize| match drives[i].transport {
+        Transport::Rtu { .. } => format!("drives[{i}].serial_port"),
+        _ => format!("drives[{i}].address"),
+    };
+    let describe =
+        |l: &SerialLine| format!("{} baud, parity {}, {} stop bit(s)", l.baud_rate, l.parity.name(), l.stop_bits);
+    for (endpoint, members) in &lines {
+        let first = &drives[members[0]];
+        let Some((_, line)) = first.line() else { continue };
+        for &i in &members[1..] {
+            if let Some((_, other)) = drives[i].line()
+                && other != line
+            {
+                return Err((
+                    line_key(i),
+                    format!(
+                        "drive {:?} is on {} with {}, but drive {:?} on the same line has {}: a line has one \
+                         setting",
+                        drives[i].name,
+                        endpoint.name(),
+                        describe(&other),
+                        first.name,
+                        describe(&line)
+                    ),
+                ));
+            }
+        }
+        let each: Vec<(Vec<(usize, usize)>, Duration)> =
+            members.iter().map(|&i| (drives[i].cycle_frames(), drives[i].poll)).collect();
+        let load = line_load(&line, &each);
+        if load > MAX_LINE_LOAD {
+            let names: Vec<String> = members
+                .iter()
+                .zip(&each)
+                .map(|(&i, one)| {
+                    format!(
+                        "{:?} (poll_ms {}: {:.0} %)",
+                        drives[i].name,
+                        drives[i].poll.as_millis(),
+                        100.0 * line_load(&line, std::slice::from_ref(one))
+                    )
+                })
+                .collect();
+            return Err((
+                line_key(members[members.len() - 1]),
+                format!(
+                    "the line {} ({}) cannot carry drives {}: together they need {:.0} % of its time, at most {:.0} % \
+                     is allowed; poll less often (poll_ms), raise baud_rate, or move drives to another line",
+                    endpoint.name(),
+                    describe(&line),
+                    names.join(", "),
+                    100.0 * load,
+                    100.0 * MAX_LINE_LOAD
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The transport keys of a drive, validated: `(transport, address)`, where the address is the serial port for rtu.
+fn validate_transport(d: &RawDrive, key: &dyn Fn(&str) -> String) -> Result<(Transport, String), Invalid> {
+    let kind = d.transport.as_deref().unwrap_or("tcp");
+    let serial_given = [
+        ("serial_port", d.serial_port.is_some()),
+        ("baud_rate", d.baud_rate.is_some()),
+        ("parity", d.parity.is_some()),
+        ("stop_bits", d.stop_bits.is_some()),
+    ];
+    let host_port = |address: &Option<String>| match address.as_deref() {
+        None => Err((key("address"), format!("is required with transport = {kind:?} (host:port)"))),
+        Some(a) => match a.rsplit_once(':') {
+            Some((host, port)) if !host.is_empty() && port.parse::<u16>().is_ok() => Ok(a.to_string()),
+            _ => Err((key("address"), format!("{a:?} is not host:port such as 127.0.0.1:5020"))),
+        },
+    };
+    let line = || -> Result<SerialLine, Invalid> {
+        let mut line = SerialLine::default();
+        if let Some(b) = d.baud_rate {
+            if b <= 0 {
+                return Err((key("baud_rate"), format!("must be positive, got {b}")));
+            }
+            line.baud_rate =
+                u32::try_from(b).map_err(|_| (key("baud_rate"), format!("must be at most {}, got {b}", u32::MAX)))?;
+        }
+        if let Some(p) = &d.parity {
+            line.parity = Parity::parse(p)
+                .ok_or_else(|| (key("parity"), format!("{p:?}: expected \"none\", \"even\" or \"odd\"")))?;
+        }
+        if let Some(s) = d.stop_bits {
+            if !(1..=2).contains(&s) {
+                return Err((key("stop_bits"), format!("must be 1 or 2, got {s}")));
+            }
+            line.stop_bits = s as u8;
+        }
+        Ok(line)
+    };
+    let rtu_unit = || {
+        if (1..=247).contains(&d.unit_id) {
+            Ok(())
+        } else {
+            Err((key("unit_id"), format!("must be 1 ..= 247 on an RTU line (0 is broadcast), got {}", d.unit_id)))
+        }
+    };
+    match kind {
+        "tcp" => {
+            if let Some((k, _)) = serial_given.iter().find(|(_, given)| *given) {
+                return Err((key(k), "is for transport = \"rtu\" or \"rtu-over-tcp\"; this drive is on tcp".into()));
+            }
+            Ok((Transport::Tcp, host_port(&d.address)?))
+        }
+        "rtu" => {
+            if d.address.is_some() {
+                return Err((
+                    key("address"),
+                    "is for tcp and rtu-over-tcp; an rtu drive is reached on serial_port".into(),
+                ));
+            }
+            let Some(port) = d.serial_port.clone().filter(|p| !p.is_empty()) else {
+                return Err((key("serial_port"), "is required with transport = \"rtu\" (e.g. /dev/ttyUSB0)".into()));
+            };
+            let line = line()?;
+            rtu_unit()?;
+            Ok((Transport::Rtu { serial_port: port.clone(), line }, port))
+        }
+        "rtu-over-tcp" => {
+            if d.serial_port.is_some() {
+                return Err((
+                    key("serial_port"),
+                    "is for transport = \"rtu\"; an rtu-over-tcp drive is reached at address (the gateway)".into(),
+                ));
+            }
+            let address = host_port(&d.address)?;
+            let line = line()?;
+            rtu_unit()?;
+            Ok((Transport::RtuOverTcp { line }, address))
+        }
+        other => Err((key("transport"), format!("{other:?}: expected \"tcp\", \"rtu\" or \"rtu-over-tcp\""))),
+    }
 }
 
 fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSettings, Invalid> {
@@ -496,10 +697,7 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
             format!("{:?}: use 1 to 64 letters, digits, `_` or `-` (it names files and URLs)", d.name),
         ));
     }
-    match d.address.rsplit_once(':') {
-        Some((host, port)) if !host.is_empty() && port.parse::<u16>().is_ok() => {}
-        _ => return Err((key("address"), format!("{:?} is not host:port such as 127.0.0.1:5020", d.address))),
-    }
+    let (transport, address) = validate_transport(&d, &key)?;
     if !(1..=60_000).contains(&d.poll_ms) {
         return Err((key("poll_ms"), format!("must be 1 ..= 60000, got {}", d.poll_ms)));
     }
@@ -620,7 +818,8 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
     }
     let settings = DriveSettings {
         name: d.name,
-        address: d.address,
+        address,
+        transport,
         unit_id: d.unit_id,
         poll: Duration::from_millis(d.poll_ms),
         timeout: Duration::from_millis(d.timeout_ms),
@@ -783,5 +982,70 @@ address = "127.0.0.1:5020"
         assert_eq!(m.inlet_pressure_bar.word_order, WordOrder::Cdab);
         assert_eq!(m.inlet_pressure_bar.table, Table::Input);
         assert_eq!(m.span(Table::Input), Some((1, 11)));
+    }
+
+    fn rtu(name: &str, unit: u8, extra: &str) -> String {
+        format!(
+            "[[drives]]\nname = \"{name}\"\ntransport = \"rtu\"\nserial_port = \"/dev/ttyUSB0\"\nunit_id = {unit}\n{extra}\n"
+        )
+    }
+
+    #[test]
+    fn rtu_keys_are_validated() {
+        let s = parse(&rtu("vfd3", 3, "baud_rate = 19200\nparity = \"none\"\nstop_bits = 2\npoll_ms = 50"), "t", None)
+            .expect("valid");
+        let d = &s.drives[0];
+        assert_eq!(d.address, "/dev/ttyUSB0");
+        let line = SerialLine { baud_rate: 19200, parity: Parity::None, stop_bits: 2 };
+        assert_eq!(d.transport, Transport::Rtu { serial_port: "/dev/ttyUSB0".into(), line });
+        let e = err("[[drives]]\nname = \"v\"\ntransport = \"rtu\"\n");
+        assert!(e.contains("drives[0].serial_port") && e.contains("required"), "{e}");
+        let e = err(&rtu("v", 1, "parity = \"mark\""));
+        assert!(e.contains("drives[0].parity") && e.contains("mark"), "{e}");
+        let e = err(&rtu("v", 1, "baud_rate = -9600"));
+        assert!(e.contains("drives[0].baud_rate") && e.contains("positive"), "{e}");
+        let e = err(&rtu("v", 1, "baud_rate = 0"));
+        assert!(e.contains("drives[0].baud_rate"), "{e}");
+        let e = err(&rtu("v", 1, "stop_bits = 3"));
+        assert!(e.contains("drives[0].stop_bits") && e.contains("1 or 2"), "{e}");
+        let e = err(&rtu("v", 0, "poll_ms = 100"));
+        assert!(e.contains("drives[0].unit_id"), "{e}");
+        let e = err(&format!("{MINIMAL}parity = \"even\"\n"));
+        assert!(e.contains("drives[0].parity") && e.contains("tcp"), "{e}");
+        let e = err("[[drives]]\nname = \"v\"\ntransport = \"rtu-over-tcp\"\n");
+        assert!(e.contains("drives[0].address") && e.contains("required"), "{e}");
+        let e = err(&format!("{MINIMAL}transport = \"udp\"\n"));
+        assert!(e.contains("drives[0].transport") && e.contains("udp"), "{e}");
+    }
+
+    #[test]
+    fn a_line_has_one_setting_and_a_capacity() {
+        // two monitoring drives at 50 ms on 19200 baud, even parity: 37 % each, 73 % together: fits
+        let two = format!("{}{}", rtu("a", 1, "poll_ms = 50"), rtu("b", 2, "poll_ms = 50"));
+        let s = parse(&two, "t", None).expect("fits the line");
+        assert_eq!(s.drives.len(), 2);
+        // a third one is too many, and the error names every drive on the line
+        let three = format!("{two}{}", rtu("c", 3, "poll_ms = 50"));
+        let e = err(&three);
+        assert!(e.contains("drives[2].serial_port") && e.contains("cannot carry"), "{e}");
+        for name in ["\"a\"", "\"b\"", "\"c\""] {
+            assert!(e.contains(name), "{e}");
+        }
+        assert!(e.contains("110 %"), "{e}");
+        // writing adds the write exchange: one speed drive at 50 ms takes 37 % + 34 %
+        let speed = rtu("a", 1, "poll_ms = 50\n[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 10.0");
+        parse(&speed, "t", None).expect("one writing drive fits");
+        let e = err(&format!("{speed}{}", rtu("b", 2, "poll_ms = 50")));
+        assert!(e.contains("cannot carry"), "{e}");
+        // one line, two settings
+        let e = err(&format!("{}{}", rtu("a", 1, "poll_ms = 50"), rtu("b", 2, "poll_ms = 50\nbaud_rate = 9600")));
+        assert!(e.contains("drives[1].serial_port") && e.contains("one setting") && e.contains("9600"), "{e}");
+        // two writing loops on one device of a line
+        let speed2 = speed.replace("name = \"a\"", "name = \"b\"").replace("poll_ms = 50", "poll_ms = 500");
+        let e = err(&format!("{}{speed2}", speed.replace("poll_ms = 50", "poll_ms = 500")));
+        assert!(e.contains("drives[1].serial_port") && e.contains("already written"), "{e}");
+        // other ports are other lines
+        let other = rtu("c", 3, "poll_ms = 50").replace("ttyUSB0", "ttyUSB1");
+        parse(&format!("{two}{other}"), "t", None).expect("a second line");
     }
 }

@@ -23,7 +23,8 @@ use super::state::{DriveSnapshot, DriveState, DriveStatus, Link, Point};
 use super::timing::{LoopTiming, ThreadSetup, Ticker, TimingStats, use_realtime_priority};
 use crate::control::{Inputs, SpeedLaw};
 use crate::estimator::{Estimate, Estimator, Measurement};
-use crate::modbus::client::{ClientError, DriveClient};
+use crate::modbus::bus::Connection;
+use crate::modbus::client::ClientError;
 use crate::modbus::map::{RegisterMap, RegisterSpec, Table, control, status};
 use crate::units::rpm_to_rad_s;
 
@@ -150,6 +151,24 @@ pub fn plan_writes(
     Ok(out)
 }
 
+/// The write requests of a cycle as (start, words): the blocks [`plan_writes`] makes, without the values.
+pub fn write_layout(map: &RegisterMap) -> Vec<(u16, usize)> {
+    let mut parts = [
+        (map.frequency_setpoint_hz.address, usize::from(map.frequency_setpoint_hz.kind.words())),
+        (map.control_word.address, usize::from(map.control_word.kind.words())),
+        (map.watchdog.address, usize::from(map.watchdog.kind.words())),
+    ];
+    parts.sort_by_key(|(a, _)| *a);
+    let mut out: Vec<(u16, usize)> = Vec::with_capacity(3);
+    for (addr, n) in parts {
+        match out.last_mut() {
+            Some((start, len)) if usize::from(*start) + *len == usize::from(addr) => *len += n,
+            _ => out.push((addr, n)),
+        }
+    }
+    out
+}
+
 /// The state bits of a status word.
 pub fn drive_status(word: u16) -> DriveStatus {
     DriveStatus {
@@ -164,7 +183,7 @@ pub fn drive_status(word: u16) -> DriveStatus {
 /// Everything one drive's loop owns.
 pub struct DriveLoop {
     settings: DriveSettings,
-    client: DriveClient,
+    client: Connection,
     estimator: Box<dyn Estimator>,
     law: SpeedLaw,
     state: Arc<DriveState>,
@@ -207,15 +226,17 @@ const STAGGER_SPAN: std::time::Duration = std::time::Duration::from_millis(10);
 const STATS_EVERY: std::time::Duration = std::time::Duration::from_millis(50);
 
 impl DriveLoop {
+    /// `client` is the drive's connection: its own (Modbus TCP) or its turn on a shared RTU line
+    /// ([`crate::modbus::bus::Bus::handle`]).
     pub fn new(
         settings: DriveSettings,
+        client: Connection,
         estimator: Box<dyn Estimator>,
         state: Arc<DriveState>,
         metrics: Metrics,
         recorder: Option<Recorder>,
         started: Instant,
     ) -> DriveLoop {
-        let client = DriveClient::new(&settings.address, settings.unit_id, settings.timeout);
         let label = DriveLabel { drive: settings.name.clone() };
         // every series exists from the start, at 0, so that dashboards and alerts see it before the first event
         for family in [&metrics.polls, &metrics.reconnects, &metrics.rejected_samples, &metrics.stale_samples] {
@@ -349,7 +370,7 @@ impl DriveLoop {
             },
         }
 
-        let reconnects = self.client.reconnects;
+        let reconnects = self.client.reconnects();
         if reconnects > self.reconnects_seen {
             self.metrics.reconnects.get_or_create(&self.label).inc_by(reconnects - self.reconnects_seen);
             self.reconnects_seen = reconnects;
@@ -585,6 +606,7 @@ mod tests {
         assert_eq!(read_plan(&map), vec![(Table::Input, 0, 6)]);
         let w = plan_writes(&map, 25.0, control::RUN, 7).expect("fits");
         assert_eq!(w, vec![(0, vec![2500, control::RUN, 7])]);
+        assert_eq!(write_layout(&map), vec![(0, 3)]);
     }
 
     #[test]
@@ -597,6 +619,8 @@ mod tests {
         assert_eq!(w[0], (1, vec![1]));
         assert_eq!(w[2].0, 20);
         assert_eq!(w[2].1.len(), 2);
+        let layout: Vec<(u16, usize)> = w.iter().map(|(a, words)| (*a, words.len())).collect();
+        assert_eq!(write_layout(&map), layout);
     }
 
     #[test]

@@ -21,11 +21,13 @@ use tokio_util::sync::CancellationToken;
 pub use config::{ConfigError, DriveSettings, Settings};
 pub use state::{DriveSnapshot, DriveState, Point, ServiceState};
 
+use crate::modbus::bus::{Bus, Connection};
+use crate::modbus::client::DriveClient;
 use drive::DriveLoop;
 use metrics::Metrics;
 use recorder::Recorder;
 use state::{DriveStatus, Link};
-use timing::TimingStats;
+use timing::{TimingStats, use_realtime_priority};
 
 /// The running poll loops.
 pub struct Service {
@@ -33,8 +35,8 @@ pub struct Service {
     threads: Vec<std::thread::JoinHandle<()>>,
 }
 
-/// Starts one poll loop per drive, each on a thread of its own (named `poll-<drive>`); they stop when `shutdown`
-/// is cancelled.
+/// Starts one poll loop per drive, each on a thread of its own (named `poll-<drive>`), and one bus task per RTU
+/// line (thread `bus-<port>`) that the drives on it take turns on; they stop when `shutdown` is cancelled.
 pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Result<Service> {
     let (metrics, mut registry) = Metrics::new();
     let condition_metrics = condition::ConditionMetrics::register(&mut registry);
@@ -43,6 +45,17 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
     let mut loops = Vec::with_capacity(settings.drives.len());
     let mut conditions = Vec::with_capacity(settings.drives.len());
     let mut condition_jobs = Vec::new();
+    // one bus per RTU line (serial port or gateway), shared by the drives on it
+    let mut buses: Vec<Bus> = Vec::new();
+    for d in &settings.drives {
+        if let Some((endpoint, _)) = d.line()
+            && !buses.iter().any(|b| b.endpoint().same_line(&endpoint))
+        {
+            let on_line =
+                settings.drives.iter().filter(|o| o.line().is_some_and(|(e, _)| e.same_line(&endpoint))).count();
+            buses.push(Bus::new(endpoint, on_line));
+        }
+    }
     for d in &settings.drives {
         // the ring also holds a condition check's window
         let mut ring_s = settings.http.history.as_secs_f64();
@@ -81,7 +94,14 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
         };
         tracing::info!(drive = %d.name, method = ?d.estimator.method, "estimator");
         let estimator = crate::estimator::build(&d.estimator, &d.model);
-        loops.push(DriveLoop::new(d.clone(), estimator, state.clone(), metrics.clone(), recorder, started));
+        let connection = match d.line() {
+            None => Connection::Own(DriveClient::new(&d.address, d.unit_id, d.timeout)),
+            Some((endpoint, _)) => match buses.iter().find(|b| b.endpoint().same_line(&endpoint)) {
+                Some(bus) => bus.handle(d.unit_id, d.timeout),
+                None => Connection::Own(DriveClient::on(endpoint, d.unit_id, d.timeout)),
+            },
+        };
+        loops.push(DriveLoop::new(d.clone(), connection, estimator, state.clone(), metrics.clone(), recorder, started));
         let cond = Arc::new(condition::DriveCondition::new(&d.name, &d.condition));
         if d.condition.enabled {
             condition_jobs.push(condition::Job {
@@ -96,7 +116,7 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
         conditions.push(cond);
         drives.push(state);
     }
-    let mut threads = Vec::with_capacity(loops.len() + 2);
+    let mut threads = Vec::with_capacity(loops.len() + buses.len() + 2);
     let mqtt = match &settings.mqtt {
         Some(m) => {
             let (health, thread) = mqtt::start(m, &drives, &conditions, &mut registry, shutdown.clone())?;
@@ -114,6 +134,33 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
         recording_dir: settings.recording.dir.clone(),
         started,
     });
+    for bus in buses {
+        let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+        let stop = shutdown.clone();
+        let name = format!("bus-{}", bus.endpoint().name().rsplit('/').next().unwrap_or("line"));
+        // the line serves its drives' poll threads: it runs at the highest real-time priority any of them asks for
+        let priority = settings
+            .drives
+            .iter()
+            .filter(|d| d.line().is_some_and(|(e, _)| e.same_line(bus.endpoint())))
+            .filter_map(|d| d.realtime_priority)
+            .max();
+        let what = name.clone();
+        let run = move || {
+            if let Some(p) = priority {
+                use_realtime_priority(p, &what);
+            }
+            rt.block_on(bus.run(stop))
+        };
+        match std::thread::Builder::new().name(name).spawn(run) {
+            Ok(t) => threads.push(t),
+            Err(e) => {
+                shutdown.cancel();
+                join(threads);
+                return Err(e);
+            }
+        }
+    }
     let count = loops.len();
     for (index, mut l) in loops.into_iter().enumerate() {
         l.stagger(index, count);

@@ -18,6 +18,7 @@ mod noload;
 mod plant;
 mod prometheus;
 mod proxy;
+mod rtu;
 mod service;
 mod simulator;
 mod soak;

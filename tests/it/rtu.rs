@@ -1,0 +1,477 @@
+//! Modbus RTU end to end: the service against the simulator over a virtual serial line (a `socat` pty pair, started
+//! and stopped here), two drives with unit ids 1 and 2 taking turns on one line, the line unplugged (socat killed)
+//! and back, RTU framing over TCP, and the configs a line cannot carry refused by `hydrolens serve` with exit 2.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use hydrolens::modbus::line::{Parity, SerialLine};
+use hydrolens::modbus::simulator::{SimHandle, Simulator};
+use hydrolens::server::Server;
+use tokio::task::JoinHandle;
+use tokio_util::sync::CancellationToken;
+
+use crate::support::{TOKEN, bin, start_service, test_plant, wait_for};
+
+/// A virtual serial line: two ptys joined by socat, reached through the links `a` (the service's end) and `b`
+/// (the simulator's). Dropping it unplugs the line.
+struct SocatLine {
+    dir: PathBuf,
+    child: Option<Child>,
+}
+
+impl SocatLine {
+    /// Starts socat and waits (at most 5 s) until both links exist. Fails if socat is missing: tests/run.sh
+    /// installs it from Debian.
+    fn plug(dir: &Path) -> SocatLine {
+        let mut line = SocatLine { dir: dir.to_path_buf(), child: None };
+        line.replug();
+        line
+    }
+
+    fn end(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+
+    fn replug(&mut self) {
+        assert!(self.child.is_none(), "the line is already plugged");
+        let pty = |name: &str| format!("pty,raw,echo=0,link={}", self.end(name).display());
+        let child = Command::new("socat")
+            .args(["-d", "-d", &pty("a"), &pty("b")])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start socat ({e}): install Debian's socat (tests/run.sh does)"));
+        self.child = Some(child);
+        let deadline = std::time::Instant::now() + Duration::from_secs(5);
+        while !(self.end("a").exists() && self.end("b").exists()) {
+            assert!(std::time::Instant::now() < deadline, "socat made no pty links within 5 s");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    /// Kills socat (the ptys go, and with them both ends of the line) and waits until its links are gone.
+    fn unplug(&mut self) {
+        if let Some(mut child) = self.child.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+        // socat removes its links on a clean exit only; a killed one may leave them
+        for name in ["a", "b"] {
+            let _ = std::fs::remove_file(self.end(name));
+        }
+    }
+}
+
+impl Drop for SocatLine {
+    fn drop(&mut self) {
+        self.unplug();
+    }
+}
+
+/// The test line's settings (a pty ignores them, but both ends set them as a real line would).
+const LINE: SerialLine = SerialLine { baud_rate: 115_200, parity: Parity::Even, stop_bits: 1 };
+
+/// A simulator with one plant per unit id, and the token that stops it.
+fn serial_sim(units: &[u8]) -> (Simulator, CancellationToken) {
+    (Simulator::with_units(test_plant(5.0), 7, units).expect("a hydraulic model"), CancellationToken::new())
+}
+
+fn plant(sim: &Simulator, unit: u8) -> SimHandle {
+    sim.handle_for(unit).expect("a plant at that unit id")
+}
+
+fn spawn_serial(sim: Simulator, path: &Path, stop: &CancellationToken) -> JoinHandle<()> {
+    let path = path.display().to_string();
+    let stop = stop.clone();
+    tokio::spawn(async move {
+        let _ = sim.run_serial(&path, LINE, stop).await;
+    })
+}
+
+/// An RTU drive on the line's `a` end: `[[drives]]` text.
+fn rtu_drive(name: &str, port: &Path, unit: u8, poll_ms: u64, target: f64) -> String {
+    format!(
+        "[[drives]]\nname = \"{name}\"\ntransport = \"rtu\"\nserial_port = {port:?}\nbaud_rate = {}\nparity = \"even\"\n\
+         stop_bits = 1\nunit_id = {unit}\npoll_ms = {poll_ms}\ntimeout_ms = 100\n\
+         [drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = {target}\n",
+        LINE.baud_rate,
+        port = port.display().to_string()
+    )
+}
+
+fn service_text(dir: &Path, drives: &str) -> String {
+    format!(
+        "[http]\nbind = \"127.0.0.1:0\"\ntoken = \"{TOKEN}\"\n\n[recording]\ndir = {:?}\n\n{drives}",
+        dir.display().to_string()
+    )
+}
+
+async fn status(url: &str) -> serde_json::Value {
+    reqwest::get(format!("{url}/api/status")).await.expect("GET status").json().await.expect("json")
+}
+
+async fn readyz(url: &str) -> u16 {
+    reqwest::get(format!("{url}/readyz")).await.expect("GET readyz").status().as_u16()
+}
+
+/// The service's drive `i` regulates its own plant to `target` and its estimate follows.
+async fn regulates(url: &str, i: usize, sim: &SimHandle, target: f64, limit: Duration) -> bool {
+    wait_for(limit, || async {
+        let truth = sim.lock().truth();
+        let s = status(url).await;
+        let d = &s["drives"][i];
+        let omega_hat = d["sample"]["omega_hat_rad_s"].as_f64().unwrap_or(f64::NAN);
+        !truth.tripped
+            && (truth.omega_rad_s - target).abs() < 2.0
+            && (omega_hat - target).abs() < 3.0
+            && d["link"]["stale"] == false
+    })
+    .await
+    .is_some()
+}
+
+async fn stop(service: Server, shutdown: CancellationToken) {
+    shutdown.cancel();
+    tokio::time::timeout(Duration::from_secs(10), service.wait()).await.expect("service stops").expect("http server");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_drives_on_one_line_take_turns() {
+    let run = async {
+        let dir = tempfile::tempdir().expect("tmp");
+        let line = SocatLine::plug(dir.path());
+        let (sim, sim_stop) = serial_sim(&[1, 2]);
+        let (one, two) = (plant(&sim, 1), plant(&sim, 2));
+        let sim_task = spawn_serial(sim, &line.end("b"), &sim_stop);
+        let drives = format!(
+            "{}{}",
+            rtu_drive("vfd1", &line.end("a"), 1, 40, 30.0),
+            rtu_drive("vfd2", &line.end("a"), 2, 40, 20.0)
+        );
+        let (service, shutdown) = start_service(&service_text(dir.path(), &drives)).await;
+        let url = service.url.clone();
+        // each unit id reaches its own plant: two different targets are both met
+        assert!(regulates(&url, 0, &one, 30.0, Duration::from_secs(15)).await, "vfd1 (unit 1) regulates");
+        assert!(regulates(&url, 1, &two, 20.0, Duration::from_secs(15)).await, "vfd2 (unit 2) regulates");
+        let s = status(&url).await;
+        for d in s["drives"].as_array().expect("drives") {
+            assert_eq!(d["link"]["connected"], true, "{d}");
+            assert!(d["link"]["polls"].as_u64().unwrap_or(0) > 20, "{d}");
+            assert_eq!(d["address"], line.end("a").display().to_string(), "{d}");
+        }
+        assert_eq!(readyz(&url).await, 200);
+        stop(service, shutdown).await;
+        sim_stop.cancel();
+        tokio::time::timeout(Duration::from_secs(5), sim_task).await.expect("sim stops").expect("sim task");
+        drop(line);
+    };
+    tokio::time::timeout(Duration::from_secs(30), run).await.expect("within 30 s");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_silent_device_does_not_starve_its_neighbour_on_the_line() {
+    let run = async {
+        let dir = tempfile::tempdir().expect("tmp");
+        let line = SocatLine::plug(dir.path());
+        let (sim, sim_stop) = serial_sim(&[1, 2]);
+        let (one, two) = (plant(&sim, 1), plant(&sim, 2));
+        let sim_task = spawn_serial(sim, &line.end("b"), &sim_stop);
+        let drives = format!(
+            "{}{}",
+            rtu_drive("vfd1", &line.end("a"), 1, 40, 30.0),
+            rtu_drive("vfd2", &line.end("a"), 2, 40, 20.0)
+        );
+        let (service, shutdown) = start_service(&service_text(dir.path(), &drives)).await;
+        let url = service.url.clone();
+        assert!(regulates(&url, 0, &one, 30.0, Duration::from_secs(15)).await, "vfd1 regulates");
+        assert!(regulates(&url, 1, &two, 20.0, Duration::from_secs(15)).await, "vfd2 regulates");
+
+        // unit 2 stops answering: it goes stale and trips; unit 1 keeps being polled and regulated throughout
+        two.lock().faults.no_reply = true;
+        let polls_before = status(&url).await["drives"][0]["link"]["polls"].as_u64().unwrap_or(0);
+        let fresh_checks = std::sync::atomic::AtomicUsize::new(0);
+        let tripped = wait_for(Duration::from_secs(5), || {
+            let (url, two, checks) = (&url, &two, &fresh_checks);
+            async move {
+                let s = status(url).await;
+                assert_eq!(s["drives"][0]["link"]["stale"], false, "vfd1 went stale beside a silent vfd2: {s}");
+                checks.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                s["drives"][1]["link"]["stale"] == true && two.lock().truth().tripped
+            }
+        })
+        .await;
+        let fresh_checks = fresh_checks.into_inner();
+        assert!(tripped.is_some(), "vfd2 stale and tripped: {}", status(&url).await);
+        let s = status(&url).await;
+        assert!(s["drives"][1]["link"]["errors"].as_u64().unwrap_or(0) >= 1, "vfd2's timeouts counted: {s}");
+        assert!(s["drives"][0]["link"]["polls"].as_u64().unwrap_or(0) > polls_before + 10, "{s}");
+        assert!(fresh_checks > 10, "vfd1 checked {fresh_checks} times");
+        let t = one.lock().truth();
+        assert!(!t.tripped && (t.omega_rad_s - 30.0).abs() < 2.0, "vfd1 still regulated: {t:?}");
+        // the silent device is held back on its own: vfd1 keeps most of its polls (25 in a second at 40 ms)
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        let h: serde_json::Value = reqwest::get(format!("{url}/api/history?drive=vfd1&seconds=1"))
+            .await
+            .expect("GET history")
+            .json()
+            .await
+            .expect("json");
+        let samples = h["t_s"].as_array().map_or(0, Vec::len);
+        // measured: 25 with the device held back alone, 7 when the whole line backs off after each of its timeouts
+        eprintln!("vfd1 kept {samples} polls (of about 25) in the last second beside a silent vfd2");
+        assert!(samples >= 17, "vfd1 kept {samples} polls (of about 25) in the last second");
+        assert_eq!(readyz(&url).await, 503, "not ready while vfd2 is stale");
+
+        stop(service, shutdown).await;
+        sim_stop.cancel();
+        tokio::time::timeout(Duration::from_secs(5), sim_task).await.expect("sim stops").expect("sim task");
+        drop(line);
+    };
+    tokio::time::timeout(Duration::from_secs(40), run).await.expect("within 40 s");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_unplugged_line_goes_stale_trips_the_drive_and_comes_back() {
+    let run = async {
+        let dir = tempfile::tempdir().expect("tmp");
+        let mut line = SocatLine::plug(dir.path());
+        let (sim, sim_stop) = serial_sim(&[1]);
+        let drive = plant(&sim, 1);
+        let sim_task = spawn_serial(sim, &line.end("b"), &sim_stop);
+        let text = service_text(dir.path(), &rtu_drive("vfd1", &line.end("a"), 1, 20, 30.0));
+        let (service, shutdown) = start_service(&text).await;
+        let url = service.url.clone();
+        assert!(regulates(&url, 0, &drive, 30.0, Duration::from_secs(15)).await, "regulates before the fault");
+
+        line.unplug();
+        let down = wait_for(Duration::from_secs(3), || async {
+            let s = status(&url).await;
+            readyz(&url).await == 503 && s["drives"][0]["link"]["stale"] == true
+        })
+        .await;
+        assert!(down.is_some(), "stale and not ready without the line: {}", status(&url).await);
+        // nothing reaches the drive, so its own watchdog trips it and it ramps down: its safe state
+        let writes = drive.lock().writes;
+        let tripped = wait_for(Duration::from_secs(4), || async { drive.lock().truth().tripped }).await;
+        assert!(tripped.is_some(), "the drive's watchdog trips without writes");
+        assert_eq!(drive.lock().writes, writes, "nothing written while the line is down");
+        let s = status(&url).await;
+        assert_eq!(s["drives"][0]["link"]["connected"], false, "{s}");
+
+        line.replug();
+        let back = wait_for(Duration::from_secs(5), || async {
+            let s = status(&url).await;
+            readyz(&url).await == 200 && s["drives"][0]["link"]["stale"] == false
+        })
+        .await;
+        assert!(back.is_some(), "polling resumes with the line back: {}", status(&url).await);
+        let s = status(&url).await;
+        assert!(s["drives"][0]["link"]["reconnects"].as_u64().unwrap_or(0) >= 1, "{s}");
+        assert_eq!(s["drives"][0]["tripped"], true, "the service never re-arms a tripped drive by itself: {s}");
+        let reset = reqwest::Client::new()
+            .post(format!("{url}/api/drives/vfd1/reset"))
+            .bearer_auth(TOKEN)
+            .send()
+            .await
+            .expect("POST reset");
+        assert!(reset.status().is_success(), "{}", reset.status());
+        assert!(regulates(&url, 0, &drive, 30.0, Duration::from_secs(10)).await, "regulates after the reset");
+
+        stop(service, shutdown).await;
+        sim_stop.cancel();
+        tokio::time::timeout(Duration::from_secs(5), sim_task).await.expect("sim stops").expect("sim task");
+    };
+    tokio::time::timeout(Duration::from_secs(40), run).await.expect("within 40 s");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rtu_over_tcp_reaches_the_simulator() {
+    let run = async {
+        let dir = tempfile::tempdir().expect("tmp");
+        let sim = Simulator::with_units(test_plant(5.0), 7, &[3]).expect("model");
+        let drive = plant(&sim, 3);
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let addr = listener.local_addr().expect("addr");
+        let sim_stop = CancellationToken::new();
+        let s = sim_stop.clone();
+        let sim_task = tokio::spawn(async move {
+            let _ = sim.run_rtu_over_tcp(listener, s).await;
+        });
+        let drives = format!(
+            "[[drives]]\nname = \"gw3\"\ntransport = \"rtu-over-tcp\"\naddress = \"{addr}\"\nbaud_rate = 115200\n\
+             unit_id = 3\npoll_ms = 20\ntimeout_ms = 100\n[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 25.0\n"
+        );
+        let (service, shutdown) = start_service(&service_text(dir.path(), &drives)).await;
+        let url = service.url.clone();
+        assert!(regulates(&url, 0, &drive, 25.0, Duration::from_secs(15)).await, "regulates over rtu-over-tcp");
+        assert_eq!(readyz(&url).await, 200);
+        stop(service, shutdown).await;
+        sim_stop.cancel();
+        tokio::time::timeout(Duration::from_secs(5), sim_task).await.expect("sim stops").expect("sim task");
+    };
+    tokio::time::timeout(Duration::from_secs(30), run).await.expect("within 30 s");
+}
+
+/// `hydrolens serve` on a config it must refuse: exit 2, and the message.
+fn refused(dir: &Path, name: &str, drives: &str) -> String {
+    let path = dir.join(name);
+    std::fs::write(&path, service_text(dir, drives)).expect("write config");
+    let out = Command::new(bin()).args(["serve", "--config"]).arg(&path).output().expect("runs");
+    let text = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(2), "{name}: {text}");
+    text
+}
+
+#[test]
+fn configs_a_line_cannot_serve_are_refused() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let port = dir.path().join("ttyS9");
+    // three writing drives every 10 ms at 19200 baud: far beyond the line
+    let slow = |name: &str, unit: u8| {
+        rtu_drive(name, &port, unit, 10, 20.0).replace("baud_rate = 115200", "baud_rate = 19200")
+    };
+    let text = refused(dir.path(), "over.toml", &format!("{}{}{}", slow("vfd1", 1), slow("vfd2", 2), slow("vfd3", 3)));
+    assert!(text.contains("cannot carry"), "{text}");
+    for name in ["vfd1", "vfd2", "vfd3"] {
+        assert!(text.contains(name), "names every drive on the line: {text}");
+    }
+    let text = refused(dir.path(), "noport.toml", "[[drives]]\nname = \"vfd1\"\ntransport = \"rtu\"\nunit_id = 1\n");
+    assert!(text.contains("drives[0].serial_port"), "{text}");
+    let text =
+        refused(dir.path(), "parity.toml", &rtu_drive("vfd1", &port, 1, 50, 20.0).replace("\"even\"", "\"mark\""));
+    assert!(text.contains("drives[0].parity"), "{text}");
+    let mixed = format!(
+        "{}{}",
+        rtu_drive("vfd1", &port, 1, 100, 20.0),
+        rtu_drive("vfd2", &port, 2, 100, 20.0).replace("parity = \"even\"", "parity = \"odd\"")
+    );
+    let text = refused(dir.path(), "mixed.toml", &mixed);
+    assert!(text.contains("one setting") && text.contains("vfd2"), "{text}");
+}
+
+/// A device that answers every read with zeros and notes when each request reached it.
+#[derive(Clone)]
+struct Stopwatch(std::sync::Arc<std::sync::Mutex<Vec<std::time::Instant>>>);
+
+impl tokio_modbus::server::Service for Stopwatch {
+    type Request = tokio_modbus::SlaveRequest<'static>;
+    type Response = tokio_modbus::Response;
+    type Exception = tokio_modbus::ExceptionCode;
+    type Future = std::future::Ready<Result<tokio_modbus::Response, tokio_modbus::ExceptionCode>>;
+
+    fn call(&self, req: Self::Request) -> Self::Future {
+        self.0.lock().unwrap_or_else(|e| e.into_inner()).push(std::time::Instant::now());
+        std::future::ready(match req.request {
+            tokio_modbus::Request::ReadInputRegisters(_, n) => {
+                Ok(tokio_modbus::Response::ReadInputRegisters(vec![0; usize::from(n)]))
+            }
+            _ => Err(tokio_modbus::ExceptionCode::IllegalFunction),
+        })
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn requests_on_a_line_keep_the_inter_frame_gap() {
+    use hydrolens::modbus::client::{DriveClient, Endpoint, open_serial};
+    use hydrolens::modbus::map::Table;
+    let run = async {
+        let dir = tempfile::tempdir().expect("tmp");
+        let line = SocatLine::plug(dir.path());
+        // at 9600 baud, even parity: 3.5 characters of 11 bits = 4.0 ms of silence between frames
+        let slow = SerialLine { baud_rate: 9600, parity: Parity::Even, stop_bits: 1 };
+        let gap = slow.inter_frame_gap();
+        assert!((gap.as_secs_f64() - 3.5 * 11.0 / 9600.0).abs() < 1e-6);
+        let seen = Stopwatch(Default::default());
+        let device = tokio_modbus::server::rtu::Server::new(
+            open_serial(&line.end("b").display().to_string(), &slow).expect("open b"),
+        );
+        let stop = CancellationToken::new();
+        let s = stop.clone();
+        let served = seen.clone();
+        let task = tokio::spawn(async move { device.serve_until(served, async move { s.cancelled().await }).await });
+        let endpoint = Endpoint::Serial { port: line.end("a").display().to_string(), line: slow };
+        let mut client = DriveClient::on(endpoint, 1, Duration::from_millis(500));
+        for _ in 0..20 {
+            client.read(Table::Input, 0, 6).await.expect("a reply");
+        }
+        client.close().await;
+        stop.cancel();
+        let _ = tokio::time::timeout(Duration::from_secs(5), task).await.expect("device stops");
+        let times = seen.0.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        assert_eq!(times.len(), 20);
+        // each request reached the device at least a gap after it had answered the one before (the answer went
+        // out after the time noted, so this is a lower bound that holds however slow the machine)
+        let shortest = times.windows(2).map(|w| w[1] - w[0]).min().expect("pairs");
+        eprintln!("requests at least {shortest:?} apart on the line, the gap is {gap:?}");
+        assert!(shortest >= gap, "requests {shortest:?} apart, the gap is {gap:?}");
+        drop(line);
+    };
+    tokio::time::timeout(Duration::from_secs(20), run).await.expect("within 20 s");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sim_serves_rtu_on_a_serial_device_from_the_command_line() {
+    use hydrolens::modbus::client::{ClientError, DriveClient, Endpoint};
+    use hydrolens::modbus::map::Table;
+    let dir = tempfile::tempdir().expect("tmp");
+    let line = SocatLine::plug(dir.path());
+    let bad = Command::new(bin())
+        .args(["sim", "--serial"])
+        .arg(line.end("b"))
+        .args(["--parity", "mark"])
+        .output()
+        .expect("runs");
+    assert_eq!(bad.status.code(), Some(2), "{}", String::from_utf8_lossy(&bad.stderr));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--parity"));
+    let mut sim = Command::new(bin())
+        .args(["sim", "--model"])
+        .arg(crate::support::root().join("config/plant.toml"))
+        .args(["--serial"])
+        .arg(line.end("b"))
+        .args(["--baud", "115200", "--parity", "even", "--units", "1,2"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("sim starts");
+    let run = async {
+        let a = line.end("a").display().to_string();
+        let endpoint = Endpoint::Serial { port: a, line: LINE };
+        let mut client = DriveClient::on(endpoint, 2, Duration::from_millis(100));
+        let mut answered = false;
+        for _ in 0..50 {
+            if client.read(Table::Input, 0, 6).await.is_ok() {
+                answered = true;
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        assert!(answered, "unit 2 answers");
+        // a unit id the simulator does not serve: nobody answers
+        client.set_unit_id(5);
+        let mut last = None;
+        for _ in 0..20 {
+            match client.read(Table::Input, 0, 6).await {
+                Err(ClientError::Backoff(d)) => tokio::time::sleep(d).await,
+                other => {
+                    last = Some(other);
+                    break;
+                }
+            }
+        }
+        assert!(matches!(last, Some(Err(ClientError::Timeout(_)))), "unit 5: {last:?}");
+        client.close().await;
+    };
+    let result = tokio::time::timeout(Duration::from_secs(20), run).await;
+    let _ = Command::new("kill").args(["-TERM", &sim.id().to_string()]).status();
+    let deadline = std::time::Instant::now() + Duration::from_secs(5);
+    while sim.try_wait().expect("wait").is_none() {
+        if std::time::Instant::now() > deadline {
+            let _ = sim.kill();
+            panic!("sim did not stop on SIGTERM");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    result.expect("within 20 s");
+}
