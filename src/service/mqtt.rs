@@ -217,23 +217,28 @@ pub fn validate(raw: RawMqtt, resolve: impl Fn(&str) -> PathBuf) -> Result<MqttS
     if client_id.is_empty() || client_id.len() > 65535 {
         return Err((k("client_id"), "must not be empty".into()));
     }
+    let files = [
+        ("ca_file", &raw.ca_file),
+        ("client_cert_file", &raw.client_cert_file),
+        ("client_key_file", &raw.client_key_file),
+    ];
+    if !tls && let Some((key, _)) = files.iter().find(|(_, f)| f.is_some()) {
+        return Err((k(key), "is for TLS: the broker's URL (mqtt.url) would be mqtts://".into()));
+    }
     let client = match (raw.client_cert_file, raw.client_key_file) {
         (Some(c), Some(key)) => Some((resolve(&c), resolve(&key))),
         (None, None) => None,
         (Some(_), None) => return Err((k("client_key_file"), "is needed with mqtt.client_cert_file".into())),
         (None, Some(_)) => return Err((k("client_cert_file"), "is needed with mqtt.client_key_file".into())),
     };
-    let ca_file = raw.ca_file.map(|p| resolve(&p));
     let tls = if tls {
         ServerName::try_from(host.as_str()).map_err(|_| {
             (k("url"), format!("{host:?} is neither a DNS name nor an IP address to check the certificate against"))
         })?;
-        Some(Arc::new(tls_config(ca_file.as_deref(), client.as_ref().map(|(c, key)| (c.as_path(), key.as_path())))?))
+        let ca_file = raw.ca_file.map(|p| resolve(&p));
+        let client = client.as_ref().map(|(c, key)| (c.as_path(), key.as_path()));
+        Some(Arc::new(tls_config(ca_file.as_deref(), client)?))
     } else {
-        let given = [(ca_file.is_some(), "ca_file"), (client.is_some(), "client_cert_file")];
-        if let Some((_, key)) = given.iter().find(|(g, _)| *g) {
-            return Err((k(key), "is for TLS: the broker's URL (mqtt.url) would be mqtts://".into()));
-        }
         None
     };
     Ok(MqttSettings {
@@ -629,6 +634,7 @@ mod tests {
         assert!(message.contains("mqtts://"), "{message}");
         let client = "client_cert_file = \"c.pem\"\nclient_key_file = \"k.pem\"\n";
         assert_eq!(err(&format!("url = \"mqtt://b\"\n{client}")).0, "mqtt.client_cert_file");
+        assert_eq!(err("url = \"mqtt://b\"\nclient_key_file = \"k.pem\"\n").0, "mqtt.client_key_file");
         assert_eq!(err("url = \"mqtts://a..b\"\n").0, "mqtt.url");
     }
 
