@@ -1,14 +1,16 @@
 #!/usr/bin/env bash
 # The README's test command: installs from Debian what the tests drive when it is missing (chromium for the dashboard
 # test; prometheus (promtool) and python3-prometheus-client for the /metrics and alerting-rules tests; mosquitto for
-# the MQTT tests; socat for the Modbus RTU tests' virtual serial line), then runs the whole suite. Extra arguments go
-# to `cargo test` (e.g. `-- --ignored`).
+# the MQTT tests, with mosquitto-clients (mosquitto_sub) and openssl for the TLS one; socat for the Modbus RTU tests'
+# virtual serial line), then runs the whole suite. Extra arguments go to `cargo test` (e.g. `-- --ignored`).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 need=()
 command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || need+=(chromium)
 command -v promtool >/dev/null 2>&1 || need+=(prometheus)
 [ -x /usr/sbin/mosquitto ] || command -v mosquitto >/dev/null 2>&1 || need+=(mosquitto)
+command -v mosquitto_sub >/dev/null 2>&1 || need+=(mosquitto-clients)
+command -v openssl >/dev/null 2>&1 || need+=(openssl)
 # the OpenMetrics reference parser, for the /metrics test (Debian's python3, not a virtualenv's)
 /usr/bin/python3 -c 'import prometheus_client.openmetrics.parser' >/dev/null 2>&1 || need+=(python3-prometheus-client)
 command -v socat >/dev/null 2>&1 || need+=(socat)

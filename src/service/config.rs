@@ -531,7 +531,7 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
         drives.push(drive);
     }
     check_lines(&drives)?;
-    let mqtt = raw.mqtt.map(super::mqtt::validate).transpose()?;
+    let mqtt = raw.mqtt.map(|m| super::mqtt::validate(m, |p| resolve(p, base))).transpose()?;
     Ok(Settings { http, recording, drives, mqtt })
 }
 

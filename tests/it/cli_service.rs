@@ -52,17 +52,32 @@ fn a_mistyped_service_config_exits_2_naming_the_key() {
         ("limits.toml", good.replace("min_hz = 0.0", "min_hz = 55.0"), "min_hz"),
         ("mode.toml", good.replace("mode = \"monitor\"", "mode = \"turbo\""), "mode"),
         ("register.toml", format!("{good}\n[drives.registers.inlet_pressure_bar]\ntype = \"f64\"\n"), "f64"),
-        ("mqtts.toml", format!("{good}\n[mqtt]\nurl = \"mqtts://broker:8883\"\n"), "mqtt.url"),
+        ("mqtt_scheme.toml", format!("{good}\n[mqtt]\nurl = \"ssl://broker:8883\"\n"), "mqtt.url"),
         ("mqtt_url.toml", format!("{good}\n[mqtt]\nurl = \"broker:1883\"\n"), "mqtt.url"),
         ("mqtt_interval.toml", format!("{good}\n[mqtt]\nurl = \"mqtt://b\"\ninterval_ms = 5\n"), "mqtt.interval_ms"),
     ];
-    for (name, text, needle) in cases {
+    let exits_2_naming = |name: &str, text: String, needles: &[&str]| {
         let path = dir.path().join(name);
         std::fs::write(&path, text).expect("write");
         let (code, out) = serve(&path, &[], Duration::from_secs(10));
         assert_eq!(code, Some(2), "{name}: {out}");
-        assert!(out.contains(needle) && out.contains(name), "{name}: {out}");
+        assert!(out.contains(name) && needles.iter().all(|n| out.contains(n)), "{name}: {needles:?}: {out}");
+    };
+    for (name, text, needle) in cases {
+        exits_2_naming(name, text, &[needle]);
     }
+    // mqtts://: the TLS files are read at load; the file's path is in the message
+    let not_a_ca = dir.path().join("not-a-ca.txt");
+    std::fs::write(&not_a_ca, "a CA certificate would be PEM\n").expect("write");
+    let missing = dir.path().join("missing-ca.pem");
+    let tls = |rest: &str| format!("{good}\n[mqtt]\nurl = \"mqtts://127.0.0.1:8883\"\n{rest}");
+    let ca = |p: &std::path::Path| format!("ca_file = {:?}\n", p.display().to_string());
+    exits_2_naming("mqtt_ca_missing.toml", tls(&ca(&missing)), &["mqtt.ca_file", "missing-ca.pem"]);
+    exits_2_naming("mqtt_ca_not_pem.toml", tls(&ca(&not_a_ca)), &["mqtt.ca_file", "not-a-ca.txt", "no PEM"]);
+    let half = tls("client_cert_file = \"client.pem\"\n");
+    exits_2_naming("mqtt_client_half.toml", half, &["mqtt.client_key_file"]);
+    let plain = format!("{good}\n[mqtt]\nurl = \"mqtt://127.0.0.1\"\n{}", ca(&not_a_ca));
+    exits_2_naming("mqtt_tls_plain.toml", plain, &["mqtt.ca_file", "mqtts://"]);
 }
 
 #[test]

@@ -1,6 +1,7 @@
 //! MQTT against a real broker: Debian's `mosquitto`, started here on a free loopback port, and a rumqttc subscriber.
 //! Status messages carry the drive's `/api/status` object; a broker that dies never slows polling (its messages are
-//! dropped, oldest first, and counted); publishing resumes when it is back; the last will says `offline`.
+//! dropped, oldest first, and counted); publishing resumes when it is back; the last will says `offline`. TLS:
+//! certificates made by the `openssl` CLI, a mosquitto TLS listener, and `mosquitto_sub` (OpenSSL) as the subscriber.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -37,10 +38,18 @@ struct Broker {
 
 impl Broker {
     async fn start(port: u16) -> Broker {
+        Broker::start_with(port, "").await
+    }
+
+    /// A broker whose listener has the `listener_conf` lines (e.g. TLS's cafile, certfile, keyfile).
+    async fn start_with(port: u16, listener_conf: &str) -> Broker {
         let dir = tempfile::tempdir().expect("tmp");
         let conf = dir.path().join("mosquitto.conf");
-        std::fs::write(&conf, format!("listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"))
-            .expect("write conf");
+        std::fs::write(
+            &conf,
+            format!("listener {port} 127.0.0.1\n{listener_conf}allow_anonymous true\npersistence false\n"),
+        )
+        .expect("write conf");
         let log = std::fs::File::create(dir.path().join("mosquitto.log")).expect("log");
         let child = Command::new(mosquitto())
             .arg("-c")
@@ -291,4 +300,197 @@ async fn the_last_will_says_offline_when_the_service_dies() {
         sub.abort();
     };
     tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+}
+
+/// `openssl <args>` in `dir`; panics with its output when it fails or is missing (tests/run.sh installs it).
+fn openssl(dir: &Path, args: &[&str]) {
+    let out = Command::new("openssl")
+        .args(args)
+        .current_dir(dir)
+        .stdin(Stdio::null())
+        .output()
+        .expect("run openssl: install Debian's `openssl` (tests/run.sh does this)");
+    assert!(out.status.success(), "openssl {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+}
+
+/// A CA in `dir`: `<name>.pem` and `<name>.key` (P-256, two days).
+fn make_ca(dir: &Path, name: &str) {
+    let (key, pem, subject) = (format!("{name}.key"), format!("{name}.pem"), format!("/CN=hydrolens test {name}"));
+    #[rustfmt::skip]
+    openssl(dir, &[
+        "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes", "-keyout", &key,
+        "-out", &pem, "-days", "2", "-subj", &subject, "-addext", "basicConstraints=critical,CA:TRUE",
+        "-addext", "keyUsage=critical,keyCertSign,cRLSign",
+    ]);
+}
+
+/// A certificate `<name>.pem` with key `<name>.key` for 127.0.0.1, signed by the CA `ca`, for `usage` (serverAuth or
+/// clientAuth).
+fn make_leaf(dir: &Path, name: &str, ca: &str, usage: &str) {
+    let (key, csr, pem) = (format!("{name}.key"), format!("{name}.csr"), format!("{name}.pem"));
+    let ext = format!("{name}.ext");
+    std::fs::write(
+        dir.join(&ext),
+        format!("subjectAltName=IP:127.0.0.1\nbasicConstraints=CA:FALSE\nextendedKeyUsage={usage}\n"),
+    )
+    .expect("write ext");
+    #[rustfmt::skip]
+    openssl(dir, &[
+        "req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes", "-keyout", &key, "-out", &csr,
+        "-subj", "/CN=127.0.0.1",
+    ]);
+    let (ca_pem, ca_key) = (format!("{ca}.pem"), format!("{ca}.key"));
+    #[rustfmt::skip]
+    openssl(dir, &[
+        "x509", "-req", "-in", &csr, "-CA", &ca_pem, "-CAkey", &ca_key, "-CAcreateserial", "-out", &pem,
+        "-days", "2", "-extfile", &ext,
+    ]);
+}
+
+/// `hydrolens serve` (the binary: its log is the user's) on the drive at `modbus`, HTTP on 127.0.0.1:`http_port`,
+/// with `mqtt` as its `[mqtt]` table; stderr to `log`. Killed when dropped.
+struct Serve(Child);
+
+impl Serve {
+    fn start(dir: &Path, name: &str, modbus: std::net::SocketAddr, http_port: u16, mqtt: &str) -> Serve {
+        let config = dir.join(format!("{name}.toml"));
+        std::fs::write(
+            &config,
+            format!(
+                "[http]\nbind = \"127.0.0.1:{http_port}\"\n\n[recording]\nenabled = false\n\n[[drives]]\n\
+                 name = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 10\n\n[mqtt]\n{mqtt}"
+            ),
+        )
+        .expect("write config");
+        let log = std::fs::File::create(dir.join(format!("{name}.log"))).expect("log");
+        let child = Command::new(support::bin())
+            .args(["serve", "--config"])
+            .arg(&config)
+            .current_dir(support::root())
+            .env("RUST_LOG", "info")
+            .stdin(Stdio::null())
+            .stdout(log.try_clone().expect("log"))
+            .stderr(log)
+            .spawn()
+            .expect("start hydrolens serve");
+        Serve(child)
+    }
+}
+
+impl Drop for Serve {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// `/api/status` of the service on `http_port` once it answers (bounded).
+async fn status_on(http_port: u16) -> serde_json::Value {
+    let url = format!("http://127.0.0.1:{http_port}/api/status");
+    for _ in 0..250 {
+        if let Ok(r) = reqwest::get(&url).await {
+            return r.json().await.expect("status JSON");
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    panic!("no answer on {url} within 5 s");
+}
+
+/// `mosquitto_sub` over TLS (OpenSSL, not the service's rustls) on `filter`: its exit code and the messages
+/// (`topic payload` lines) it got, at most `count` within `wait_s` seconds (exit code 27 when the wait ran out).
+async fn tls_sub(dir: &Path, port: u16, filter: &str, count: u32, wait_s: u32) -> (Option<i32>, Vec<String>) {
+    let mut cmd = Command::new("mosquitto_sub");
+    cmd.current_dir(dir).stdin(Stdio::null()).args(["-h", "127.0.0.1", "-p", &port.to_string(), "-t", filter, "-v"]);
+    cmd.args(["--cafile", "ca.pem", "--cert", "client.pem", "--key", "client.key"]);
+    cmd.args(["-C", &count.to_string(), "-W", &wait_s.to_string()]);
+    let out = tokio::task::spawn_blocking(move || cmd.output())
+        .await
+        .expect("joins")
+        .expect("run mosquitto_sub: install Debian's `mosquitto-clients` (tests/run.sh does this)");
+    let lines = String::from_utf8_lossy(&out.stdout).lines().map(str::to_string).collect();
+    (out.status.code(), lines)
+}
+
+fn polls(status: &serde_json::Value) -> u64 {
+    status["drives"][0]["link"]["polls"].as_u64().expect("polls")
+}
+
+/// mqtts:// with `mqtt.ca_file`: a broker whose certificate (for IP 127.0.0.1) the CA signed gets the status
+/// messages, over a connection with a client certificate (the broker requires one). A CA that did not sign it: no
+/// message, the link reported down, the TLS error in the log, and polling untouched.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn tls_broker_gets_status_and_an_untrusted_ca_is_refused() {
+    let run = async {
+        let pki = tempfile::tempdir().expect("tmp");
+        let d = pki.path();
+        make_ca(d, "ca");
+        make_ca(d, "other_ca");
+        make_leaf(d, "server", "ca", "serverAuth");
+        make_leaf(d, "client", "ca", "clientAuth");
+        // mosquitto started as root reads its files as the `mosquitto` user: test keys, readable for it
+        use std::os::unix::fs::PermissionsExt;
+        for (f, mode) in [(d.to_path_buf(), 0o755), (d.join("server.key"), 0o644)] {
+            std::fs::set_permissions(&f, std::fs::Permissions::from_mode(mode)).expect("chmod");
+        }
+        // a client key that is not the certificate's is refused at load, naming the key
+        let text = "url = \"mqtts://127.0.0.1\"\nca_file = \"ca.pem\"\nclient_cert_file = \"client.pem\"\n\
+                    client_key_file = \"other_ca.key\"\n";
+        let raw: hydrolens::service::mqtt::RawMqtt = toml::from_str(text).expect("toml");
+        let (key, message) = hydrolens::service::mqtt::validate(raw, |p: &str| d.join(p)).expect_err("key mismatch");
+        assert_eq!(key, "mqtt.client_key_file", "{message}");
+        let port = free_port();
+        let tls = format!(
+            "cafile {}\ncertfile {}\nkeyfile {}\nrequire_certificate true\n",
+            d.join("ca.pem").display(),
+            d.join("server.pem").display(),
+            d.join("server.key").display()
+        );
+        let _broker = Broker::start_with(port, &tls).await;
+        let (_sim, modbus, sim_stop, sim_task) = support::start_sim(support::test_plant(5.0), 0).await;
+
+        // the CA that signed the broker's certificate, and a client certificate: status messages arrive
+        let http = free_port();
+        let mqtt = |prefix: &str, ca: &str| {
+            format!(
+                "url = \"mqtts://127.0.0.1:{port}\"\ntopic_prefix = \"{prefix}\"\ninterval_ms = 100\nca_file = {:?}\n\
+                 client_cert_file = {:?}\nclient_key_file = {:?}\n",
+                d.join(ca).display().to_string(),
+                d.join("client.pem").display().to_string(),
+                d.join("client.key").display().to_string()
+            )
+        };
+        let service = Serve::start(d, "trusted", modbus, http, &mqtt("ht1", "ca.pem"));
+        let (code, got) = tls_sub(d, port, "ht1/+/status", 3, 15).await;
+        let log = std::fs::read_to_string(d.join("trusted.log")).unwrap_or_default();
+        assert_eq!((code, got.len()), (Some(0), 3), "{got:?}\n{log}");
+        let payload = got[0].strip_prefix("ht1/pump1/status ").expect("the drive's status topic");
+        let v: serde_json::Value = serde_json::from_str(payload).expect("status JSON");
+        assert_eq!(v["name"], "pump1");
+        let status = status_on(http).await;
+        assert_eq!(status["mqtt"]["connected"], true, "{status}");
+        assert_eq!(status["mqtt"]["url"], format!("mqtts://127.0.0.1:{port}"), "{status}");
+        assert!(log.contains("MQTT connected"), "{log}");
+        drop(service);
+
+        // a CA that did not sign it: nothing reaches the broker while the subscriber waits 3 s
+        let http = free_port();
+        let _service = Serve::start(d, "untrusted", modbus, http, &mqtt("ht2", "other_ca.pem"));
+        let before = polls(&status_on(http).await);
+        let (code, got) = tls_sub(d, port, "ht2/#", 1, 3).await;
+        assert_eq!((code, got.len()), (Some(27), 0), "the subscriber waited out its 3 s without a message: {got:?}");
+        let status = status_on(http).await;
+        assert_eq!(status["mqtt"]["connected"], false, "{status}");
+        // ≥ 3 s at a 10 ms poll: 300 cycles; a third of them is far beyond what a blocked loop would manage
+        assert!(polls(&status) >= before + 100, "polling slowed: {before} → {}", polls(&status));
+        assert!(!status["drives"][0]["link"]["stale"].as_bool().expect("stale"), "{status}");
+        let log = std::fs::read_to_string(d.join("untrusted.log")).expect("log");
+        assert!(
+            log.contains("MQTT connection attempt failed") && log.contains("invalid peer certificate"),
+            "the TLS error is in the log:\n{log}"
+        );
+        assert!(!log.contains("MQTT connected"), "{log}");
+        sim_stop.cancel();
+        let _ = tokio::time::timeout(Duration::from_secs(5), sim_task).await;
+    };
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
 }
