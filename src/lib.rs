@@ -4,7 +4,8 @@
 //!
 //! # Layout
 //! The rooms, and which may use which (a room uses only those listed before it):
-//! - [`units`], [`error`]: conversions and the bad-input marker shared by everyone.
+//! - [`units`], [`error`]: conversions and the bad-input marker shared by everyone (which errors are bad input is
+//!   decided here at the top, [`is_bad_input`]).
 //! - [`plant`]: PURE physics (model file, effects, loads, RK4 integrator, test-stand run). No clock, no I/O.
 //! - [`recording`]: the contract's CSV, read strictly and written streaming with rotation; a simulated run kept as
 //!   a recording (`recording::simulated`).
@@ -38,4 +39,30 @@ pub mod server;
 pub mod service;
 pub mod units;
 
-pub use error::{BadInput, is_bad_input};
+pub use error::BadInput;
+
+/// True when some error in the chain is bad input: a model file, config, recording or argument the user can fix
+/// (exit 2); everything else is exit 1. Each room's error type answers for itself (`is_bad_input`), so an error that
+/// wraps another (an [`replay_file::EstimateError`] around a recording's) can travel through `?` and keep its code.
+pub fn is_bad_input(err: &(dyn std::error::Error + 'static)) -> bool {
+    let mut cur: Option<&(dyn std::error::Error + 'static)> = Some(err);
+    while let Some(e) = cur {
+        if e.is::<BadInput>() {
+            return true;
+        }
+        if let Some(m) = e.downcast_ref::<plant::ModelError>() {
+            return m.is_bad_input();
+        }
+        if let Some(r) = e.downcast_ref::<recording::RecordingError>() {
+            return r.is_bad_input();
+        }
+        if let Some(c) = e.downcast_ref::<service::ConfigError>() {
+            return c.is_bad_input();
+        }
+        if let Some(x) = e.downcast_ref::<replay_file::EstimateError>() {
+            return x.is_bad_input();
+        }
+        cur = e.source();
+    }
+    false
+}

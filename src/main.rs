@@ -345,11 +345,7 @@ fn estimate(rec_path: &Path, model_path: &Path, out: &Path, flags: &EstimateFlag
     settings.load_rate_nm_per_s = f.load_rate.unwrap_or(settings.load_rate_nm_per_s);
     let est = estimator::try_build(&settings, &model)
         .map_err(|(key, msg)| BadInput(format!("{key} (command line or model file {origin}) {msg}")))?;
-    let rows = replay_file::estimate_file(rec_path, &model, &origin, est.as_ref(), out).map_err(|e| match e {
-        replay_file::EstimateError::Recording(e) => anyhow::Error::new(e),
-        replay_file::EstimateError::Replay(e) => anyhow::Error::new(e),
-        e @ replay_file::EstimateError::Output { .. } => anyhow::Error::new(e),
-    })?;
+    let rows = replay_file::estimate_file(rec_path, &model, &origin, est.as_ref(), out)?;
     eprintln!("estimate ({}): {rows} rows written to {}", settings.method, out.display());
     Ok(())
 }

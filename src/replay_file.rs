@@ -68,6 +68,17 @@ pub enum EstimateError {
     Output { action: &'static str, path: String, source: std::io::Error },
 }
 
+impl EstimateError {
+    /// A bad recording or model is the user's to fix (exit 2); an output that cannot be written is not.
+    pub fn is_bad_input(&self) -> bool {
+        match self {
+            EstimateError::Recording(e) => e.is_bad_input(),
+            EstimateError::Replay(_) => true,
+            EstimateError::Output { .. } => false,
+        }
+    }
+}
+
 /// Replays the recording at `recording` through a copy of `estimator` (its state is where the replay starts)
 /// into an estimates CSV at `out` ([`COLUMNS`], one row per recorded row); `model_origin` names the model in
 /// messages. Returns the number of rows.
