@@ -12,7 +12,7 @@ use nalgebra::{Matrix2, RowVector2, Vector2};
 
 use super::rls_sgd::{JumpTest, condition};
 use super::settings::Resolved;
-use super::{Checked, Estimate, Estimator, Measurement, finite_or};
+use super::{Checked, Estimate, Estimator, Measurement, step_guarded};
 
 /// The Kalman filter (method `kalman`).
 #[derive(Debug, Clone)]
@@ -61,18 +61,17 @@ impl Kalman {
     /// One sample with the inertia and viscous friction to predict with (the model's, or rls-sgd's estimates);
     /// `load_rate_scale` multiplies the load's random-walk intensity.
     pub(crate) fn step_with(&mut self, m: &Measurement, j: f64, b: f64, load_rate_scale: f64) -> Estimate {
-        let before = self.estimate();
         let c = Checked::new(m, self.s.max_gap_s);
-        self.step(c, j, b, load_rate_scale);
-        if let Some(t) = c.torque_nm {
-            self.torque_nm = Some(t);
-        }
-        let after = self.estimate();
-        if after != finite_or(after, before) {
-            *self = Kalman::new(self.s);
-            return before;
-        }
-        after
+        step_guarded(
+            self,
+            |k| {
+                k.step(c, j, b, load_rate_scale);
+                if let Some(t) = c.torque_nm {
+                    k.torque_nm = Some(t);
+                }
+            },
+            |k| Kalman::new(k.s),
+        )
     }
 
     fn step(&mut self, c: Checked, j: f64, b: f64, load_rate_scale: f64) {

@@ -128,6 +128,23 @@ impl Checked {
     }
 }
 
+/// Runs one `step` of `est`; when it leaves a non-finite estimate (which a correct estimator never produces, but
+/// garbage input might), the estimator starts over as `restart` makes it and the estimate from before is reported.
+pub(crate) fn step_guarded<E: Estimator>(
+    est: &mut E,
+    step: impl FnOnce(&mut E),
+    restart: impl FnOnce(&E) -> E,
+) -> Estimate {
+    let before = est.estimate();
+    step(est);
+    let after = est.estimate();
+    if after != finite_or(after, before) {
+        *est = restart(est);
+        return before;
+    }
+    after
+}
+
 /// Replaces any non-finite field (which a correct estimator never produces) by a fallback.
 pub(crate) fn finite_or(e: Estimate, fallback: Estimate) -> Estimate {
     let pick = |v: f64, f: f64| if v.is_finite() { v } else { f };

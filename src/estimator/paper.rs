@@ -8,7 +8,7 @@ use nalgebra::{Matrix2, Vector2};
 
 use super::rls_sgd::condition;
 use super::settings::Resolved;
-use super::{Checked, Estimate, Estimator, Measurement, finite_or};
+use super::{Checked, Estimate, Estimator, Measurement, step_guarded};
 
 /// The paper's estimator, literally.
 #[derive(Debug, Clone)]
@@ -80,14 +80,7 @@ impl PaperLiteral {
 
 impl Estimator for PaperLiteral {
     fn update(&mut self, m: &Measurement) -> Estimate {
-        let before = self.estimate();
-        self.step(Checked::new(m, self.s.max_gap_s));
-        let after = self.estimate();
-        if after != finite_or(after, before) {
-            *self = PaperLiteral::new(self.s);
-            return before;
-        }
-        after
+        step_guarded(self, |e| e.step(Checked::new(m, e.s.max_gap_s)), |e| PaperLiteral::new(e.s))
     }
 
     fn boxed_clone(&self) -> Box<dyn Estimator> {
