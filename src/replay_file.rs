@@ -35,15 +35,7 @@ use crate::recording::{
 };
 
 /// The columns of an estimates file.
-pub const COLUMNS: [&str; 7] = [
-    "t_s",
-    "omega_hat_rad_s",
-    "load_hat_nm",
-    "inertia_hat_kg_m2",
-    "viscous_hat_nm_s_rad",
-    "inertia_sd_kg_m2",
-    "viscous_sd_nm_s_rad",
-];
+pub const COLUMNS: [&str; 7] = crate::recording::concat(["t_s"], crate::recording::ESTIMATE_COLUMNS);
 
 /// Rows per batch handed from the reading thread to the estimating one, and batches under way at once: enough to
 /// keep both threads busy, little enough to stay in cache (4 k rows × 4 columns × 8 bytes = 128 KiB a batch).

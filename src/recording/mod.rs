@@ -15,25 +15,44 @@ pub use read::{RecordingError, load, parse};
 pub use stream::{Batch, Chunk, ChunkParser, ChunkSource, StreamReader, TimeText};
 pub use write::{RotatingWriter, RowWriter, format_value, push_parsed_value, push_value, write_csv};
 
-/// The columns the contract names; anything else in a file is kept but reported once as unknown.
-pub const KNOWN_COLUMNS: [&str; 16] = [
-    "t_s",
-    "f_set_hz",
-    "f_drive_hz",
-    "p_in_bar",
-    "p_out_bar",
-    "omega_rad_s",
-    "theta_rad",
-    "load_nm",
-    "torque_nm",
+/// The estimate columns, in the order every file that carries them writes them (`estimate`'s output after `t_s`, the
+/// service's recordings after the measured columns).
+pub const ESTIMATE_COLUMNS: [&str; 6] = [
     "omega_hat_rad_s",
     "load_hat_nm",
     "inertia_hat_kg_m2",
     "viscous_hat_nm_s_rad",
     "inertia_sd_kg_m2",
     "viscous_sd_nm_s_rad",
-    "status_word",
 ];
+
+/// The columns the contract names; anything else in a file is kept but reported once as unknown.
+pub const KNOWN_COLUMNS: [&str; 16] = concat(
+    concat::<9, 6, 15>(
+        ["t_s", "f_set_hz", "f_drive_hz", "p_in_bar", "p_out_bar", "omega_rad_s", "theta_rad", "load_nm", "torque_nm"],
+        ESTIMATE_COLUMNS,
+    ),
+    ["status_word"],
+);
+
+/// `a` then `b`, for column lists built from [`ESTIMATE_COLUMNS`] (N = A + B, checked when the constant is built).
+pub const fn concat<const A: usize, const B: usize, const N: usize>(
+    a: [&'static str; A],
+    b: [&'static str; B],
+) -> [&'static str; N] {
+    assert!(A + B == N, "concat: N must be A + B");
+    let mut out = [""; N];
+    let mut i = 0;
+    while i < A {
+        out[i] = a[i];
+        i += 1;
+    }
+    while i < N {
+        out[i] = b[i - A];
+        i += 1;
+    }
+    out
+}
 
 /// A recording held column by column; a missing value is NaN. `t_s` is always the first column.
 #[derive(Debug, Clone, PartialEq)]

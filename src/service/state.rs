@@ -14,6 +14,7 @@ use super::metrics::Metrics;
 use super::timing::TimingStats;
 use crate::control::Mode;
 use crate::estimator::Estimate;
+use crate::recording;
 
 /// Locks a mutex whose data are plain values (a poisoned lock is taken over).
 pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -51,21 +52,13 @@ pub struct Point {
 }
 
 /// The recording's columns, in [`Point::values`] order.
-pub const COLUMNS: [&str; 13] = [
-    "t_s",
-    "f_set_hz",
-    "f_drive_hz",
-    "p_in_bar",
-    "p_out_bar",
-    "omega_rad_s",
-    "omega_hat_rad_s",
-    "load_hat_nm",
-    "inertia_hat_kg_m2",
-    "viscous_hat_nm_s_rad",
-    "inertia_sd_kg_m2",
-    "viscous_sd_nm_s_rad",
-    "status_word",
-];
+pub const COLUMNS: [&str; 13] = recording::concat(
+    recording::concat::<6, 6, 12>(
+        ["t_s", "f_set_hz", "f_drive_hz", "p_in_bar", "p_out_bar", "omega_rad_s"],
+        recording::ESTIMATE_COLUMNS,
+    ),
+    ["status_word"],
+);
 
 impl Point {
     pub fn values(&self) -> [f64; 13] {
