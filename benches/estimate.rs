@@ -12,9 +12,10 @@ use std::hint::black_box;
 use std::time::Duration;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use hydrolens::estimator::{self, EstimatorSettings, Method, Plan, Replayer};
+use hydrolens::estimator::{self, EstimatorSettings, Method};
 use hydrolens::plant::PlantModel;
 use hydrolens::recording::{self, Batch, StreamReader};
+use hydrolens::replay::{Plan, Replayer};
 
 const ROWS: usize = 100_000;
 

@@ -12,8 +12,9 @@ use std::hint::black_box;
 use std::path::Path;
 use std::time::Instant;
 
-use hydrolens::estimator::{self, EstimatorSettings, Method, Plan, Replayer};
+use hydrolens::estimator::{self, EstimatorSettings, Method};
 use hydrolens::plant::PlantModel;
+use hydrolens::replay::{Plan, Replayer};
 
 const BATCH_ROWS: usize = 4096;
 

@@ -22,7 +22,7 @@ fn run(rec: &Recording, model: &PlantModel, settings: &EstimatorSettings) -> Vec
         Ok(e) => e,
         Err((k, m)) => panic!("settings: {k} {m}"),
     };
-    estimator::replay(rec, model, "model", est.as_mut()).expect("replay")
+    hydrolens::replay::replay(rec, model, "model", est.as_mut()).expect("replay")
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -12,6 +12,8 @@
 //! - [`modbus`]: the register map and the RTU line's timing (pure), the client (TCP, RTU, RTU over TCP), the bus task
 //!   that shares an RTU line among its drives, and the plant simulator server.
 //! - [`estimator`]: PURE RLS+SGD and Kalman estimators; fed Δt and samples.
+//! - [`replay`]: a recording's columns turned into the estimators' measurements (which column, which unit), and an
+//!   estimator run over them, whole or batch by batch.
 //! - [`replay_file`]: `hydrolens estimate`: a recording file streamed through an estimator into a CSV, two threads.
 //! - [`analysis`]: PURE mismatch analysis (fit, free-run residuals, effect search) + its HTML report at the edge.
 //! - [`condition`]: condition monitoring: the analysis on a drive's recent data, checks kept, alarms with a margin
@@ -34,6 +36,7 @@ pub mod http;
 pub mod modbus;
 pub mod plant;
 pub mod recording;
+pub mod replay;
 pub mod replay_file;
 pub mod server;
 pub mod service;

@@ -28,11 +28,12 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Condvar, Mutex, PoisonError, mpsc};
 use std::time::{Duration, Instant};
 
-use crate::estimator::{Estimate, Estimator, Plan, ReplayError, Replayer};
+use crate::estimator::{Estimate, Estimator};
 use crate::plant::PlantModel;
 use crate::recording::{
     Batch, Chunk, ChunkParser, ChunkSource, RecordingError, StreamReader, TimeText, push_parsed_value, push_value,
 };
+use crate::replay::{Plan, ReplayError, Replayer};
 
 /// The columns of an estimates file.
 pub const COLUMNS: [&str; 7] = crate::recording::concat(["t_s"], crate::recording::ESTIMATE_COLUMNS);

@@ -11,13 +11,11 @@
 pub mod battery;
 mod kalman;
 mod paper;
-pub mod replay;
 mod rls_sgd;
 pub mod settings;
 
 pub use kalman::Kalman;
 pub use paper::PaperLiteral;
-pub use replay::{Plan, ReplayError, Replayer, SpeedFrom, TorqueFrom, drive_torques, replay};
 pub use rls_sgd::RlsSgd;
 pub use settings::{EstimatorSettings, Method, Resolved};
 

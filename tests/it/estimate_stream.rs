@@ -39,7 +39,7 @@ fn model_and_estimator(method: Method) -> (PlantModel, String, Box<dyn estimator
 fn whole_file_estimate(rec: &Path, method: Method) -> Vec<u8> {
     let (model, origin, mut est) = model_and_estimator(method);
     let r = recording::load(rec).expect("a valid recording");
-    let estimates = estimator::replay(&r, &model, &origin, est.as_mut()).expect("replays");
+    let estimates = hydrolens::replay::replay(&r, &model, &origin, est.as_mut()).expect("replays");
     let mut w = RowWriter::new(Vec::new(), &hydrolens::replay_file::COLUMNS).expect("header");
     for (t, e) in r.t_s().iter().zip(&estimates) {
         w.write_row([

@@ -41,7 +41,7 @@ fn score(rec: &Recording, method: Method, j_factor: f64, b_factor: f64) -> Score
     model.motor.viscous_nm_s_rad *= b_factor;
     let settings = EstimatorSettings { method, ..EstimatorSettings::default() };
     let mut est = estimator::try_build(&settings, &model).expect("settings");
-    let e = estimator::replay(rec, &model, "model", est.as_mut()).expect("replay");
+    let e = hydrolens::replay::replay(rec, &model, "model", est.as_mut()).expect("replay");
     let t = rec.t_s();
     let col = |n: &str| rec.column(n).expect("column").to_vec();
     let w: Vec<f64> = e.iter().map(|e| e.omega_hat_rad_s).collect();
@@ -103,7 +103,7 @@ fn constant_operation(seconds: f64, load_nm: f64) -> Vec<Measurement> {
     let load = move |_t: f64| load_nm;
     let inputs = Inputs { setpoint_hz: &|_t| 30.0, load_nm: &load };
     let rec = simulated::run(&model, seconds, 3, &inputs, &mut |_| {}).expect("run");
-    estimator::replay::measurements(&rec, &model, "model").expect("measurements")
+    hydrolens::replay::measurements(&rec, &model, "model").expect("measurements")
 }
 
 #[test]

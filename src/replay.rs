@@ -1,8 +1,9 @@
-//! Offline replay: turns a recording's columns into measurements (CONTRACT.md rules) and runs an estimator over them,
+//! Offline replay, at the recording's edge of the estimators: turns a recording's columns into measurements
+//! (CONTRACT.md rules: which columns, in which units) and runs an estimator over them,
 //! over a whole [`Recording`] ([`replay`]) or batch by batch as a file streams in ([`Plan`], [`Replayer`]).
 
-use super::{Estimate, Estimator, Measurement};
 use crate::error::BadInput;
+use crate::estimator::{Estimate, Estimator, Measurement};
 use crate::plant::PlantModel;
 use crate::recording::Recording;
 use crate::units::{bar_to_pa, cm3_per_rev_to_m3_per_rad};
