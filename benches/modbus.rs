@@ -80,7 +80,7 @@ fn main() {
                 let listener =
                     tokio::net::TcpListener::bind("127.0.0.1:0").await.map_err(|e| format!("binding: {e}"))?;
                 let addr = listener.local_addr().map_err(|e| e.to_string())?;
-                let sim = Simulator::new(PlantModel::reference(), 1).map_err(|(k, m)| format!("{k} {m}"))?;
+                let sim = Simulator::new(PlantModel::reference(), 1).map_err(|e| e.to_string())?;
                 let s = stop.clone();
                 (addr, Some(tokio::spawn(async move { sim.run(listener, s).await })), "in-process")
             }

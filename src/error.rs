@@ -5,3 +5,24 @@
 #[derive(Debug, thiserror::Error)]
 #[error("{0}")]
 pub struct BadInput(pub String);
+
+/// A value a key does not allow: which key (as the file spells it, e.g. `motor.displacement_cm3`), and what is wrong.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{key} {message}")]
+pub struct KeyError {
+    pub key: String,
+    pub message: String,
+}
+
+impl KeyError {
+    pub fn new(key: String, message: String) -> KeyError {
+        KeyError { key, message }
+    }
+}
+
+/// `(key, message)`, as the config and settings validators still build them.
+impl From<(String, String)> for KeyError {
+    fn from((key, message): (String, String)) -> KeyError {
+        KeyError { key, message }
+    }
+}

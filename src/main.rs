@@ -215,26 +215,29 @@ fn http_runtime() -> anyhow::Result<tokio::runtime::Runtime> {
 fn shutdown_on_signal() -> CancellationToken {
     let token = CancellationToken::new();
     let t = token.clone();
+    // The handlers are registered here, before the caller announces itself, so that a SIGTERM sent right after the
+    // announcement is caught (registered inside the task, it could arrive first and kill the process).
+    #[cfg(unix)]
+    let handlers = {
+        use tokio::signal::unix::{SignalKind, signal};
+        signal(SignalKind::terminate()).and_then(|term| Ok((term, signal(SignalKind::interrupt())?)))
+    };
     tokio::spawn(async move {
-        let ctrl_c = tokio::signal::ctrl_c();
         #[cfg(unix)]
-        {
-            let mut term = match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
-                Ok(s) => s,
-                Err(e) => {
-                    tracing::warn!(error = %e, "cannot listen for SIGTERM");
-                    let _ = ctrl_c.await;
-                    t.cancel();
-                    return;
+        match handlers {
+            Ok((mut term, mut int)) => {
+                tokio::select! {
+                    _ = term.recv() => {}
+                    _ = int.recv() => {}
                 }
-            };
-            tokio::select! {
-                _ = ctrl_c => {}
-                _ = term.recv() => {}
+            }
+            Err(e) => {
+                tracing::warn!(error = %e, "cannot listen for SIGTERM");
+                let _ = tokio::signal::ctrl_c().await;
             }
         }
         #[cfg(not(unix))]
-        let _ = ctrl_c.await;
+        let _ = tokio::signal::ctrl_c().await;
         tracing::info!("shutting down");
         t.cancel();
     });
@@ -259,7 +262,7 @@ fn sim(model_path: &Path, listen: &str, seed: u64, transport: SimTransport, unit
         return Err(BadInput(format!("--units: unit id {u} is outside 1 ..= 247")).into());
     }
     let simulator = Simulator::with_units(model, seed, units)
-        .map_err(|(key, msg)| BadInput(format!("model file {}: {key} {msg}", model_path.display())))?;
+        .map_err(|e| BadInput(format!("model file {}: {e}", model_path.display())))?;
     if let SimTransport::Serial { path, baud, parity, stop_bits } = transport {
         if baud == 0 {
             return Err(BadInput("--baud: must be positive, got 0".into()).into());
@@ -271,8 +274,9 @@ fn sim(model_path: &Path, listen: &str, seed: u64, transport: SimTransport, unit
         }
         let line = SerialLine { baud_rate: baud, parity, stop_bits };
         return runtime()?.block_on(async move {
+            let shutdown = shutdown_on_signal();
             eprintln!("hydrolens sim: plant simulator on modbus rtu {path} ({baud} baud, parity {})", parity.name());
-            simulator.run_serial(&path, line, shutdown_on_signal()).await.context("simulator")
+            simulator.run_serial(&path, line, shutdown).await.context("simulator")
         });
     }
     let addr: std::net::SocketAddr = listen
@@ -280,12 +284,13 @@ fn sim(model_path: &Path, listen: &str, seed: u64, transport: SimTransport, unit
         .map_err(|e| BadInput(format!("--listen {listen:?}: not an address such as 127.0.0.1:5020 ({e})")))?;
     runtime()?.block_on(async move {
         let listener = tokio::net::TcpListener::bind(addr).await.with_context(|| format!("binding {addr}"))?;
+        let shutdown = shutdown_on_signal();
         if let SimTransport::RtuOverTcp = transport {
             eprintln!("hydrolens sim: plant simulator on modbus rtu-over-tcp://{}", listener.local_addr()?);
-            simulator.run_rtu_over_tcp(listener, shutdown_on_signal()).await.context("simulator")
+            simulator.run_rtu_over_tcp(listener, shutdown).await.context("simulator")
         } else {
             eprintln!("hydrolens sim: plant simulator on modbus tcp://{}", listener.local_addr()?);
-            simulator.run(listener, shutdown_on_signal()).await.context("simulator")
+            simulator.run(listener, shutdown).await.context("simulator")
         }
     })
 }
@@ -321,8 +326,8 @@ fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyhow::
     let mut sink = |row: &[f64; plant::simulate::COLUMNS.len()]| writer.write_row(row.iter().copied());
     let rows = plant::simulate::run_into(&model, duration, seed, &inputs, &mut progress("simulate"), &mut sink)
         .map_err(|e| match e {
-            plant::simulate::RunError::Model(key, msg) => {
-                anyhow::Error::new(BadInput(format!("model file {}: {key} {msg}", model_path.display())))
+            plant::simulate::RunError::Model(e) => {
+                anyhow::Error::new(BadInput(format!("model file {}: {e}", model_path.display())))
             }
             plant::simulate::RunError::Sink(e) => anyhow::Error::new(e).context(format!("writing {}", out.display())),
         })?;
@@ -561,9 +566,9 @@ fn demo(http_addr: &str, modbus_addr: &str, recordings: &Path, plant: DemoPlant<
         Some(p) => (load_model(p)?, p.display().to_string()),
         None => (PlantModel::reference(), "reference plant".to_string()),
     };
-    let simulator = Simulator::new(model, seed).map_err(|(key, msg)| match plant_path {
-        Some(p) => anyhow::Error::new(BadInput(format!("model file {}: {key} {msg}", p.display()))),
-        None => anyhow::anyhow!("the reference plant: {key} {msg}"),
+    let simulator = Simulator::new(model, seed).map_err(|e| match plant_path {
+        Some(p) => anyhow::Error::new(BadInput(format!("model file {}: {e}", p.display()))),
+        None => anyhow::anyhow!("the reference plant: {e}"),
     })?;
     let modbus_listener =
         std::net::TcpListener::bind(modbus_addr).with_context(|| format!("binding modbus {modbus_addr}"))?;

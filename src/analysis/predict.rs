@@ -92,7 +92,8 @@ pub fn predict_rows(
     let start = start.min(end);
     match s.family {
         Family::Hydraulic => {
-            let c = Coefficients::from_model(model).map_err(|(key, msg)| BadInput(format!("model: `{key}` {msg}")))?;
+            let c = Coefficients::from_model(model)
+                .map_err(|crate::error::KeyError { key, message: msg }| BadInput(format!("model: `{key}` {msg}")))?;
             let (omega, dp) = free_run_hydraulic(&c, s, start, end, restarts);
             Ok(Prediction {
                 omega_rad_s: omega,
@@ -103,7 +104,8 @@ pub fn predict_rows(
             })
         }
         Family::Flow => {
-            let c = Coefficients::from_model(model).map_err(|(key, msg)| BadInput(format!("model: `{key}` {msg}")))?;
+            let c = Coefficients::from_model(model)
+                .map_err(|crate::error::KeyError { key, message: msg }| BadInput(format!("model: `{key}` {msg}")))?;
             let (f, dp) = free_run_flow(&c, s, start, end, restarts);
             // the speed drives the flow balance: it is not predicted (NaN: no error is computed for it)
             let compare_f = s.f_drive_hz.is_some() && s.setpoint_hz.is_some();

@@ -134,7 +134,7 @@ impl Series {
                 };
                 Some(f_set.ok_or_else(|| need("f_set_hz", why))?)
             };
-            let parts = model.hydraulic().map_err(|(key, msg)| {
+            let parts = model.hydraulic().map_err(|crate::error::KeyError { key, message: msg }| {
                 BadInput(format!("model: `{key}` {msg} (the recording has pressures but no `torque_nm`)"))
             })?;
             let d_m = cm3_per_rev_to_m3_per_rad(parts.motor_displacement_cm3);

@@ -86,7 +86,7 @@ pub fn poll(scenario: &Scenario, truth: &PlantModel, poll_ms: u32) -> Polled {
     model.sensors.sample_ms = 1.0;
     let rec = match simulated::run(&model, scenario.duration_s, scenario.seed, &inputs, &mut |_| {}) {
         Ok(rec) => rec,
-        Err((key, msg)) => unreachable!("the battery's plant is valid: {key}: {msg}"),
+        Err(crate::error::KeyError { key, message: msg }) => unreachable!("the battery's plant is valid: {key}: {msg}"),
     };
     let col = |name: &str| rec.column(name).unwrap_or_else(|| unreachable!("simulate writes {name}"));
     let d_m = cm3_per_rev_to_m3_per_rad(truth.motor.displacement_cm3.unwrap_or(0.0));
@@ -114,7 +114,9 @@ pub fn poll(scenario: &Scenario, truth: &PlantModel, poll_ms: u32) -> Polled {
 pub fn score(polled: &Polled, settings: &EstimatorSettings, model: &PlantModel, truth: &PlantModel) -> Score {
     let mut est = match try_build(settings, model) {
         Ok(e) => e,
-        Err((key, msg)) => unreachable!("the battery's settings resolve: {key}: {msg}"),
+        Err((key, msg)) => {
+            unreachable!("the battery's settings resolve: {key}: {msg}")
+        }
     };
     let k0 = polled.t_s.iter().take_while(|t| **t < SCORE_FROM_S).count();
     let (mut se_w, mut se_l, mut n) = (0.0, 0.0, 0usize);

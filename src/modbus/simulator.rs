@@ -6,6 +6,7 @@
 //! id, or (an RS-485 line with several drives) one plant per listed unit id, each with a noise seed of its own,
 //! and then leaves requests to other unit ids unanswered, as a line without that device would.
 
+use crate::error::KeyError;
 use std::future::Future;
 use std::net::SocketAddr;
 use std::pin::Pin;
@@ -85,7 +86,7 @@ struct RealTime {
 
 impl DriveSim {
     /// At standstill, drive stopped, watchdog unarmed.
-    pub fn new(model: PlantModel, seed: u64) -> Result<DriveSim, (String, String)> {
+    pub fn new(model: PlantModel, seed: u64) -> Result<DriveSim, KeyError> {
         let coefficients = Coefficients::from_model(&model)?;
         let noise = SensorNoise::new(&model, seed);
         let map = RegisterMap::default();
@@ -355,13 +356,13 @@ const REOPEN_EVERY: Duration = Duration::from_millis(100);
 
 impl Simulator {
     /// One plant, answering every unit id.
-    pub fn new(model: PlantModel, seed: u64) -> Result<Simulator, (String, String)> {
+    pub fn new(model: PlantModel, seed: u64) -> Result<Simulator, KeyError> {
         Ok(Simulator { drive: SimHandle(Arc::new(Mutex::new(DriveSim::new(model, seed)?))), units: Arc::default() })
     }
 
     /// One plant per unit id (noise seeds `seed`, `seed + 1`, …); other unit ids get no answer. An empty list is
     /// [`Simulator::new`].
-    pub fn with_units(model: PlantModel, seed: u64, units: &[u8]) -> Result<Simulator, (String, String)> {
+    pub fn with_units(model: PlantModel, seed: u64, units: &[u8]) -> Result<Simulator, KeyError> {
         let mut sim = Simulator::new(model.clone(), seed)?;
         let mut plants = Vec::with_capacity(units.len());
         for (i, &unit) in units.iter().enumerate() {

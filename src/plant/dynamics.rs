@@ -1,5 +1,6 @@
 //! The plant's differential equations (PHYSICS.md §1) in SI, and their RK4 integration with an exact dead time.
 
+use crate::error::KeyError;
 use std::collections::VecDeque;
 use std::f64::consts::PI;
 
@@ -81,7 +82,7 @@ pub struct Coefficients {
 
 impl Coefficients {
     /// From a model that has the hydraulic sections; the missing key otherwise.
-    pub fn from_model(model: &PlantModel) -> Result<Coefficients, (String, String)> {
+    pub fn from_model(model: &PlantModel) -> Result<Coefficients, KeyError> {
         let h = model.hydraulic()?;
         let e = &model.effects;
         let leak = h.hydraulics.leakage_l_min_per_bar + e.internal_leakage.map_or(0.0, |l| l.l_min_per_bar);

@@ -1,5 +1,6 @@
 //! The catalogue of physics beyond the nominal model (CONTRACT.md "Effects catalogue"); ids and names are fixed.
 
+use crate::error::KeyError;
 use serde::{Deserialize, Serialize};
 
 /// Dry friction `T_c·sgn(ω)`.
@@ -99,19 +100,19 @@ impl Effects {
     }
 
     /// Checks every parameter, naming the key of the first bad one.
-    pub fn validate(&self) -> Result<(), (String, String)> {
-        let nonneg = |key: &str, v: f64| -> Result<(), (String, String)> {
+    pub fn validate(&self) -> Result<(), KeyError> {
+        let nonneg = |key: &str, v: f64| -> Result<(), KeyError> {
             if v.is_finite() && v >= 0.0 {
                 Ok(())
             } else {
-                Err((format!("effects.{key}"), format!("must be finite and ≥ 0, got {v}")))
+                Err(KeyError::new(format!("effects.{key}"), format!("must be finite and ≥ 0, got {v}")))
             }
         };
-        let positive = |key: &str, v: f64| -> Result<(), (String, String)> {
+        let positive = |key: &str, v: f64| -> Result<(), KeyError> {
             if v.is_finite() && v > 0.0 {
                 Ok(())
             } else {
-                Err((format!("effects.{key}"), format!("must be finite and > 0, got {v}")))
+                Err(KeyError::new(format!("effects.{key}"), format!("must be finite and > 0, got {v}")))
             }
         };
         if let Some(e) = self.coulomb_friction {
@@ -124,7 +125,10 @@ impl Effects {
         if let Some(e) = self.torque_offset
             && !e.torque_nm.is_finite()
         {
-            return Err(("effects.torque_offset.torque_nm".into(), format!("must be finite, got {}", e.torque_nm)));
+            return Err(KeyError::new(
+                "effects.torque_offset.torque_nm".into(),
+                format!("must be finite, got {}", e.torque_nm),
+            ));
         }
         if let Some(e) = self.internal_leakage {
             nonneg("internal_leakage.l_min_per_bar", e.l_min_per_bar)?;
@@ -132,7 +136,7 @@ impl Effects {
         if let Some(e) = self.dead_time {
             nonneg("dead_time.ms", e.ms)?;
             if e.ms > 10_000.0 {
-                return Err(("effects.dead_time.ms".into(), format!("must be ≤ 10000, got {}", e.ms)));
+                return Err(KeyError::new("effects.dead_time.ms".into(), format!("must be ≤ 10000, got {}", e.ms)));
             }
         }
         if let Some(e) = self.entrained_air {
@@ -197,18 +201,21 @@ impl Wear {
 
     /// Each rate finite, and each worn effect switched on in `effects` (wear moves a parameter; it does not invent
     /// the effect's other parameters).
-    pub fn validate(&self, effects: &Effects) -> Result<(), (String, String)> {
+    pub fn validate(&self, effects: &Effects) -> Result<(), KeyError> {
         let on = effects.active_ids();
         for (id, growth) in self.entries() {
             let Some(g) = growth else { continue };
             if !g.growth_per_hour.is_finite() {
-                return Err((
+                return Err(KeyError::new(
                     format!("wear.{id}.growth_per_hour"),
                     format!("must be finite, got {}", g.growth_per_hour),
                 ));
             }
             if !on.contains(&id) {
-                return Err((format!("wear.{id}"), format!("wears an effect that is off: add [effects.{id}]")));
+                return Err(KeyError::new(
+                    format!("wear.{id}"),
+                    format!("wears an effect that is off: add [effects.{id}]"),
+                ));
             }
         }
         Ok(())

@@ -1,5 +1,6 @@
 //! Load-torque profiles the simulator can apply (`[load]` of the plant model).
 
+use crate::error::KeyError;
 use serde::{Deserialize, Serialize};
 
 /// `[load]`: what the load torque T_L(t) is. `recorded` means "taken from a recording" (estimate, analyze) or,
@@ -58,8 +59,8 @@ impl LoadSpec {
     }
 
     /// Checks the parameters, naming the key of the first bad one.
-    pub fn validate(&self) -> Result<(), (String, String)> {
-        let bad = |key: &str, msg: String| Err((format!("load.{key}"), msg));
+    pub fn validate(&self) -> Result<(), KeyError> {
+        let bad = |key: &str, msg: String| Err(KeyError::new(format!("load.{key}"), msg));
         let all_finite = |vals: &[f64]| vals.iter().all(|v| v.is_finite());
         match self {
             LoadSpec::Steps { levels_nm, period_s } => {

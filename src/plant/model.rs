@@ -1,5 +1,6 @@
 //! The plant model file (`config/plant.toml`): parsed strictly, then validated so that every number is usable.
 
+use crate::error::KeyError;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -149,7 +150,11 @@ impl PlantModel {
             path: origin.to_string(),
             message: e.to_string().trim_end().to_string(),
         })?;
-        model.validate().map_err(|(key, message)| ModelError::Invalid { path: origin.to_string(), key, message })?;
+        model.validate().map_err(|KeyError { key, message }| ModelError::Invalid {
+            path: origin.to_string(),
+            key,
+            message,
+        })?;
         Ok(model)
     }
 
@@ -173,7 +178,7 @@ impl PlantModel {
     }
 
     /// The sections a pressure-driven simulation needs, or the key that is missing.
-    pub fn hydraulic(&self) -> Result<HydraulicParts<'_>, (String, String)> {
+    pub fn hydraulic(&self) -> Result<HydraulicParts<'_>, KeyError> {
         let need = |what: &str| (what.to_string(), "is required to simulate the hydraulic plant".to_string());
         Ok(HydraulicParts {
             drive: self.drive.as_ref().ok_or_else(|| need("[drive]"))?,
@@ -184,30 +189,30 @@ impl PlantModel {
     }
 
     /// Checks every number, returning the key and what is wrong with it.
-    pub fn validate(&self) -> Result<(), (String, String)> {
-        fn positive(key: &str, v: f64) -> Result<(), (String, String)> {
+    pub fn validate(&self) -> Result<(), KeyError> {
+        fn positive(key: &str, v: f64) -> Result<(), KeyError> {
             if v.is_finite() && v > 0.0 {
                 Ok(())
             } else {
-                Err((key.into(), format!("must be finite and > 0, got {v}")))
+                Err(KeyError::new(key.into(), format!("must be finite and > 0, got {v}")))
             }
         }
-        fn nonneg(key: &str, v: f64) -> Result<(), (String, String)> {
+        fn nonneg(key: &str, v: f64) -> Result<(), KeyError> {
             if v.is_finite() && v >= 0.0 {
                 Ok(())
             } else {
-                Err((key.into(), format!("must be finite and ≥ 0, got {v}")))
+                Err(KeyError::new(key.into(), format!("must be finite and ≥ 0, got {v}")))
             }
         }
         if let Some(d) = &self.drive {
             if d.pole_pairs == 0 {
-                return Err(("drive.pole_pairs".into(), "must be ≥ 1, got 0".into()));
+                return Err(KeyError::new("drive.pole_pairs".into(), "must be ≥ 1, got 0".into()));
             }
             positive("drive.ramp_hz_per_s", d.ramp_hz_per_s)?;
             positive("drive.time_constant_s", d.time_constant_s)?;
             positive("drive.max_hz", d.max_hz)?;
             if d.comm_timeout_ms == 0 {
-                return Err(("drive.comm_timeout_ms".into(), "must be ≥ 1, got 0".into()));
+                return Err(KeyError::new("drive.comm_timeout_ms".into(), "must be ≥ 1, got 0".into()));
             }
         }
         if let Some(p) = &self.pump {
@@ -229,7 +234,10 @@ impl PlantModel {
         nonneg("sensors.load_noise_nm", self.sensors.load_noise_nm)?;
         positive("sensors.sample_ms", self.sensors.sample_ms)?;
         if self.sensors.sample_ms > 1000.0 {
-            return Err(("sensors.sample_ms".into(), format!("must be ≤ 1000, got {}", self.sensors.sample_ms)));
+            return Err(KeyError::new(
+                "sensors.sample_ms".into(),
+                format!("must be ≤ 1000, got {}", self.sensors.sample_ms),
+            ));
         }
         self.load.validate()?;
         self.effects.validate()?;
@@ -339,6 +347,6 @@ mod tests {
             "emps",
         )
         .expect("valid");
-        assert_eq!(m.hydraulic().expect_err("no pump").0, "[drive]");
+        assert_eq!(m.hydraulic().expect_err("no pump").key, "[drive]");
     }
 }

@@ -7,6 +7,7 @@ use rand_distr::{Distribution, Normal};
 
 use super::dynamics::{Coefficients, Plant};
 use super::model::PlantModel;
+use crate::error::KeyError;
 use crate::units::pa_to_bar;
 
 /// The columns `simulate` writes, in order (CONTRACT.md: measured columns, then `true_*`).
@@ -33,8 +34,8 @@ pub struct Inputs<'a> {
 /// Why a streamed run stopped.
 #[derive(Debug)]
 pub enum RunError {
-    /// The model lacks something a simulation needs: (key, what).
-    Model(String, String),
+    /// The model lacks something a simulation needs.
+    Model(KeyError),
     /// The row sink failed (a full disk, say).
     Sink(std::io::Error),
 }
@@ -49,7 +50,7 @@ pub fn run_into(
     progress: &mut dyn FnMut(f64),
     sink: &mut dyn FnMut(&[f64; COLUMNS.len()]) -> std::io::Result<()>,
 ) -> Result<usize, RunError> {
-    let coefficients = Coefficients::from_model(model).map_err(|(k, m)| RunError::Model(k, m))?;
+    let coefficients = Coefficients::from_model(model).map_err(RunError::Model)?;
     let dt = model.sample_s();
     let n = (duration_s / dt).floor() as usize + 1;
     let mut plant = Plant::new(coefficients);

@@ -1,6 +1,7 @@
 //! A simulated test-stand run kept in memory as a recording (the plant room streams rows; this room holds them):
 //! what the tests, the estimator battery and the benches analyse.
 
+use crate::error::KeyError;
 use crate::plant::PlantModel;
 use crate::plant::excitation;
 use crate::plant::simulate::{COLUMNS, Inputs, RunError, run_into};
@@ -14,7 +15,7 @@ pub fn test_stand(
     duration_s: f64,
     seed: u64,
     progress: &mut dyn FnMut(f64),
-) -> Result<Recording, (String, String)> {
+) -> Result<Recording, KeyError> {
     let load = model.load.clone();
     let inputs = Inputs { setpoint_hz: &excitation::setpoint_hz, load_nm: &move |t| load.torque_nm(t) };
     run(model, duration_s, seed, &inputs, progress)
@@ -28,7 +29,7 @@ pub fn run(
     seed: u64,
     inputs: &Inputs<'_>,
     progress: &mut dyn FnMut(f64),
-) -> Result<Recording, (String, String)> {
+) -> Result<Recording, KeyError> {
     let n = (duration_s / model.sample_s()).floor() as usize + 1;
     let mut columns: Vec<Vec<f64>> = (0..COLUMNS.len()).map(|_| Vec::with_capacity(n)).collect();
     let mut sink = |row: &[f64; COLUMNS.len()]| {
@@ -38,8 +39,8 @@ pub fn run(
         Ok(())
     };
     run_into(model, duration_s, seed, inputs, progress, &mut sink).map_err(|e| match e {
-        RunError::Model(key, msg) => (key, msg),
-        RunError::Sink(e) => ("(memory)".into(), e.to_string()),
+        RunError::Model(e) => e,
+        RunError::Sink(e) => KeyError::new("(memory)".into(), e.to_string()),
     })?;
     Ok(Recording::from_columns("simulate", COLUMNS.iter().map(|c| c.to_string()).collect(), columns))
 }

@@ -759,8 +759,7 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
     let mut estimator =
         EstimatorSettings::from_model(&model, "the model file").map_err(|e| (key("estimator.model"), e.to_string()))?;
     estimator.method = method;
-    let coefficients =
-        Coefficients::from_model(&model).map_err(|(k, m)| (key("estimator.model"), format!("{k} {m}")))?;
+    let coefficients = Coefficients::from_model(&model).map_err(|e| (key("estimator.model"), e.to_string()))?;
     let feed_forward = FeedForward {
         pole_pairs: coefficients.pole_pairs,
         pump_m3_rad: coefficients.pump_m3_rad,
