@@ -45,6 +45,14 @@ impl Server {
     }
 }
 
+impl Server {
+    /// Cancels the shutdown signal the server was started with, then [`Server::wait`]s.
+    pub async fn stop(self) -> std::io::Result<()> {
+        self.shutdown.cancel();
+        self.wait().await
+    }
+}
+
 /// [`start`], then [`Server::wait`].
 pub async fn run(listener: TcpListener, settings: &Settings, shutdown: CancellationToken) -> std::io::Result<()> {
     start(listener, settings, shutdown)?.wait().await

@@ -12,7 +12,7 @@ use flate2::write::GzEncoder;
 use hydrolens::plant::PlantModel;
 use hydrolens::recording::{self, Recording};
 
-use crate::support::{self, metric, start_service, wait_for};
+use crate::support::{self, metric, start_service, stop_service, wait_for};
 
 fn gzip(bytes: &[u8]) -> Vec<u8> {
     let mut e = GzEncoder::new(Vec::new(), Compression::default());
@@ -46,7 +46,7 @@ async fn the_service_compresses_each_closed_file_and_serves_it() {
              [[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 1\n",
             dir.path().display().to_string()
         );
-        let (svc, shutdown) = start_service(&text).await;
+        let svc = start_service(&text).await;
         let url = svc.url.clone();
         let gz_files = || names_in(dir.path()).into_iter().filter(|n| n.ends_with(".csv.gz")).collect::<Vec<_>>();
         let two = wait_for(Duration::from_secs(20), || async { gz_files().len() >= 2 }).await;
@@ -77,8 +77,7 @@ async fn the_service_compresses_each_closed_file_and_serves_it() {
         assert!(gunzip(&body).starts_with("t_s,f_set_hz,"));
         let m = reqwest::get(format!("{url}/metrics")).await.expect("metrics").text().await.expect("text");
         assert!(metric(&m, "hydrolens_recording_files_compressed_total{drive=\"pump1\"}").unwrap_or(0.0) >= 2.0, "{m}");
-        shutdown.cancel();
-        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("stops").expect("http server");
+        stop_service(svc).await;
         sim_stop.cancel();
         // at the stop the last file was closed and compressed: nothing plain, no temporary file
         let left = names_in(dir.path());
@@ -251,7 +250,7 @@ async fn retention_deletes_old_csv_gz_and_the_start_compresses_what_an_earlier_r
              [[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 10\n",
             dir.path().display().to_string()
         );
-        let (svc, shutdown) = start_service(&config).await;
+        let svc = start_service(&config).await;
         let url = svc.url.clone();
         let deleted = || async {
             let m = reqwest::get(format!("{url}/metrics")).await.expect("metrics").text().await.expect("text");
@@ -270,8 +269,7 @@ async fn retention_deletes_old_csv_gz_and_the_start_compresses_what_an_earlier_r
         assert!(!left.iter().any(|n| n.ends_with(".tmp")), "the cut compression removed: {left:?}");
         let back = recording::load(&dir.path().join("pump1-4000.csv.gz")).expect("valid");
         assert_eq!(back.t_s(), &[0.0, 0.001]);
-        shutdown.cancel();
-        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("stops").expect("http server");
+        stop_service(svc).await;
         sim_stop.cancel();
     };
     tokio::time::timeout(Duration::from_secs(30), run).await.expect("bounded");
@@ -300,16 +298,9 @@ async fn disk_per_drive_per_day() {
              target_omega_rad_s = 40.0\nmax_hz = 50.0\nramp_hz_per_s = 20.0\n",
             dir.path().display().to_string()
         );
-        let (svc, shutdown) = start_service(&config).await;
-        let drive = svc.state.drives[0].clone();
-        let start = std::time::Instant::now();
-        while start.elapsed() < Duration::from_secs(seconds) {
-            let t = start.elapsed().as_secs_f64();
-            drive.set_target(hydrolens::service::program::demo_target_rad_s(t, 40.0, drive.max_target_omega_rad_s));
-            tokio::time::sleep(Duration::from_millis(100)).await;
-        }
-        shutdown.cancel();
-        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("stops").expect("http server");
+        let svc = start_service(&config).await;
+        support::follow_demo_program(&svc.state.drives[0], seconds).await;
+        stop_service(svc).await;
         sim_stop.cancel();
         let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await;
         let (mut rows, mut plain, mut packed, mut compress_s) = (0u64, 0u64, 0u64, 0.0);

@@ -246,7 +246,7 @@ async fn over_tcp_a_restart_keeps_the_history_and_its_alarms() {
             "[drives.condition]\nenabled = true\nevery_s = 300.0\n[drives.condition.limits]\n\
              internal_leakage = { l_min_per_bar = 0.02 }\n",
         );
-        let (svc, shutdown) = support::start_service(&text).await;
+        let svc = support::start_service(&text).await;
         let url = svc.url.clone();
         let (_, after) = condition_json(&url, "pump1").await;
         assert_eq!(after["checks"], before["checks"], "the checks come back, oldest first");
@@ -254,8 +254,7 @@ async fn over_tcp_a_restart_keeps_the_history_and_its_alarms() {
         let metrics = reqwest::get(format!("{url}/metrics")).await.expect("GET").text().await.expect("text");
         let alarm = support::metric(&metrics, "hydrolens_condition_alarm{drive=\"pump1\",effect=\"internal_leakage\"}");
         assert_eq!(alarm, Some(1.0), "{metrics}");
-        shutdown.cancel();
-        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("service stops").expect("http server");
+        support::stop_service(svc).await;
         sim_stop.cancel();
         let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await.expect("simulator stops");
     };
@@ -295,7 +294,7 @@ async fn the_dashboard_draws_the_trend_marks_the_alarm_and_says_when_the_last_ch
         "[drives.condition]\nenabled = true\nevery_s = 300.0\n[drives.condition.limits]\n\
          internal_leakage = { l_min_per_bar = 0.02 }\ndead_time = { ms = 50.0 }\n",
     );
-    let (svc, shutdown) = support::start_service(&text).await;
+    let svc = support::start_service(&text).await;
     let url = svc.url.clone();
     let page = format!("{url}/?close_after=5");
     let dom = tokio::task::spawn_blocking(move || {
@@ -328,8 +327,7 @@ async fn the_dashboard_draws_the_trend_marks_the_alarm_and_says_when_the_last_ch
         .await
         .expect("joins");
     }
-    shutdown.cancel();
-    tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("service stops").expect("http server");
+    support::stop_service(svc).await;
     sim_stop.cancel();
     let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await.expect("simulator stops");
 }

@@ -12,10 +12,9 @@ use hydrolens::server::Server;
 use hydrolens::service;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
-use tokio_util::sync::CancellationToken;
 
 use crate::device::{self, Device};
-use crate::support::{TOKEN, metric, root, start_service, wait_for};
+use crate::support::{TOKEN, metric, root, start_service, stop_service, wait_for};
 
 const SPEED: &str = crate::support::SPEED_30;
 
@@ -23,7 +22,6 @@ const SPEED: &str = crate::support::SPEED_30;
 struct Svc {
     svc: Option<Server>,
     url: String,
-    shutdown: CancellationToken,
     _dir: tempfile::TempDir,
 }
 
@@ -39,9 +37,9 @@ impl Svc {
              [[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 10\ntimeout_ms = 100\n{drive_extra}\n",
             d = dir.path().display().to_string()
         );
-        let (svc, shutdown) = start_service(&text).await;
+        let svc = start_service(&text).await;
         let url = svc.url.clone();
-        Svc { svc: Some(svc), url, shutdown, _dir: dir }
+        Svc { svc: Some(svc), url, _dir: dir }
     }
 
     fn state(&self) -> &Arc<service::ServiceState> {
@@ -57,10 +55,8 @@ impl Svc {
     }
 
     async fn stop(mut self) {
-        self.shutdown.cancel();
-        let bounded = Duration::from_secs(10);
         if let Some(s) = self.svc.take() {
-            tokio::time::timeout(bounded, s.wait()).await.expect("service stops").expect("http server");
+            stop_service(s).await;
         }
     }
 }
@@ -651,7 +647,7 @@ async fn retention_keeps_the_recordings_within_max_total_mb_and_never_deletes_th
              compress = false\n[[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 1\n",
             dir.path().display().to_string()
         );
-        let (svc, shutdown) = start_service(&text).await;
+        let svc = start_service(&text).await;
         let url = svc.url.clone();
         let deleted = || async {
             let m = reqwest::get(format!("{url}/metrics")).await.expect("metrics").text().await.expect("text");
@@ -671,8 +667,7 @@ async fn retention_keeps_the_recordings_within_max_total_mb_and_never_deletes_th
         // the budget, plus the open file growing past it until the next rotation
         assert!(total <= (0.3 * 1048576.0) as u64 + 110_000, "{total} bytes: {:?}", ours());
         assert!(dir.path().join("pump1-b-1000.csv").exists(), "another drive's file is not ours");
-        shutdown.cancel();
-        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("stops").expect("http server");
+        stop_service(svc).await;
         sim_stop.cancel();
         // the newest file (open until the stop) is still there and whole
         let mut names: Vec<String> = ours().into_iter().map(|(n, _)| n).collect();

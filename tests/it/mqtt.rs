@@ -245,16 +245,15 @@ async fn condition_checks_go_to_the_condition_topic_and_again_after_a_broker_res
         // condition message comes at the start, and again only because the broker came back without it
         let (_sim, modbus, sim_stop, sim_task) = support::start_sim(support::test_plant(5.0), 0).await;
         let text = support::config_text(modbus, dir.path(), 10, &condition_extra(86_400, &broker.url()));
-        let (svc, shutdown) = support::start_service(&text).await;
+        let svc = support::start_service(&text).await;
         let first = next_on(&mut rx, "hc/pump1/condition", Duration::from_secs(10)).await.expect("restored checks");
         assert!(first.contains("\"checks\":[{"), "{first}");
         broker.kill();
         let _broker = Broker::start(port).await;
         let again = next_on(&mut rx, "hc/pump1/condition", Duration::from_secs(10)).await;
         assert_eq!(again.as_deref(), Some(first.as_str()), "the condition is sent again after the broker's restart");
-        shutdown.cancel();
+        support::stop_service(svc).await;
         sim_stop.cancel();
-        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("service stops").expect("http server");
         let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await.expect("simulator stops");
         sub.abort();
     };

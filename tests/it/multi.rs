@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use crate::support::{Stack, metric, start_service, start_sim, test_plant, wait_for};
+use crate::support::{Stack, metric, start_service, start_sim, stop_service, test_plant, wait_for};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_drives_are_polled_and_regulated_independently() {
@@ -22,7 +22,7 @@ async fn two_drives_are_polled_and_regulated_independently() {
             drive("pump1", addr_a, 1, 30.0),
             drive("pump2", addr_b, 2, 45.0)
         );
-        let (svc, shutdown) = start_service(&text).await;
+        let svc = start_service(&text).await;
         let url = svc.url.clone();
         let near = |sim: &hydrolens::modbus::simulator::SimHandle, target: f64| {
             (sim.lock().truth().omega_rad_s - target).abs() < 0.05 * target
@@ -39,8 +39,7 @@ async fn two_drives_are_polled_and_regulated_independently() {
         for d in ["pump1", "pump2"] {
             assert!(metric(&m, &format!("hydrolens_polls_total{{drive=\"{d}\"}}")).expect("polls") > 100.0, "{m}");
         }
-        shutdown.cancel();
-        tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("service stops").expect("http server");
+        stop_service(svc).await;
         let files: Vec<String> = std::fs::read_dir(dir.path())
             .expect("recordings")
             .filter_map(|e| e.ok()?.file_name().into_string().ok())

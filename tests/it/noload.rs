@@ -102,16 +102,9 @@ fn speed_mode_config(modbus: std::net::SocketAddr, dir: &Path, poll_ms: u64) -> 
 async fn serve_a_recording(truth: PlantModel, poll_ms: u64, seconds: u64) -> tempfile::TempDir {
     let (_sim, addr, sim_stop, sim_task) = support::start_sim(truth, 0).await;
     let dir = tempfile::tempdir().expect("tmp");
-    let (svc, shutdown) = support::start_service(&speed_mode_config(addr, dir.path(), poll_ms)).await;
-    let drive = svc.state.drives[0].clone();
-    let start = std::time::Instant::now();
-    while start.elapsed() < Duration::from_secs(seconds) {
-        let t = start.elapsed().as_secs_f64();
-        drive.set_target(hydrolens::service::program::demo_target_rad_s(t, 40.0, drive.max_target_omega_rad_s));
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
-    shutdown.cancel();
-    tokio::time::timeout(Duration::from_secs(10), svc.wait()).await.expect("service stops").expect("http server");
+    let svc = support::start_service(&speed_mode_config(addr, dir.path(), poll_ms)).await;
+    support::follow_demo_program(&svc.state.drives[0], seconds).await;
+    support::stop_service(svc).await;
     sim_stop.cancel();
     let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await.expect("simulator stops");
     dir

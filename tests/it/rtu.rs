@@ -8,11 +8,10 @@ use std::time::Duration;
 
 use hydrolens::modbus::line::{Parity, SerialLine};
 use hydrolens::modbus::simulator::{SimHandle, Simulator};
-use hydrolens::server::Server;
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
-use crate::support::{TOKEN, bin, start_service, test_plant, wait_for};
+use crate::support::{TOKEN, bin, start_service, stop_service, test_plant, wait_for};
 
 /// A virtual serial line: two ptys joined by socat, reached through the links `a` (the service's end) and `b`
 /// (the simulator's). Dropping it unplugs the line.
@@ -132,11 +131,6 @@ async fn regulates(url: &str, i: usize, sim: &SimHandle, target: f64, limit: Dur
     .is_some()
 }
 
-async fn stop(service: Server, shutdown: CancellationToken) {
-    shutdown.cancel();
-    tokio::time::timeout(Duration::from_secs(10), service.wait()).await.expect("service stops").expect("http server");
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_drives_on_one_line_take_turns() {
     let run = async {
@@ -150,7 +144,7 @@ async fn two_drives_on_one_line_take_turns() {
             rtu_drive("vfd1", &line.end("a"), 1, 40, 30.0),
             rtu_drive("vfd2", &line.end("a"), 2, 40, 20.0)
         );
-        let (service, shutdown) = start_service(&service_text(dir.path(), &drives)).await;
+        let service = start_service(&service_text(dir.path(), &drives)).await;
         let url = service.url.clone();
         // each unit id reaches its own plant: two different targets are both met
         assert!(regulates(&url, 0, &one, 30.0, Duration::from_secs(15)).await, "vfd1 (unit 1) regulates");
@@ -162,7 +156,7 @@ async fn two_drives_on_one_line_take_turns() {
             assert_eq!(d["address"], line.end("a").display().to_string(), "{d}");
         }
         assert_eq!(readyz(&url).await, 200);
-        stop(service, shutdown).await;
+        stop_service(service).await;
         sim_stop.cancel();
         tokio::time::timeout(Duration::from_secs(5), sim_task).await.expect("sim stops").expect("sim task");
         drop(line);
@@ -183,7 +177,7 @@ async fn a_silent_device_does_not_starve_its_neighbour_on_the_line() {
             rtu_drive("vfd1", &line.end("a"), 1, 40, 30.0),
             rtu_drive("vfd2", &line.end("a"), 2, 40, 20.0)
         );
-        let (service, shutdown) = start_service(&service_text(dir.path(), &drives)).await;
+        let service = start_service(&service_text(dir.path(), &drives)).await;
         let url = service.url.clone();
         assert!(regulates(&url, 0, &one, 30.0, Duration::from_secs(15)).await, "vfd1 regulates");
         assert!(regulates(&url, 1, &two, 20.0, Duration::from_secs(15)).await, "vfd2 regulates");
@@ -224,7 +218,7 @@ async fn a_silent_device_does_not_starve_its_neighbour_on_the_line() {
         assert!(samples >= 17, "vfd1 kept {samples} polls (of about 25) in the last second");
         assert_eq!(readyz(&url).await, 503, "not ready while vfd2 is stale");
 
-        stop(service, shutdown).await;
+        stop_service(service).await;
         sim_stop.cancel();
         tokio::time::timeout(Duration::from_secs(5), sim_task).await.expect("sim stops").expect("sim task");
         drop(line);
@@ -241,7 +235,7 @@ async fn an_unplugged_line_goes_stale_trips_the_drive_and_comes_back() {
         let drive = plant(&sim, 1);
         let sim_task = spawn_serial(sim, &line.end("b"), &sim_stop);
         let text = service_text(dir.path(), &rtu_drive("vfd1", &line.end("a"), 1, 20, 30.0));
-        let (service, shutdown) = start_service(&text).await;
+        let service = start_service(&text).await;
         let url = service.url.clone();
         assert!(regulates(&url, 0, &drive, 30.0, Duration::from_secs(15)).await, "regulates before the fault");
 
@@ -279,7 +273,7 @@ async fn an_unplugged_line_goes_stale_trips_the_drive_and_comes_back() {
         assert!(reset.status().is_success(), "{}", reset.status());
         assert!(regulates(&url, 0, &drive, 30.0, Duration::from_secs(10)).await, "regulates after the reset");
 
-        stop(service, shutdown).await;
+        stop_service(service).await;
         sim_stop.cancel();
         tokio::time::timeout(Duration::from_secs(5), sim_task).await.expect("sim stops").expect("sim task");
     };
@@ -303,11 +297,11 @@ async fn rtu_over_tcp_reaches_the_simulator() {
             "[[drives]]\nname = \"gw3\"\ntransport = \"rtu-over-tcp\"\naddress = \"{addr}\"\nbaud_rate = 115200\n\
              unit_id = 3\npoll_ms = 20\ntimeout_ms = 100\n[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 25.0\n"
         );
-        let (service, shutdown) = start_service(&service_text(dir.path(), &drives)).await;
+        let service = start_service(&service_text(dir.path(), &drives)).await;
         let url = service.url.clone();
         assert!(regulates(&url, 0, &drive, 25.0, Duration::from_secs(15)).await, "regulates over rtu-over-tcp");
         assert_eq!(readyz(&url).await, 200);
-        stop(service, shutdown).await;
+        stop_service(service).await;
         sim_stop.cancel();
         tokio::time::timeout(Duration::from_secs(5), sim_task).await.expect("sim stops").expect("sim task");
     };

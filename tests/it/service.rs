@@ -292,7 +292,7 @@ async fn each_drive_polls_on_its_own_thread_with_the_priority_asked_for() {
             drive("rt-probe", "realtime_priority = 5\n"),
             drive("plain", "")
         );
-        let (svc, shutdown) = support::start_service(&text).await;
+        let svc = support::start_service(&text).await;
         let url = svc.url.clone();
         wait_for(Duration::from_secs(5), || async { svc.state.drives.iter().all(|d| d.snapshot().link.polls > 10) })
             .await
@@ -314,8 +314,7 @@ async fn each_drive_polls_on_its_own_thread_with_the_priority_asked_for() {
         // the kernel gives real-time threads no slack at all
         assert_eq!(timing(0)["timer_slack_ns"], if allowed { 0 } else { 1_000 }, "{status}");
         assert_eq!(timing(1)["timer_slack_ns"], 1_000, "{status}");
-        shutdown.cancel();
-        tokio::time::timeout(Duration::from_secs(5), svc.wait()).await.expect("service stops").expect("http server");
+        tokio::time::timeout(Duration::from_secs(5), svc.stop()).await.expect("service stops").expect("http server");
         assert!(poll_thread("rt-probe").is_none(), "the poll thread ended with the service");
         sim_stop.cancel();
         let _ = sim_task.await;

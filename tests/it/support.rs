@@ -77,7 +77,6 @@ pub struct Stack {
     dir: tempfile::TempDir,
     pub sim_stop: CancellationToken,
     pub sim_task: Option<JoinHandle<()>>,
-    shutdown: CancellationToken,
     server: Option<Server>,
 }
 
@@ -91,12 +90,25 @@ pub fn config_text(modbus: SocketAddr, dir: &std::path::Path, poll_ms: u64, driv
 }
 
 /// Starts a service from config text and serves HTTP on 127.0.0.1:0 ([`server::start`], as `serve` does).
-pub async fn start_service(text: &str) -> (Server, CancellationToken) {
+pub async fn start_service(text: &str) -> Server {
     let settings = service::config::parse(text, "test config", Some(&root())).expect("valid test config");
-    let shutdown = CancellationToken::new();
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind http");
-    let server = server::start(listener, &settings, shutdown.clone()).expect("service starts");
-    (server, shutdown)
+    server::start(listener, &settings, CancellationToken::new()).expect("service starts")
+}
+
+/// Stops a service started by [`start_service`], waiting (10 s at most) for its loops to close their recordings.
+pub async fn stop_service(server: Server) {
+    tokio::time::timeout(Duration::from_secs(10), server.stop()).await.expect("service stops").expect("http server");
+}
+
+/// Moves `drive`'s target through the demo's program (around 40 rad/s, every 100 ms) for `seconds`.
+pub async fn follow_demo_program(drive: &hydrolens::service::DriveState, seconds: u64) {
+    let start = std::time::Instant::now();
+    while start.elapsed() < Duration::from_secs(seconds) {
+        let t = start.elapsed().as_secs_f64();
+        drive.set_target(hydrolens::service::program::demo_target_rad_s(t, 40.0, drive.max_target_omega_rad_s));
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
 }
 
 impl Stack {
@@ -140,7 +152,7 @@ impl Stack {
     ) -> Stack {
         let dir = tempfile::tempdir().expect("tmp");
         let text = config_text(service_reaches, dir.path(), poll_ms, drive_extra);
-        let (server, shutdown) = start_service(&text).await;
+        let server = start_service(&text).await;
         Stack {
             sim,
             modbus_addr,
@@ -149,18 +161,16 @@ impl Stack {
             dir,
             sim_stop,
             sim_task: Some(sim_task),
-            shutdown,
             server: Some(server),
         }
     }
 
     /// Stops everything, waiting (bounded) for the loops to close their recordings; hands back the recording dir.
     pub async fn stop(mut self) -> tempfile::TempDir {
-        self.shutdown.cancel();
         self.sim_stop.cancel();
         let bounded = Duration::from_secs(10);
         if let Some(s) = self.server.take() {
-            tokio::time::timeout(bounded, s.wait()).await.expect("service stops").expect("http server");
+            stop_service(s).await;
         }
         if let Some(t) = self.sim_task.take() {
             let _ = tokio::time::timeout(bounded, t).await.expect("simulator stops");
