@@ -53,6 +53,9 @@ pub struct Options {
     /// Per round, at most this many candidates (those passing the BIC margin, largest ΔBIC first) are
     /// cross-validated.
     pub max_cross_validated: usize,
+    /// Entrained air is named only when the fitted effective bulk modulus is at most this fraction of the model's:
+    /// closer, it is the oil's own variation with temperature and pressure, or the recording's timing.
+    pub air_max_modulus_ratio: f64,
 }
 
 impl Default for Options {
@@ -66,6 +69,7 @@ impl Default for Options {
             folds: 4,
             regime_min_s: 5.0,
             max_cross_validated: 3,
+            air_max_modulus_ratio: 0.8,
         }
     }
 }
@@ -351,6 +355,20 @@ pub fn analyze(
             // recorder's own, not the drive's
             if sc.model.effects.dead_time.is_some_and(|d| d.ms < 1e3 / s.sample_hz) && t.id == "dead_time" {
                 return false;
+            }
+            // an oil's bulk modulus moves by 10–20 % with its temperature and pressure, and a service recording's
+            // poll jitter softens the fitted one by as much (a clean plant served at 5 ms on a loaded machine gave
+            // 8 % below the model's): an effective modulus within that band of the model's is not entrained air
+            if t.id == "entrained_air" {
+                let nominal_bulk = current.model.hydraulics.as_ref().map_or(f64::NAN, |h| h.bulk_modulus_bar);
+                if sc
+                    .model
+                    .effects
+                    .entrained_air
+                    .is_some_and(|a| a.bulk_modulus_bar > opts.air_max_modulus_ratio * nominal_bulk)
+                {
+                    return false;
+                }
             }
             if cv {
                 let (Some(c), Some(b)) = (&t.cv, cv_before) else { return false };
