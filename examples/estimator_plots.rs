@@ -20,7 +20,7 @@ fn rmse(a: &[f64], b: &[f64], t: &[f64]) -> f64 {
 fn run(rec: &Recording, model: &PlantModel, settings: &EstimatorSettings) -> Vec<Estimate> {
     let mut est = match estimator::try_build(settings, model) {
         Ok(e) => e,
-        Err((k, m)) => panic!("settings: {k} {m}"),
+        Err(e) => panic!("settings: {e}"),
     };
     hydrolens::replay::replay(rec, model, "model", est.as_mut()).expect("replay")
 }

@@ -13,6 +13,7 @@
 //!
 //! Pure but for [`Store`]; the service decides when and on which thread a check runs.
 
+use crate::error::KeyError;
 use std::collections::BTreeMap;
 use std::io::{BufRead, Write};
 use std::path::{Path, PathBuf};
@@ -99,10 +100,10 @@ pub fn alarms_below(parameter: &str) -> bool {
 pub type Limits = BTreeMap<String, BTreeMap<String, f64>>;
 
 /// Checks the limits' names against the effects catalogue and the analysis's parameter names: the key at fault.
-pub fn validate_limits(limits: &Limits, key_prefix: &str) -> Result<(), (String, String)> {
+pub fn validate_limits(limits: &Limits, key_prefix: &str) -> Result<(), KeyError> {
     for (effect, params) in limits {
         if !crate::plant::effects::EFFECT_IDS.contains(&effect.as_str()) {
-            return Err((
+            return Err(KeyError::new(
                 format!("{key_prefix}.{effect}"),
                 format!("not an effect of the catalogue ({})", crate::plant::effects::EFFECT_IDS.join(", ")),
             ));
@@ -110,10 +111,13 @@ pub fn validate_limits(limits: &Limits, key_prefix: &str) -> Result<(), (String,
         let known = crate::plant::effects::parameter_names(effect);
         for (p, v) in params {
             if !known.contains(&p.as_str()) {
-                return Err((format!("{key_prefix}.{effect}.{p}"), format!("{effect} has {}", known.join(", "))));
+                return Err(KeyError::new(
+                    format!("{key_prefix}.{effect}.{p}"),
+                    format!("{effect} has {}", known.join(", ")),
+                ));
             }
             if !v.is_finite() {
-                return Err((format!("{key_prefix}.{effect}.{p}"), format!("must be finite, got {v}")));
+                return Err(KeyError::new(format!("{key_prefix}.{effect}.{p}"), format!("must be finite, got {v}")));
             }
         }
     }
@@ -410,10 +414,11 @@ mod tests {
     fn limits_name_the_key_at_fault() {
         assert!(validate_limits(&leak_limit(0.02), "drives.condition.limits").is_ok());
         let bad_effect: Limits = [("leak".to_string(), BTreeMap::new())].into();
-        let (key, _) = validate_limits(&bad_effect, "drives.condition.limits").expect_err("unknown effect");
+        let KeyError { key, .. } = validate_limits(&bad_effect, "drives.condition.limits").expect_err("unknown effect");
         assert_eq!(key, "drives.condition.limits.leak");
         let bad_param: Limits = [("dead_time".to_string(), [("seconds".to_string(), 1.0)].into())].into();
-        let (key, msg) = validate_limits(&bad_param, "drives.condition.limits").expect_err("unknown parameter");
+        let KeyError { key, message: msg } =
+            validate_limits(&bad_param, "drives.condition.limits").expect_err("unknown parameter");
         assert_eq!(key, "drives.condition.limits.dead_time.seconds");
         assert!(msg.contains("ms"), "{msg}");
     }

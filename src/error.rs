@@ -19,10 +19,3 @@ impl KeyError {
         KeyError { key, message }
     }
 }
-
-/// `(key, message)`, as the config and settings validators still build them.
-impl From<(String, String)> for KeyError {
-    fn from((key, message): (String, String)) -> KeyError {
-        KeyError { key, message }
-    }
-}

@@ -348,8 +348,9 @@ fn estimate(rec_path: &Path, model_path: &Path, out: &Path, flags: &EstimateFlag
     settings.initial_covariance = f.initial_covariance.unwrap_or(settings.initial_covariance);
     settings.speed_noise_rad_s = f.speed_noise.or(settings.speed_noise_rad_s);
     settings.load_rate_nm_per_s = f.load_rate.unwrap_or(settings.load_rate_nm_per_s);
-    let est = estimator::try_build(&settings, &model)
-        .map_err(|(key, msg)| BadInput(format!("{key} (command line or model file {origin}) {msg}")))?;
+    let est = estimator::try_build(&settings, &model).map_err(|hydrolens::error::KeyError { key, message: msg }| {
+        BadInput(format!("{key} (command line or model file {origin}) {msg}"))
+    })?;
     let rows = replay_file::estimate_file(rec_path, &model, &origin, est.as_ref(), out)?;
     eprintln!("estimate ({}): {rows} rows written to {}", settings.method, out.display());
     Ok(())

@@ -114,8 +114,8 @@ pub fn poll(scenario: &Scenario, truth: &PlantModel, poll_ms: u32) -> Polled {
 pub fn score(polled: &Polled, settings: &EstimatorSettings, model: &PlantModel, truth: &PlantModel) -> Score {
     let mut est = match try_build(settings, model) {
         Ok(e) => e,
-        Err((key, msg)) => {
-            unreachable!("the battery's settings resolve: {key}: {msg}")
+        Err(crate::error::KeyError { key, message }) => {
+            unreachable!("the battery's settings resolve: {key}: {message}")
         }
     };
     let k0 = polled.t_s.iter().take_while(|t| **t < SCORE_FROM_S).count();

@@ -57,7 +57,10 @@ pub trait Estimator: Send {
 }
 
 /// The estimator `settings.method` names, for a model; the settings key at fault when they do not fit the model.
-pub fn try_build(settings: &EstimatorSettings, model: &PlantModel) -> Result<Box<dyn Estimator>, (String, String)> {
+pub fn try_build(
+    settings: &EstimatorSettings,
+    model: &PlantModel,
+) -> Result<Box<dyn Estimator>, crate::error::KeyError> {
     let r = settings.resolve(model)?;
     Ok(match settings.method {
         Method::RlsSgd => Box::new(RlsSgd::new(r)),

@@ -182,10 +182,14 @@ pub struct Resolved {
     pub displacement_m3_rad: Option<f64>,
 }
 
-type KeyError = (String, String);
+use crate::error::KeyError;
 
 fn check(key: &str, v: f64, ok: bool, expected: &str) -> Result<f64, KeyError> {
-    if v.is_finite() && ok { Ok(v) } else { Err((format!("estimator.{key}"), format!("must be {expected}, got {v}"))) }
+    if v.is_finite() && ok {
+        Ok(v)
+    } else {
+        Err(KeyError::new(format!("estimator.{key}"), format!("must be {expected}, got {v}")))
+    }
 }
 
 impl EstimatorSettings {
@@ -198,7 +202,7 @@ impl EstimatorSettings {
                 key: "[estimator]".into(),
                 message: e.to_string().trim_end().to_string(),
             })?;
-        settings.resolve(model).map_err(|(key, message)| ModelError::Invalid {
+        settings.resolve(model).map_err(|KeyError { key, message }| ModelError::Invalid {
             path: origin.to_string(),
             key,
             message,

@@ -179,7 +179,8 @@ impl PlantModel {
 
     /// The sections a pressure-driven simulation needs, or the key that is missing.
     pub fn hydraulic(&self) -> Result<HydraulicParts<'_>, KeyError> {
-        let need = |what: &str| (what.to_string(), "is required to simulate the hydraulic plant".to_string());
+        let need =
+            |what: &str| KeyError::new(what.to_string(), "is required to simulate the hydraulic plant".to_string());
         Ok(HydraulicParts {
             drive: self.drive.as_ref().ok_or_else(|| need("[drive]"))?,
             pump: self.pump.as_ref().ok_or_else(|| need("[pump]"))?,

@@ -5,6 +5,7 @@
 //! the HTTP workers, never on a poll thread and never on the async runtime. The data are the drive's history ring
 //! (kept at least `window_s` long), thinned to at most [`MAX_CHECK_HZ`] samples a second, with the load unknown.
 
+use crate::error::KeyError;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicU64;
 use std::sync::{Arc, Mutex};
@@ -70,20 +71,23 @@ pub(crate) fn validate(
     key: &str,
     estimator_model: &PlantModel,
     resolve: impl Fn(&str) -> PathBuf,
-) -> Result<ConditionSettings, (String, String)> {
+) -> Result<ConditionSettings, KeyError> {
     let k = |s: &str| format!("{key}.{s}");
     if !(raw.window_s.is_finite() && (5.0..=3600.0).contains(&raw.window_s)) {
-        return Err((k("window_s"), format!("must be 5 ..= 3600 s, got {}", raw.window_s)));
+        return Err(KeyError::new(k("window_s"), format!("must be 5 ..= 3600 s, got {}", raw.window_s)));
     }
     if !(raw.every_s.is_finite() && (1.0..=86_400.0).contains(&raw.every_s)) {
-        return Err((k("every_s"), format!("must be 1 ..= 86400 s, got {}", raw.every_s)));
+        return Err(KeyError::new(k("every_s"), format!("must be 1 ..= 86400 s, got {}", raw.every_s)));
     }
     let mut model = match raw.model {
         None => estimator_model.clone(),
-        Some(p) => PlantModel::load(&resolve(&p)).map_err(|e| (k("model"), e.to_string()))?,
+        Some(p) => PlantModel::load(&resolve(&p)).map_err(|e| KeyError::new(k("model"), e.to_string()))?,
     };
     if model.motor.displacement_cm3.is_none() || model.hydraulics.is_none() || model.pump.is_none() {
-        return Err((k("model"), "the model needs [pump], [motor] displacement_cm3 and [hydraulics]".into()));
+        return Err(KeyError::new(
+            k("model"),
+            "the model needs [pump], [motor] displacement_cm3 and [hydraulics]".into(),
+        ));
     }
     model.load = LoadSpec::Recorded;
     condition::validate_limits(&raw.limits, &k("limits"))?;
@@ -386,7 +390,7 @@ mod tests {
         toml::from_str(text).expect("parses")
     }
 
-    fn check(text: &str) -> Result<ConditionSettings, (String, String)> {
+    fn check(text: &str) -> Result<ConditionSettings, KeyError> {
         validate(raw(text), "drives[0].condition", &PlantModel::reference(), |p: &str| PathBuf::from(p))
     }
 
@@ -402,7 +406,7 @@ mod tests {
 
     #[test]
     fn errors_name_the_key() {
-        let key = |text: &str| check(text).expect_err(text).0;
+        let key = |text: &str| check(text).expect_err(text).key;
         assert_eq!(key("window_s = 1.0"), "drives[0].condition.window_s");
         assert_eq!(key("every_s = -5.0"), "drives[0].condition.every_s");
         assert_eq!(key("model = \"/no/such/plant.toml\""), "drives[0].condition.model");

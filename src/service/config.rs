@@ -1,6 +1,7 @@
 //! The service config (`config/hydrolens.toml`): parsed raw and strictly (unknown keys are errors), then validated
 //! into typed settings that cannot be invalid. Every error names its key.
 
+use crate::error::KeyError;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
@@ -364,21 +365,33 @@ pub fn load(path: &Path) -> Result<Settings, ConfigError> {
 pub fn parse(text: &str, origin: &str, base: Option<&Path>) -> Result<Settings, ConfigError> {
     let raw: RawConfig = toml::from_str(text)
         .map_err(|e| ConfigError::Syntax { path: origin.to_string(), message: e.to_string().trim_end().to_string() })?;
-    validate(raw, base).map_err(|(key, message)| ConfigError::Invalid { path: origin.to_string(), key, message })
+    validate(raw, base).map_err(|KeyError { key, message }| ConfigError::Invalid {
+        path: origin.to_string(),
+        key,
+        message,
+    })
 }
 
-type Invalid = (String, String);
+type Invalid = KeyError;
 
 fn finite(key: &str, v: f64) -> Result<f64, Invalid> {
-    if v.is_finite() { Ok(v) } else { Err((key.into(), format!("must be a finite number, got {v}"))) }
+    if v.is_finite() { Ok(v) } else { Err(KeyError::new(key.into(), format!("must be a finite number, got {v}"))) }
 }
 
 fn nonneg(key: &str, v: f64) -> Result<f64, Invalid> {
-    if v.is_finite() && v >= 0.0 { Ok(v) } else { Err((key.into(), format!("must be finite and ≥ 0, got {v}"))) }
+    if v.is_finite() && v >= 0.0 {
+        Ok(v)
+    } else {
+        Err(KeyError::new(key.into(), format!("must be finite and ≥ 0, got {v}")))
+    }
 }
 
 fn positive(key: &str, v: f64) -> Result<f64, Invalid> {
-    if v.is_finite() && v > 0.0 { Ok(v) } else { Err((key.into(), format!("must be finite and > 0, got {v}"))) }
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(KeyError::new(key.into(), format!("must be finite and > 0, got {v}")))
+    }
 }
 
 /// The smallest `recording.max_file_mb`: about 500 rows, half a second at a 1 ms poll.
@@ -418,14 +431,20 @@ fn register_capacity(spec: &RegisterSpec) -> f64 {
 
 fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
     let bind = raw.http.bind.parse().map_err(|e| {
-        ("http.bind".to_string(), format!("{:?} is not an address such as 127.0.0.1:8080 ({e})", raw.http.bind))
+        KeyError::new(
+            "http.bind".to_string(),
+            format!("{:?} is not an address such as 127.0.0.1:8080 ({e})", raw.http.bind),
+        )
     })?;
     if raw.http.max_body_bytes == 0 || raw.http.max_body_bytes > 1 << 20 {
-        return Err(("http.max_body_bytes".into(), format!("must be 1 ..= 1048576, got {}", raw.http.max_body_bytes)));
+        return Err(KeyError::new(
+            "http.max_body_bytes".into(),
+            format!("must be 1 ..= 1048576, got {}", raw.http.max_body_bytes),
+        ));
     }
     let history_s = positive("http.history_seconds", raw.http.history_seconds)?;
     if history_s > 3600.0 {
-        return Err(("http.history_seconds".into(), format!("must be ≤ 3600, got {history_s}")));
+        return Err(KeyError::new("http.history_seconds".into(), format!("must be ≤ 3600, got {history_s}")));
     }
     let token = (!raw.http.token.is_empty()).then_some(raw.http.token);
     // an idle or half-sent request must be gone within 30 s (issue 20)
@@ -434,11 +453,14 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
         ("http.request_timeout_ms", raw.http.request_timeout_ms),
     ] {
         if !(1..=30_000).contains(&ms) {
-            return Err((k.into(), format!("must be 1 ..= 30000, got {ms}")));
+            return Err(KeyError::new(k.into(), format!("must be 1 ..= 30000, got {ms}")));
         }
     }
     if !(1..=65_536).contains(&raw.http.max_connections) {
-        return Err(("http.max_connections".into(), format!("must be 1 ..= 65536, got {}", raw.http.max_connections)));
+        return Err(KeyError::new(
+            "http.max_connections".into(),
+            format!("must be 1 ..= 65536, got {}", raw.http.max_connections),
+        ));
     }
     let http = HttpSettings {
         bind,
@@ -453,33 +475,33 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
     let r = raw.recording;
     let max_mb = positive("recording.max_file_mb", r.max_file_mb)?;
     if max_mb < MIN_FILE_MB {
-        return Err((
+        return Err(KeyError::new(
             "recording.max_file_mb".into(),
             format!("must be ≥ {MIN_FILE_MB} (smaller files rotate every few rows), got {max_mb}"),
         ));
     }
     let hours = positive("recording.rotate_hours", r.rotate_hours)?;
     if hours > 24.0 * 365.0 {
-        return Err(("recording.rotate_hours".into(), format!("must be ≤ 8760, got {hours}")));
+        return Err(KeyError::new("recording.rotate_hours".into(), format!("must be ≤ 8760, got {hours}")));
     }
     if hours < MIN_ROTATE_HOURS {
-        return Err((
+        return Err(KeyError::new(
             "recording.rotate_hours".into(),
             format!("must be ≥ {MIN_ROTATE_HOURS:.4} (one minute), got {hours}"),
         ));
     }
     if r.dir.is_empty() && r.enabled {
-        return Err(("recording.dir".into(), "must not be empty while recording is enabled".into()));
+        return Err(KeyError::new("recording.dir".into(), "must not be empty while recording is enabled".into()));
     }
     if r.enabled {
-        directory_or_creatable(Path::new(&r.dir)).map_err(|m| ("recording.dir".to_string(), m))?;
+        directory_or_creatable(Path::new(&r.dir)).map_err(|m| KeyError::new("recording.dir".to_string(), m))?;
     }
     let max_total_bytes = match r.max_total_mb {
         None => None,
         Some(t) => {
             let t = positive("recording.max_total_mb", t)?;
             if t < 2.0 * max_mb {
-                return Err((
+                return Err(KeyError::new(
                     "recording.max_total_mb".into(),
                     format!("must be at least twice recording.max_file_mb ({max_mb}), got {t}"),
                 ));
@@ -492,7 +514,7 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
         Some(d) => {
             let d = positive("recording.keep_days", d)?;
             if d > 36_500.0 {
-                return Err(("recording.keep_days".into(), format!("must be ≤ 36500, got {d}")));
+                return Err(KeyError::new("recording.keep_days".into(), format!("must be ≤ 36500, got {d}")));
             }
             Some(Duration::from_secs_f64(d * 86_400.0))
         }
@@ -507,19 +529,22 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
     };
 
     if raw.drives.is_empty() {
-        return Err(("drives".into(), "needs at least one [[drives]] entry".into()));
+        return Err(KeyError::new("drives".into(), "needs at least one [[drives]] entry".into()));
     }
     let mut drives = Vec::with_capacity(raw.drives.len());
     for (i, d) in raw.drives.into_iter().enumerate() {
         let drive = validate_drive(d, i, base)?;
         if drives.iter().any(|o: &DriveSettings| o.name == drive.name) {
-            return Err((format!("drives[{i}].name"), format!("{:?} is used by another drive", drive.name)));
+            return Err(KeyError::new(
+                format!("drives[{i}].name"),
+                format!("{:?} is used by another drive", drive.name),
+            ));
         }
         if let Some(o) = drives.iter().find(|o: &&DriveSettings| {
             drive.mode.writes() && o.mode.writes() && o.address == drive.address && o.unit_id == drive.unit_id
         }) {
             let key = if matches!(drive.transport, Transport::Rtu { .. }) { "serial_port" } else { "address" };
-            return Err((
+            return Err(KeyError::new(
                 format!("drives[{i}].{key}"),
                 format!(
                     "{} with unit_id {} is already written by drive {:?}: two writing loops would fight over one \
@@ -558,7 +583,7 @@ fn check_lines(drives: &[DriveSettings]) -> Result<(), Invalid> {
             if let Some((_, other)) = drives[i].line()
                 && other != line
             {
-                return Err((
+                return Err(KeyError::new(
                     line_key(i),
                     format!(
                         "drive {:?} is on {} with {}, but drive {:?} on the same line has {}: a line has one \
@@ -588,7 +613,7 @@ fn check_lines(drives: &[DriveSettings]) -> Result<(), Invalid> {
                     )
                 })
                 .collect();
-            return Err((
+            return Err(KeyError::new(
                 line_key(members[members.len() - 1]),
                 format!(
                     "the line {} ({}) cannot carry drives {}: together they need {:.0} % of its time, at most {:.0} % \
@@ -615,28 +640,29 @@ fn validate_transport(d: &RawDrive, key: &dyn Fn(&str) -> String) -> Result<(Tra
         ("stop_bits", d.stop_bits.is_some()),
     ];
     let host_port = |address: &Option<String>| match address.as_deref() {
-        None => Err((key("address"), format!("is required with transport = {kind:?} (host:port)"))),
+        None => Err(KeyError::new(key("address"), format!("is required with transport = {kind:?} (host:port)"))),
         Some(a) => match a.rsplit_once(':') {
             Some((host, port)) if !host.is_empty() && port.parse::<u16>().is_ok() => Ok(a.to_string()),
-            _ => Err((key("address"), format!("{a:?} is not host:port such as 127.0.0.1:5020"))),
+            _ => Err(KeyError::new(key("address"), format!("{a:?} is not host:port such as 127.0.0.1:5020"))),
         },
     };
     let line = || -> Result<SerialLine, Invalid> {
         let mut line = SerialLine::default();
         if let Some(b) = d.baud_rate {
             if b <= 0 {
-                return Err((key("baud_rate"), format!("must be positive, got {b}")));
+                return Err(KeyError::new(key("baud_rate"), format!("must be positive, got {b}")));
             }
-            line.baud_rate =
-                u32::try_from(b).map_err(|_| (key("baud_rate"), format!("must be at most {}, got {b}", u32::MAX)))?;
+            line.baud_rate = u32::try_from(b)
+                .map_err(|_| KeyError::new(key("baud_rate"), format!("must be at most {}, got {b}", u32::MAX)))?;
         }
         if let Some(p) = &d.parity {
-            line.parity = Parity::parse(p)
-                .ok_or_else(|| (key("parity"), format!("{p:?}: expected \"none\", \"even\" or \"odd\"")))?;
+            line.parity = Parity::parse(p).ok_or_else(|| {
+                KeyError::new(key("parity"), format!("{p:?}: expected \"none\", \"even\" or \"odd\""))
+            })?;
         }
         if let Some(s) = d.stop_bits {
             if !(1..=2).contains(&s) {
-                return Err((key("stop_bits"), format!("must be 1 or 2, got {s}")));
+                return Err(KeyError::new(key("stop_bits"), format!("must be 1 or 2, got {s}")));
             }
             line.stop_bits = s as u8;
         }
@@ -646,25 +672,34 @@ fn validate_transport(d: &RawDrive, key: &dyn Fn(&str) -> String) -> Result<(Tra
         if (1..=247).contains(&d.unit_id) {
             Ok(())
         } else {
-            Err((key("unit_id"), format!("must be 1 ..= 247 on an RTU line (0 is broadcast), got {}", d.unit_id)))
+            Err(KeyError::new(
+                key("unit_id"),
+                format!("must be 1 ..= 247 on an RTU line (0 is broadcast), got {}", d.unit_id),
+            ))
         }
     };
     match kind {
         "tcp" => {
             if let Some((k, _)) = serial_given.iter().find(|(_, given)| *given) {
-                return Err((key(k), "is for transport = \"rtu\" or \"rtu-over-tcp\"; this drive is on tcp".into()));
+                return Err(KeyError::new(
+                    key(k),
+                    "is for transport = \"rtu\" or \"rtu-over-tcp\"; this drive is on tcp".into(),
+                ));
             }
             Ok((Transport::Tcp, host_port(&d.address)?))
         }
         "rtu" => {
             if d.address.is_some() {
-                return Err((
+                return Err(KeyError::new(
                     key("address"),
                     "is for tcp and rtu-over-tcp; an rtu drive is reached on serial_port".into(),
                 ));
             }
             let Some(port) = d.serial_port.clone().filter(|p| !p.is_empty()) else {
-                return Err((key("serial_port"), "is required with transport = \"rtu\" (e.g. /dev/ttyUSB0)".into()));
+                return Err(KeyError::new(
+                    key("serial_port"),
+                    "is required with transport = \"rtu\" (e.g. /dev/ttyUSB0)".into(),
+                ));
             };
             let line = line()?;
             rtu_unit()?;
@@ -672,7 +707,7 @@ fn validate_transport(d: &RawDrive, key: &dyn Fn(&str) -> String) -> Result<(Tra
         }
         "rtu-over-tcp" => {
             if d.serial_port.is_some() {
-                return Err((
+                return Err(KeyError::new(
                     key("serial_port"),
                     "is for transport = \"rtu\"; an rtu-over-tcp drive is reached at address (the gateway)".into(),
                 ));
@@ -682,7 +717,9 @@ fn validate_transport(d: &RawDrive, key: &dyn Fn(&str) -> String) -> Result<(Tra
             rtu_unit()?;
             Ok((Transport::RtuOverTcp { line }, address))
         }
-        other => Err((key("transport"), format!("{other:?}: expected \"tcp\", \"rtu\" or \"rtu-over-tcp\""))),
+        other => {
+            Err(KeyError::new(key("transport"), format!("{other:?}: expected \"tcp\", \"rtu\" or \"rtu-over-tcp\"")))
+        }
     }
 }
 
@@ -692,49 +729,55 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
         && d.name.len() <= 64
         && d.name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
     if !name_ok {
-        return Err((
+        return Err(KeyError::new(
             key("name"),
             format!("{:?}: use 1 to 64 letters, digits, `_` or `-` (it names files and URLs)", d.name),
         ));
     }
     let (transport, address) = validate_transport(&d, &key)?;
     if !(1..=60_000).contains(&d.poll_ms) {
-        return Err((key("poll_ms"), format!("must be 1 ..= 60000, got {}", d.poll_ms)));
+        return Err(KeyError::new(key("poll_ms"), format!("must be 1 ..= 60000, got {}", d.poll_ms)));
     }
     if !(1..=60_000).contains(&d.timeout_ms) {
-        return Err((key("timeout_ms"), format!("must be 1 ..= 60000, got {}", d.timeout_ms)));
+        return Err(KeyError::new(key("timeout_ms"), format!("must be 1 ..= 60000, got {}", d.timeout_ms)));
     }
     if !(1..=60_000).contains(&d.watchdog_ms) {
-        return Err((key("watchdog_ms"), format!("must be 1 ..= 60000, got {}", d.watchdog_ms)));
+        return Err(KeyError::new(key("watchdog_ms"), format!("must be 1 ..= 60000, got {}", d.watchdog_ms)));
     }
     if let Some(p) = d.realtime_priority
         && !(1..=99).contains(&p)
     {
-        return Err((key("realtime_priority"), format!("must be 1 ..= 99 (SCHED_FIFO priority), got {p}")));
+        return Err(KeyError::new(
+            key("realtime_priority"),
+            format!("must be 1 ..= 99 (SCHED_FIFO priority), got {p}"),
+        ));
     }
     let stale_ms = d.stale_ms.unwrap_or((5 * d.poll_ms).max(50));
     if stale_ms < d.poll_ms {
-        return Err((key("stale_ms"), format!("must be ≥ poll_ms ({}), got {stale_ms}", d.poll_ms)));
+        return Err(KeyError::new(key("stale_ms"), format!("must be ≥ poll_ms ({}), got {stale_ms}", d.poll_ms)));
     }
 
     let c = d.control;
     let min_hz = nonneg(&key("control.min_hz"), c.min_hz)?;
     let max_hz = positive(&key("control.max_hz"), c.max_hz)?;
     if min_hz > max_hz {
-        return Err((key("control.min_hz"), format!("{min_hz} is above control.max_hz = {max_hz}")));
+        return Err(KeyError::new(key("control.min_hz"), format!("{min_hz} is above control.max_hz = {max_hz}")));
     }
     let ramp = positive(&key("control.ramp_hz_per_s"), c.ramp_hz_per_s)?;
     let kp = nonneg(&key("control.kp"), c.kp)?;
     if kp > MAX_KP_HZ_PER_RAD_S {
-        return Err((key("control.kp"), format!("must be ≤ {MAX_KP_HZ_PER_RAD_S} Hz per rad/s, got {kp}")));
+        return Err(KeyError::new(
+            key("control.kp"),
+            format!("must be ≤ {MAX_KP_HZ_PER_RAD_S} Hz per rad/s, got {kp}"),
+        ));
     }
     let ki = nonneg(&key("control.ki"), c.ki)?;
     if ki > MAX_KI_HZ_PER_RAD {
-        return Err((key("control.ki"), format!("must be ≤ {MAX_KI_HZ_PER_RAD} Hz per rad, got {ki}")));
+        return Err(KeyError::new(key("control.ki"), format!("must be ≤ {MAX_KI_HZ_PER_RAD} Hz per rad, got {ki}")));
     }
     let fixed_hz = finite(&key("control.fixed_hz"), c.fixed_hz)?;
     if c.mode == Mode::Manual && !(min_hz..=max_hz).contains(&fixed_hz) {
-        return Err((
+        return Err(KeyError::new(
             key("control.fixed_hz"),
             format!("{fixed_hz} is outside [min_hz, max_hz] = [{min_hz}, {max_hz}]"),
         ));
@@ -744,22 +787,31 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
     let method = match d.estimator.method.as_deref() {
         None | Some("rls-sgd") => Method::RlsSgd,
         Some("kalman") => Method::Kalman,
-        Some(other) => return Err((key("estimator.method"), format!("{other:?}: expected \"rls-sgd\" or \"kalman\""))),
+        Some(other) => {
+            return Err(KeyError::new(
+                key("estimator.method"),
+                format!("{other:?}: expected \"rls-sgd\" or \"kalman\""),
+            ));
+        }
     };
     let model = match d.estimator.model {
         None => PlantModel::reference(),
         Some(p) => {
             let path = resolve(&p, base);
-            PlantModel::load(&path).map_err(|e| (key("estimator.model"), e.to_string()))?
+            PlantModel::load(&path).map_err(|e| KeyError::new(key("estimator.model"), e.to_string()))?
         }
     };
     if model.motor.displacement_cm3.is_none() {
-        return Err((key("estimator.model"), "the model needs motor.displacement_cm3 (torque from pressures)".into()));
+        return Err(KeyError::new(
+            key("estimator.model"),
+            "the model needs motor.displacement_cm3 (torque from pressures)".into(),
+        ));
     }
-    let mut estimator =
-        EstimatorSettings::from_model(&model, "the model file").map_err(|e| (key("estimator.model"), e.to_string()))?;
+    let mut estimator = EstimatorSettings::from_model(&model, "the model file")
+        .map_err(|e| KeyError::new(key("estimator.model"), e.to_string()))?;
     estimator.method = method;
-    let coefficients = Coefficients::from_model(&model).map_err(|e| (key("estimator.model"), e.to_string()))?;
+    let coefficients =
+        Coefficients::from_model(&model).map_err(|e| KeyError::new(key("estimator.model"), e.to_string()))?;
     let feed_forward = FeedForward {
         pole_pairs: coefficients.pole_pairs,
         pump_m3_rad: coefficients.pump_m3_rad,
@@ -781,7 +833,7 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
         },
     };
     if ranges.min_pressure_bar >= ranges.max_pressure_bar {
-        return Err((key("limits.min_pressure_bar"), "must be below limits.max_pressure_bar".into()));
+        return Err(KeyError::new(key("limits.min_pressure_bar"), "must be below limits.max_pressure_bar".into()));
     }
 
     let registers = apply_overrides(d.registers, &key("registers"))?;
@@ -789,7 +841,7 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
     let setpoint = registers.frequency_setpoint_hz;
     for (k, hz) in [("control.max_hz", max_hz), ("control.fixed_hz", fixed_hz), ("control.min_hz", min_hz)] {
         if setpoint.encode(hz).is_err() {
-            return Err((
+            return Err(KeyError::new(
                 key(k),
                 format!(
                     "{hz} Hz does not fit the setpoint register ({:?}, {} Hz per step: at most {} Hz)",
@@ -803,10 +855,10 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
     let comm_timeout_ms =
         d.comm_timeout_ms.unwrap_or_else(|| model.drive.as_ref().map_or(1000, |drive| drive.comm_timeout_ms));
     if comm_timeout_ms == 0 {
-        return Err((key("comm_timeout_ms"), "must be ≥ 1".into()));
+        return Err(KeyError::new(key("comm_timeout_ms"), "must be ≥ 1".into()));
     }
     if d.watchdog_ms.saturating_mul(3) > comm_timeout_ms {
-        return Err((
+        return Err(KeyError::new(
             key("watchdog_ms"),
             format!(
                 "{} ms is more than a third of the drive's comm timeout ({comm_timeout_ms} ms, comm_timeout_ms or \
@@ -838,7 +890,7 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
         condition,
     };
     if target > settings.max_target_omega_rad_s() * 1.5 {
-        return Err((
+        return Err(KeyError::new(
             key("control.target_omega_rad_s"),
             format!(
                 "{target} rad/s is far beyond what max_hz allows (≈ {:.1} rad/s)",
@@ -876,7 +928,7 @@ fn apply_overrides(overrides: BTreeMap<String, RawRegister>, key: &str) -> Resul
             "control_word" => &mut map.control_word,
             "watchdog" => &mut map.watchdog,
             _ => {
-                return Err((
+                return Err(KeyError::new(
                     format!("{key}.{name}"),
                     format!("is not a register entry; expected one of {}", names.join(", ")),
                 ));
@@ -894,7 +946,7 @@ fn apply_overrides(overrides: BTreeMap<String, RawRegister>, key: &str) -> Resul
         }
         if let Some(s) = o.scale {
             if !(s.is_finite() && s != 0.0) {
-                return Err((k("scale"), format!("must be finite and not 0, got {s}")));
+                return Err(KeyError::new(k("scale"), format!("must be finite and not 0, got {s}")));
             }
             slot.scale = s;
         }
@@ -908,17 +960,23 @@ fn apply_overrides(overrides: BTreeMap<String, RawRegister>, key: &str) -> Resul
     for (name, spec) in map.entries() {
         let writable = matches!(name, "frequency_setpoint_hz" | "control_word" | "watchdog");
         if writable && spec.table != Table::Holding {
-            return Err((format!("{key}.{name}.table"), "must be \"holding\": the service writes it".into()));
+            return Err(KeyError::new(
+                format!("{key}.{name}.table"),
+                "must be \"holding\": the service writes it".into(),
+            ));
         }
         if u32::from(spec.address) + u32::from(spec.kind.words()) > 65536 {
-            return Err((format!("{key}.{name}.address"), "runs past register 65535".into()));
+            return Err(KeyError::new(format!("{key}.{name}.address"), "runs past register 65535".into()));
         }
     }
     for table in [Table::Input, Table::Holding] {
         if let Some((_, count)) = map.span(table)
             && count > 125
         {
-            return Err((key.to_string(), format!("the {table:?} registers span {count} words: one read takes ≤ 125")));
+            return Err(KeyError::new(
+                key.to_string(),
+                format!("the {table:?} registers span {count} words: one read takes ≤ 125"),
+            ));
         }
     }
     Ok(map)

@@ -7,6 +7,7 @@
 //! what it has to send waits in a bounded [`Outbox`] that drops its oldest message when full (counted), so a broker
 //! that is down costs the drives nothing.
 
+use crate::error::KeyError;
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -123,13 +124,13 @@ fn parse_url(url: &str) -> Result<(bool, String, u16), String> {
 }
 
 /// The PEM certificates in `path` (read for the key `key`); at least one.
-fn read_certs(key: &str, path: &Path) -> Result<Vec<CertificateDer<'static>>, (String, String)> {
-    let pem = std::fs::read(path).map_err(|e| (key.to_string(), format!("{}: {e}", path.display())))?;
+fn read_certs(key: &str, path: &Path) -> Result<Vec<CertificateDer<'static>>, KeyError> {
+    let pem = std::fs::read(path).map_err(|e| KeyError::new(key.to_string(), format!("{}: {e}", path.display())))?;
     let certs = CertificateDer::pem_slice_iter(&pem)
         .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| (key.to_string(), format!("{}: not PEM certificates: {e}", path.display())))?;
+        .map_err(|e| KeyError::new(key.to_string(), format!("{}: not PEM certificates: {e}", path.display())))?;
     if certs.is_empty() {
-        return Err((
+        return Err(KeyError::new(
             key.to_string(),
             format!("{}: no PEM certificate (-----BEGIN CERTIFICATE-----) in it", path.display()),
         ));
@@ -139,17 +140,17 @@ fn read_certs(key: &str, path: &Path) -> Result<Vec<CertificateDer<'static>>, (S
 
 /// The TLS client of `mqtts://`: roots from `ca_file` or the system's, a client certificate if given. Every file is
 /// read and checked here, at load, so that a mistyped one stops the service with its key's name.
-fn tls_config(
-    ca_file: Option<&Path>,
-    client: Option<(&Path, &Path)>,
-) -> Result<rustls::ClientConfig, (String, String)> {
+fn tls_config(ca_file: Option<&Path>, client: Option<(&Path, &Path)>) -> Result<rustls::ClientConfig, KeyError> {
     let k = |s: &str| format!("mqtt.{s}");
     let mut roots = rustls::RootCertStore::empty();
     match ca_file {
         Some(path) => {
             for (i, cert) in read_certs(&k("ca_file"), path)?.into_iter().enumerate() {
                 roots.add(cert).map_err(|e| {
-                    (k("ca_file"), format!("{}: certificate {} is not a CA certificate: {e}", path.display(), i + 1))
+                    KeyError::new(
+                        k("ca_file"),
+                        format!("{}: certificate {} is not a CA certificate: {e}", path.display(), i + 1),
+                    )
                 })?;
             }
         }
@@ -158,7 +159,7 @@ fn tls_config(
             let (added, _) = roots.add_parsable_certificates(found.certs);
             if added == 0 {
                 let errors: Vec<String> = found.errors.iter().map(|e| e.to_string()).collect();
-                return Err((
+                return Err(KeyError::new(
                     k("ca_file"),
                     format!(
                         "is not given and the system has no CA certificates ({}); name the broker's CA in mqtt.ca_file, \
@@ -172,18 +173,22 @@ fn tls_config(
     let provider = Arc::new(rustls::crypto::ring::default_provider());
     let builder = rustls::ClientConfig::builder_with_provider(provider)
         .with_safe_default_protocol_versions()
-        .map_err(|e| (k("url"), format!("TLS: {e}")))?
+        .map_err(|e| KeyError::new(k("url"), format!("TLS: {e}")))?
         .with_root_certificates(roots);
     match client {
         None => Ok(builder.with_no_client_auth()),
         Some((cert_path, key_path)) => {
             let chain = read_certs(&k("client_cert_file"), cert_path)?;
-            let key_pem =
-                std::fs::read(key_path).map_err(|e| (k("client_key_file"), format!("{}: {e}", key_path.display())))?;
-            let key = PrivateKeyDer::from_pem_slice(&key_pem)
-                .map_err(|e| (k("client_key_file"), format!("{}: no PEM private key: {e}", key_path.display())))?;
+            let key_pem = std::fs::read(key_path)
+                .map_err(|e| KeyError::new(k("client_key_file"), format!("{}: {e}", key_path.display())))?;
+            let key = PrivateKeyDer::from_pem_slice(&key_pem).map_err(|e| {
+                KeyError::new(k("client_key_file"), format!("{}: no PEM private key: {e}", key_path.display()))
+            })?;
             builder.with_client_auth_cert(chain, key).map_err(|e| {
-                (k("client_key_file"), format!("{}: does not go with mqtt.client_cert_file: {e}", key_path.display()))
+                KeyError::new(
+                    k("client_key_file"),
+                    format!("{}: does not go with mqtt.client_cert_file: {e}", key_path.display()),
+                )
             })
         }
     }
@@ -191,31 +196,31 @@ fn tls_config(
 
 /// Validates `[mqtt]`; errors name the key. `resolve` turns a file name as written into a path (relative ones as the
 /// config's model paths are).
-pub fn validate(raw: RawMqtt, resolve: impl Fn(&str) -> PathBuf) -> Result<MqttSettings, (String, String)> {
+pub fn validate(raw: RawMqtt, resolve: impl Fn(&str) -> PathBuf) -> Result<MqttSettings, KeyError> {
     let k = |s: &str| format!("mqtt.{s}");
-    let (tls, host, port) = parse_url(raw.url.trim()).map_err(|m| (k("url"), m))?;
+    let (tls, host, port) = parse_url(raw.url.trim()).map_err(|m| KeyError::new(k("url"), m))?;
     let prefix = raw.topic_prefix;
     if prefix.is_empty() || prefix.starts_with('/') || prefix.ends_with('/') || prefix.contains(['+', '#', '\0']) {
-        return Err((
+        return Err(KeyError::new(
             k("topic_prefix"),
             format!("{prefix:?} must be a topic without wildcards (+, #) and without a leading or trailing /"),
         ));
     }
     if !INTERVAL_MS.contains(&raw.interval_ms) {
-        return Err((k("interval_ms"), format!("must be 100 ..= 3600000, got {}", raw.interval_ms)));
+        return Err(KeyError::new(k("interval_ms"), format!("must be 100 ..= 3600000, got {}", raw.interval_ms)));
     }
     if !QUEUE_MESSAGES.contains(&raw.queue_messages) {
-        return Err((k("queue_messages"), format!("must be 1 ..= 100000, got {}", raw.queue_messages)));
+        return Err(KeyError::new(k("queue_messages"), format!("must be 1 ..= 100000, got {}", raw.queue_messages)));
     }
     let credentials = match (raw.username, raw.password) {
         (Some(u), Some(p)) => Some((u, p)),
         (None, None) => None,
-        (Some(_), None) => return Err((k("password"), "is needed with mqtt.username".into())),
-        (None, Some(_)) => return Err((k("username"), "is needed with mqtt.password".into())),
+        (Some(_), None) => return Err(KeyError::new(k("password"), "is needed with mqtt.username".into())),
+        (None, Some(_)) => return Err(KeyError::new(k("username"), "is needed with mqtt.password".into())),
     };
     let client_id = raw.client_id.unwrap_or_else(|| format!("hydrolens-{}", std::process::id()));
     if client_id.is_empty() || client_id.len() > 65535 {
-        return Err((k("client_id"), "must not be empty".into()));
+        return Err(KeyError::new(k("client_id"), "must not be empty".into()));
     }
     let files = [
         ("ca_file", &raw.ca_file),
@@ -223,17 +228,24 @@ pub fn validate(raw: RawMqtt, resolve: impl Fn(&str) -> PathBuf) -> Result<MqttS
         ("client_key_file", &raw.client_key_file),
     ];
     if !tls && let Some((key, _)) = files.iter().find(|(_, f)| f.is_some()) {
-        return Err((k(key), "is for TLS: the broker's URL (mqtt.url) would be mqtts://".into()));
+        return Err(KeyError::new(k(key), "is for TLS: the broker's URL (mqtt.url) would be mqtts://".into()));
     }
     let client = match (raw.client_cert_file, raw.client_key_file) {
         (Some(c), Some(key)) => Some((resolve(&c), resolve(&key))),
         (None, None) => None,
-        (Some(_), None) => return Err((k("client_key_file"), "is needed with mqtt.client_cert_file".into())),
-        (None, Some(_)) => return Err((k("client_cert_file"), "is needed with mqtt.client_key_file".into())),
+        (Some(_), None) => {
+            return Err(KeyError::new(k("client_key_file"), "is needed with mqtt.client_cert_file".into()));
+        }
+        (None, Some(_)) => {
+            return Err(KeyError::new(k("client_cert_file"), "is needed with mqtt.client_key_file".into()));
+        }
     };
     let tls = if tls {
         ServerName::try_from(host.as_str()).map_err(|_| {
-            (k("url"), format!("{host:?} is neither a DNS name nor an IP address to check the certificate against"))
+            KeyError::new(
+                k("url"),
+                format!("{host:?} is neither a DNS name nor an IP address to check the certificate against"),
+            )
         })?;
         let ca_file = raw.ca_file.map(|p| resolve(&p));
         let client = client.as_ref().map(|(c, key)| (c.as_path(), key.as_path()));
@@ -577,11 +589,11 @@ mod tests {
         toml::from_str(text).expect("parses")
     }
 
-    fn settings(text: &str) -> Result<MqttSettings, (String, String)> {
+    fn settings(text: &str) -> Result<MqttSettings, KeyError> {
         validate(raw(text), |p: &str| PathBuf::from(p))
     }
 
-    fn err(text: &str) -> (String, String) {
+    fn err(text: &str) -> KeyError {
         settings(text).expect_err("invalid")
     }
 
@@ -595,18 +607,18 @@ mod tests {
         let s = settings("url = \"mqtt://[::1]:1883\"\n").expect("valid");
         assert_eq!(s.host, "::1");
         for bad in ["ssl://b:8883", "http://b", "mqtt://", "mqtt://b:0", "mqtt://b:x", "mqtt://u:p@b", "mqtt://b/x"] {
-            let (key, message) = err(&format!("url = \"{bad}\"\n"));
+            let KeyError { key, message } = err(&format!("url = \"{bad}\"\n"));
             assert_eq!(key, "mqtt.url", "{bad}: {message}");
         }
         assert_eq!(parse_url("mqtts://broker.plant"), Ok((true, "broker.plant".into(), 8883)));
         assert_eq!(parse_url("MQTTS://10.0.0.5:8884"), Ok((true, "10.0.0.5".into(), 8884)));
         assert_eq!(parse_url("mqtt://10.0.0.5"), Ok((false, "10.0.0.5".into(), 1883)));
-        assert_eq!(err("url = \"mqtt://b\"\ninterval_ms = 10\n").0, "mqtt.interval_ms");
-        assert_eq!(err("url = \"mqtt://b\"\ninterval_ms = 4000000\n").0, "mqtt.interval_ms");
-        assert_eq!(err("url = \"mqtt://b\"\nqueue_messages = 0\n").0, "mqtt.queue_messages");
-        assert_eq!(err("url = \"mqtt://b\"\ntopic_prefix = \"a/#\"\n").0, "mqtt.topic_prefix");
-        assert_eq!(err("url = \"mqtt://b\"\ntopic_prefix = \"/a\"\n").0, "mqtt.topic_prefix");
-        assert_eq!(err("url = \"mqtt://b\"\nusername = \"u\"\n").0, "mqtt.password");
+        assert_eq!(err("url = \"mqtt://b\"\ninterval_ms = 10\n").key, "mqtt.interval_ms");
+        assert_eq!(err("url = \"mqtt://b\"\ninterval_ms = 4000000\n").key, "mqtt.interval_ms");
+        assert_eq!(err("url = \"mqtt://b\"\nqueue_messages = 0\n").key, "mqtt.queue_messages");
+        assert_eq!(err("url = \"mqtt://b\"\ntopic_prefix = \"a/#\"\n").key, "mqtt.topic_prefix");
+        assert_eq!(err("url = \"mqtt://b\"\ntopic_prefix = \"/a\"\n").key, "mqtt.topic_prefix");
+        assert_eq!(err("url = \"mqtt://b\"\nusername = \"u\"\n").key, "mqtt.password");
         let s = settings("url = \"mqtt://b\"\nusername = \"u\"\npassword = \"p\"\n").expect("valid");
         assert_eq!(s.credentials, Some(("u".into(), "p".into())));
     }
@@ -621,21 +633,21 @@ mod tests {
         std::fs::write(&bad_pem, "-----BEGIN CERTIFICATE-----\n!!!\n-----END CERTIFICATE-----\n").expect("write");
         let missing = dir.path().join("missing.pem");
         for (file, text) in [(&not_pem, "no PEM certificate"), (&bad_pem, ""), (&missing, "")] {
-            let (key, message) =
+            let KeyError { key, message } =
                 err(&format!("url = \"mqtts://127.0.0.1\"\nca_file = {:?}\n", file.display().to_string()));
             assert_eq!(key, "mqtt.ca_file", "{message}");
             assert!(message.contains(&file.display().to_string()) && message.contains(text), "{message}");
         }
-        let (key, message) = err("url = \"mqtts://b\"\nclient_cert_file = \"c.pem\"\n");
+        let KeyError { key, message } = err("url = \"mqtts://b\"\nclient_cert_file = \"c.pem\"\n");
         assert_eq!(key, "mqtt.client_key_file", "{message}");
-        assert_eq!(err("url = \"mqtts://b\"\nclient_key_file = \"k.pem\"\n").0, "mqtt.client_cert_file");
-        let (key, message) = err("url = \"mqtt://b\"\nca_file = \"ca.pem\"\n");
+        assert_eq!(err("url = \"mqtts://b\"\nclient_key_file = \"k.pem\"\n").key, "mqtt.client_cert_file");
+        let KeyError { key, message } = err("url = \"mqtt://b\"\nca_file = \"ca.pem\"\n");
         assert_eq!(key, "mqtt.ca_file");
         assert!(message.contains("mqtts://"), "{message}");
         let client = "client_cert_file = \"c.pem\"\nclient_key_file = \"k.pem\"\n";
-        assert_eq!(err(&format!("url = \"mqtt://b\"\n{client}")).0, "mqtt.client_cert_file");
-        assert_eq!(err("url = \"mqtt://b\"\nclient_key_file = \"k.pem\"\n").0, "mqtt.client_key_file");
-        assert_eq!(err("url = \"mqtts://a..b\"\n").0, "mqtt.url");
+        assert_eq!(err(&format!("url = \"mqtt://b\"\n{client}")).key, "mqtt.client_cert_file");
+        assert_eq!(err("url = \"mqtt://b\"\nclient_key_file = \"k.pem\"\n").key, "mqtt.client_key_file");
+        assert_eq!(err("url = \"mqtts://a..b\"\n").key, "mqtt.url");
     }
 
     fn msg(i: u8) -> Message {

@@ -435,7 +435,8 @@ async fn tls_broker_gets_status_and_an_untrusted_ca_is_refused() {
         let text = "url = \"mqtts://127.0.0.1\"\nca_file = \"ca.pem\"\nclient_cert_file = \"client.pem\"\n\
                     client_key_file = \"other_ca.key\"\n";
         let raw: hydrolens::service::mqtt::RawMqtt = toml::from_str(text).expect("toml");
-        let (key, message) = hydrolens::service::mqtt::validate(raw, |p: &str| d.join(p)).expect_err("key mismatch");
+        let hydrolens::error::KeyError { key, message } =
+            hydrolens::service::mqtt::validate(raw, |p: &str| d.join(p)).expect_err("key mismatch");
         assert_eq!(key, "mqtt.client_key_file", "{message}");
         let port = free_port();
         let tls = format!(
