@@ -156,7 +156,8 @@ async fn a_counter_running_backwards_or_alternating_is_stale_and_a_device_fault(
 
 // ---- item 6: back-off resets only after a good poll ----
 
-#[tokio::test]
+/// On tokio's paused clock (the 3 s are virtual; device and client share the runtime, the sockets are real).
+#[tokio::test(start_paused = true)]
 async fn backoff_keeps_growing_when_each_connect_is_followed_by_garbage() {
     let dev = Device::start(device::healthy()).await;
     dev.lock().garbage = true;
