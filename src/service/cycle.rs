@@ -381,7 +381,8 @@ mod tests {
         Sample { p_in_bar: 40.0, p_out_bar: 5.0, omega_rad_s, f_drive_hz, status_word, counter }
     }
 
-    /// Steps fresh samples every 10 ms from `from` (counter `k0`, `k0 + 1`, …), confirming each write; the steps.
+    /// Steps samples `k0 .. k0 + n` (counter k read at k·10 ms after `t0`, replied 1 ms later), confirming each
+    /// write; the steps.
     fn run(c: &mut DriveCycle, t0: Instant, k0: u64, n: u64, omega: f64, word: u16) -> Vec<Step> {
         (0..n)
             .map(|k| {
