@@ -9,8 +9,9 @@
 //! - [`plant`]: PURE physics (model file, effects, loads, RK4 integrator, test-stand run). No clock, no I/O.
 //! - [`recording`]: the contract's CSV, read strictly and written streaming with rotation; a simulated run kept as
 //!   a recording (`recording::simulated`).
-//! - [`modbus`]: the register map and the RTU line's timing (pure), the client (TCP, RTU, RTU over TCP), the bus task
-//!   that shares an RTU line among its drives, and the plant simulator server.
+//! - [`modbus`]: the register map with a cycle's read plan, sample decoding and write planning, and the RTU line's
+//!   timing (pure), the client (TCP, RTU, RTU over TCP), the bus task that shares an RTU line among its drives, and
+//!   the plant simulator server.
 //! - [`estimator`]: PURE RLS+SGD and Kalman estimators; fed Δt and samples.
 //! - [`replay`]: a recording's columns turned into the estimators' measurements (which column, which unit), and an
 //!   estimator run over them, whole or batch by batch.
@@ -19,7 +20,8 @@
 //! - [`condition`]: condition monitoring: the analysis on a drive's recent data, checks kept, alarms with a margin
 //!   against chatter (PURE), and the checks' JSON-lines history at the edge.
 //! - [`control`]: PURE control law (speed PI with load feed-forward, clamp, ramp limit, nothing on stale data).
-//! - [`service`]: the poll loops per drive (modbus → estimator → control → modbus), snapshots, history, recording,
+//! - [`service`]: the poll loops per drive (modbus → estimator → control → modbus) around a PURE drive cycle
+//!   (`service::cycle`: a validated sample and its time → the writes and the row), snapshots, history, recording,
 //!   the low-priority thread that runs each drive's [`condition`] checks on its history, the metrics registry and its
 //!   two expositions, and the MQTT publisher's thread.
 //! - [`http`]: the axum router over the service's shared state; never uses [`modbus`].

@@ -2,6 +2,28 @@
 
 use std::f64::consts::PI;
 
+/// Declares a struct of `f64` columns with its column names and values in field order, so that a row's shape is
+/// written down once: `COLUMNS` (the field names as the recording and the JSON spell them) and `values()`.
+macro_rules! columns {
+    ($(#[$meta:meta])* pub struct $name:ident { $($(#[$field_meta:meta])* pub $field:ident: f64,)* }) => {
+        $(#[$meta])*
+        pub struct $name {
+            $($(#[$field_meta])* pub $field: f64,)*
+        }
+
+        impl $name {
+            /// The column names, in field order.
+            pub const COLUMNS: [&'static str; [$(stringify!($field)),*].len()] = [$(stringify!($field)),*];
+
+            /// The values, in [`Self::COLUMNS`] order.
+            pub fn values(&self) -> [f64; [$(stringify!($field)),*].len()] {
+                [$(self.$field),*]
+            }
+        }
+    };
+}
+pub(crate) use columns;
+
 /// Pascal per bar.
 pub const PA_PER_BAR: f64 = 1e5;
 

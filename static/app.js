@@ -67,6 +67,16 @@ function makeChart(parent, title, series) {
   return { box, plot, data };
 }
 
+// The charts, each a list of series named by the recording's columns (what /api/history sends, and what a
+// snapshot's `sample` and `estimate` carry); "target" is the speed target, not a column.
+const CHARTS = {
+  pressure: ["pressures (bar)", [["p_in_bar", "p_in", "#c62828"], ["p_out_bar", "p_out", "#1565c0"]]],
+  speed: ["speed (rad/s)", [["omega_rad_s", "ω measured", "#9e9e9e"], ["omega_hat_rad_s", "ω̂ estimated", "#1a7f37"],
+    ["target", "target", "#000", [6, 4]]]],
+  load: ["load (N·m) and setpoint (Hz)", [["load_hat_nm", "T̂ load", "#6a1b9a"], ["f_set_hz", "f set", "#ef6c00"],
+    ["f_drive_hz", "f drive", "#0097a7"]]],
+};
+
 function makeDrive(d) {
   const section = document.createElement("div");
   section.className = "drive-charts";
@@ -74,44 +84,44 @@ function makeDrive(d) {
   section.querySelector("h3").textContent = d.name;
   document.getElementById("charts").appendChild(section);
   const row = section.querySelector(".chart-row");
-  const charts = {
-    pressure: makeChart(row, "pressures (bar)", [["p_in", "#c62828"], ["p_out", "#1565c0"]]),
-    speed: makeChart(row, "speed (rad/s)", [["ω measured", "#9e9e9e"], ["ω̂ estimated", "#1a7f37"], ["target", "#000", [6, 4]]]),
-    load: makeChart(row, "load (N·m) and setpoint (Hz)", [["T̂ load", "#6a1b9a"], ["f set", "#ef6c00"], ["f drive", "#0097a7"]]),
-  };
+  const charts = {};
+  for (const [key, [title, series]] of Object.entries(CHARTS)) {
+    charts[key] = makeChart(row, title, series.map(([, label, stroke, dash]) => [label, stroke, dash]));
+    charts[key].columns = series.map(([column]) => column);
+  }
   const entry = { card: makeCard(d), charts, lastT: -Infinity, target: d.mode === "speed" ? d.target_omega_rad_s : null };
   drives.set(d.name, entry);
   return entry;
 }
 
-/// Fills the charts with the last minute from the in-memory history ring.
+function finite(v) {
+  return Number.isFinite(v) ? v : null;
+}
+
+/// Fills the charts with the last minute from the in-memory history ring: its columns are the charts' columns.
 async function loadHistory(entry, name) {
   const r = await fetch(`/api/history?drive=${encodeURIComponent(name)}&seconds=${WINDOW_S}&max_points=600`);
   if (!r.ok) return;
   const h = await r.json();
-  for (let i = 0; i < h.t_s.length; i++) {
-    push(entry, {
-      t_s: h.t_s[i], p_in_bar: h.p_in_bar[i], p_out_bar: h.p_out_bar[i], omega_rad_s: h.omega_rad_s[i],
-      omega_hat_rad_s: h.omega_hat_rad_s[i], load_hat_nm: h.load_hat_nm[i], f_set_hz: h.f_set_hz[i],
-      f_drive_hz: h.f_drive_hz[i],
-    }, entry.target);
+  const n = h.t_s.length;
+  if (n === 0) return;
+  for (const c of Object.values(entry.charts)) {
+    c.data = [h.t_s.slice(), ...c.columns.map(col =>
+      col === "target" ? new Array(n).fill(entry.target) : h[col].map(finite))];
   }
+  entry.lastT = h.t_s[n - 1];
   redraw(entry);
 }
 
-function append(chart, t, values) {
-  chart.data[0].push(t);
-  values.forEach((v, i) => chart.data[i + 1].push(Number.isFinite(v) ? v : null));
-  while (chart.data[0].length > 0 && chart.data[0][0] < t - WINDOW_S) chart.data.forEach(col => col.shift());
-}
-
+/// Appends one point (an object holding the columns, as a snapshot's `sample` and `estimate` together are).
 function push(entry, p, target) {
   if (!p || !(p.t_s > entry.lastT)) return;
   entry.lastT = p.t_s;
-  const c = entry.charts;
-  append(c.pressure, p.t_s, [p.p_in_bar, p.p_out_bar]);
-  append(c.speed, p.t_s, [p.omega_rad_s, p.omega_hat_rad_s, target]);
-  append(c.load, p.t_s, [p.load_hat_nm, p.f_set_hz, p.f_drive_hz]);
+  for (const c of Object.values(entry.charts)) {
+    c.data[0].push(p.t_s);
+    c.columns.forEach((col, i) => c.data[i + 1].push(finite(col === "target" ? target : p[col])));
+    while (c.data[0].length > 0 && c.data[0][0] < p.t_s - WINDOW_S) c.data.forEach(col => col.shift());
+  }
 }
 
 function redraw(entry) {
@@ -191,7 +201,7 @@ function onSnapshot(status) {
     const entry = drives.get(d.name) || makeDrive(d);
     entry.target = d.target_omega_rad_s;
     updateCard(entry, d);
-    push(entry, d.sample, d.mode === "speed" ? d.target_omega_rad_s : null);
+    push(entry, d.sample && { ...d.sample, ...d.estimate }, d.mode === "speed" ? d.target_omega_rad_s : null);
     redraw(entry);
   }
 }

@@ -33,17 +33,19 @@ pub struct Measurement {
     pub drive_torque_nm: f64,
 }
 
-/// What the estimators say after a sample.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-pub struct Estimate {
-    pub omega_hat_rad_s: f64,
-    pub load_hat_nm: f64,
-    pub inertia_hat_kg_m2: f64,
-    pub viscous_hat_nm_s_rad: f64,
-    /// Standard deviations of J and B as the estimator knows them (rls-sgd: from its RLS covariance). Zero where
-    /// they are not estimated but taken from the model (kalman, paper-literal).
-    pub inertia_sd_kg_m2: f64,
-    pub viscous_sd_nm_s_rad: f64,
+crate::units::columns! {
+    /// What the estimators say after a sample. Its columns are [`crate::recording::ESTIMATE_COLUMNS`] (tested).
+    #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+    pub struct Estimate {
+        pub omega_hat_rad_s: f64,
+        pub load_hat_nm: f64,
+        pub inertia_hat_kg_m2: f64,
+        pub viscous_hat_nm_s_rad: f64,
+        /// Standard deviations of J and B as the estimator knows them (rls-sgd: from its RLS covariance). Zero where
+        /// they are not estimated but taken from the model (kalman, paper-literal).
+        pub inertia_sd_kg_m2: f64,
+        pub viscous_sd_nm_s_rad: f64,
+    }
 }
 
 /// A running estimator. Every output is finite whatever the input.

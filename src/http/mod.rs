@@ -19,7 +19,7 @@ use subtle::ConstantTimeEq;
 use tokio_util::sync::CancellationToken;
 
 use crate::control::Mode;
-use crate::service::state::{DriveSnapshot, ServiceState};
+use crate::service::state::{DriveSnapshot, PointColumns, ServiceState};
 
 mod condition;
 pub mod conn;
@@ -280,23 +280,12 @@ fn two_thousand() -> usize {
     2000
 }
 
-/// Recent points as columns named like the recording's.
-#[derive(Debug, Serialize, Default)]
-struct HistoryBody {
-    drive: String,
-    t_s: Vec<f64>,
-    f_set_hz: Vec<Option<f64>>,
-    f_drive_hz: Vec<f64>,
-    p_in_bar: Vec<f64>,
-    p_out_bar: Vec<f64>,
-    omega_rad_s: Vec<f64>,
-    omega_hat_rad_s: Vec<f64>,
-    load_hat_nm: Vec<f64>,
-    inertia_hat_kg_m2: Vec<f64>,
-    viscous_hat_nm_s_rad: Vec<f64>,
-    inertia_sd_kg_m2: Vec<f64>,
-    viscous_sd_nm_s_rad: Vec<f64>,
-    status_word: Vec<u16>,
+/// Recent points as columns named like the recording's ([`PointColumns`]).
+#[derive(Serialize)]
+struct HistoryBody<'a> {
+    drive: &'a str,
+    #[serde(flatten)]
+    columns: PointColumns<'a>,
 }
 
 async fn history(
@@ -311,24 +300,10 @@ async fn history(
         return Err(ApiError::bad_request(format!("max_points must be 1 ..= 100000, got {}", q.max_points)));
     }
     let drive = s.service.drive(&q.drive).ok_or_else(|| ApiError::not_found(format!("no drive {:?}", q.drive)))?;
-    let mut b = HistoryBody { drive: q.drive.clone(), ..HistoryBody::default() };
-    for p in drive.history(q.seconds, q.max_points) {
-        b.t_s.push(p.t_s);
-        b.f_set_hz.push(p.f_set_hz.is_finite().then_some(p.f_set_hz));
-        b.f_drive_hz.push(p.f_drive_hz);
-        b.p_in_bar.push(p.p_in_bar);
-        b.p_out_bar.push(p.p_out_bar);
-        b.omega_rad_s.push(p.omega_rad_s);
-        b.omega_hat_rad_s.push(p.omega_hat_rad_s);
-        b.load_hat_nm.push(p.load_hat_nm);
-        b.inertia_hat_kg_m2.push(p.inertia_hat_kg_m2);
-        b.viscous_hat_nm_s_rad.push(p.viscous_hat_nm_s_rad);
-        b.inertia_sd_kg_m2.push(p.inertia_sd_kg_m2);
-        b.viscous_sd_nm_s_rad.push(p.viscous_sd_nm_s_rad);
-        b.status_word.push(p.status_word);
-    }
+    let points = drive.history(q.seconds, q.max_points);
+    let body = HistoryBody { drive: &q.drive, columns: PointColumns(&points) };
     // about 20 bytes a value, 13 columns
-    Ok(json_response(&b, 260 * b.t_s.len()))
+    Ok(json_response(&body, 260 * points.len()))
 }
 
 /// The SSE period: about 10 Hz.

@@ -221,15 +221,15 @@ impl RegisterMap {
         ]
     }
 
+    /// The entries the service reads each cycle, by name (the first six of [`RegisterMap::entries`]).
+    pub fn measured(&self) -> [(&'static str, RegisterSpec); 6] {
+        let e = self.entries();
+        [e[0], e[1], e[2], e[3], e[4], e[5]]
+    }
+
     /// The smallest block (first address, count) covering every entry of a table, for one batched read.
     pub fn span(&self, table: Table) -> Option<(u16, u16)> {
-        let specs = self.entries().into_iter().map(|(_, s)| s).filter(|s| s.table == table);
-        let (mut lo, mut hi) = (u32::MAX, 0u32);
-        for s in specs {
-            lo = lo.min(u32::from(s.address));
-            hi = hi.max(u32::from(s.address) + u32::from(s.kind.words()));
-        }
-        (lo < hi).then(|| (lo as u16, (hi - lo) as u16))
+        span_of(self.entries().into_iter().map(|(_, s)| s), table)
     }
 
     /// Decodes an entry from a block read at `block_start`.
@@ -237,6 +237,102 @@ impl RegisterMap {
         let at = usize::from(spec.address.wrapping_sub(block_start));
         spec.decode(block.get(at..).unwrap_or(&[]))
     }
+}
+
+/// The smallest block (first address, count) of `table` covering `specs`; None when none is in that table.
+fn span_of(specs: impl Iterator<Item = RegisterSpec>, table: Table) -> Option<(u16, u16)> {
+    let (mut lo, mut hi) = (u32::MAX, 0u32);
+    for s in specs.filter(|s| s.table == table) {
+        lo = lo.min(u32::from(s.address));
+        hi = hi.max(u32::from(s.address) + u32::from(s.kind.words()));
+    }
+    (lo < hi).then(|| (lo as u16, (hi - lo) as u16))
+}
+
+/// The reads of one cycle: per table, the smallest block holding every measured entry of that table.
+pub fn read_plan(map: &RegisterMap) -> Vec<(Table, u16, u16)> {
+    [Table::Input, Table::Holding]
+        .into_iter()
+        .filter_map(|t| span_of(map.measured().into_iter().map(|(_, s)| s), t).map(|(start, n)| (t, start, n)))
+        .collect()
+}
+
+/// The measured entries of one read in engineering units, in [`RegisterMap::measured`] order; not yet checked
+/// against any range (that is the service's policy, not the map's).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Reading {
+    pub inlet_pressure_bar: f64,
+    pub outlet_pressure_bar: f64,
+    pub shaft_speed_rpm: f64,
+    pub drive_frequency_hz: f64,
+    pub status_word: f64,
+    pub sample_counter: f64,
+}
+
+/// A measured entry that could not be decoded from a cycle's blocks.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{entry}: {message}")]
+pub struct DecodeError {
+    pub entry: &'static str,
+    pub message: String,
+}
+
+/// Decodes the measured entries from the blocks of [`read_plan`] (table, first address, words). Pure.
+pub fn decode_sample(map: &RegisterMap, blocks: &[(Table, u16, Vec<u16>)]) -> Result<Reading, DecodeError> {
+    let mut v = [0.0; 6];
+    for (x, (entry, spec)) in v.iter_mut().zip(map.measured()) {
+        let Some((_, start, words)) = blocks.iter().find(|(t, _, _)| *t == spec.table) else {
+            return Err(DecodeError { entry, message: "its table was not read".into() });
+        };
+        *x = RegisterMap::decode_from(&spec, *start, words)
+            .map_err(|e| DecodeError { entry, message: e.to_string() })?;
+    }
+    let [inlet_pressure_bar, outlet_pressure_bar, shaft_speed_rpm, drive_frequency_hz, status_word, sample_counter] = v;
+    Ok(Reading {
+        inlet_pressure_bar,
+        outlet_pressure_bar,
+        shaft_speed_rpm,
+        drive_frequency_hz,
+        status_word,
+        sample_counter,
+    })
+}
+
+/// `parts` (address, what goes there) sorted by address, adjacent ones merged by `join` into one request.
+fn merge_adjacent<T>(mut parts: Vec<(u16, T)>, len: impl Fn(&T) -> usize, join: impl Fn(&mut T, T)) -> Vec<(u16, T)> {
+    parts.sort_by_key(|(a, _)| *a);
+    let mut out: Vec<(u16, T)> = Vec::with_capacity(parts.len());
+    for (addr, part) in parts {
+        match out.last_mut() {
+            Some((start, block)) if usize::from(*start) + len(block) == usize::from(addr) => join(block, part),
+            _ => out.push((addr, part)),
+        }
+    }
+    out
+}
+
+/// The writes for a setpoint, control word and watchdog value: encoded, sorted, adjacent registers merged so that
+/// the default map takes one request. Pure.
+pub fn plan_writes(
+    map: &RegisterMap,
+    setpoint_hz: f64,
+    control_word: u16,
+    watchdog: u16,
+) -> Result<Vec<(u16, Vec<u16>)>, MapError> {
+    let parts = vec![
+        (map.frequency_setpoint_hz.address, map.frequency_setpoint_hz.encode(setpoint_hz)?),
+        (map.control_word.address, map.control_word.encode(f64::from(control_word))?),
+        (map.watchdog.address, map.watchdog.encode(f64::from(watchdog))?),
+    ];
+    Ok(merge_adjacent(parts, Vec::len, |block, words| block.extend(words)))
+}
+
+/// The write requests of a cycle as (start, words): the blocks [`plan_writes`] makes, without the values.
+pub fn write_layout(map: &RegisterMap) -> Vec<(u16, usize)> {
+    let parts = [map.frequency_setpoint_hz, map.control_word, map.watchdog]
+        .map(|s| (s.address, usize::from(s.kind.words())))
+        .to_vec();
+    merge_adjacent(parts, |n| *n, |n, more| *n += more)
 }
 
 #[cfg(test)]
@@ -271,5 +367,46 @@ mod tests {
         assert_eq!(m.span(Table::Holding), Some((0, 3)));
         let nan = RegisterSpec::new(Table::Input, 0, ValueType::F32, 1.0);
         assert!(nan.decode(&[0x7FC0, 0]).is_err());
+    }
+
+    #[test]
+    fn default_map_is_one_read_and_one_write() {
+        let map = RegisterMap::default();
+        assert_eq!(read_plan(&map), vec![(Table::Input, 0, 6)]);
+        let w = plan_writes(&map, 25.0, control::RUN, 7).expect("fits");
+        assert_eq!(w, vec![(0, vec![2500, control::RUN, 7])]);
+        assert_eq!(write_layout(&map), vec![(0, 3)]);
+    }
+
+    #[test]
+    fn scattered_registers_are_written_apart() {
+        let mut map = RegisterMap::default();
+        map.watchdog.address = 10;
+        map.frequency_setpoint_hz = RegisterSpec::new(Table::Holding, 20, ValueType::F32, 1.0);
+        let w = plan_writes(&map, 25.5, 1, 2).expect("fits");
+        assert_eq!(w.len(), 3);
+        assert_eq!(w[0], (1, vec![1]));
+        assert_eq!(w[2].0, 20);
+        assert_eq!(w[2].1.len(), 2);
+        let layout: Vec<(u16, usize)> = w.iter().map(|(a, words)| (*a, words.len())).collect();
+        assert_eq!(write_layout(&map), layout);
+    }
+
+    #[test]
+    fn measured_entries_of_both_tables_are_read_apart() {
+        let map = RegisterMap {
+            sample_counter: RegisterSpec::new(Table::Holding, 40, ValueType::U32, 1.0),
+            ..RegisterMap::default()
+        };
+        assert_eq!(read_plan(&map), vec![(Table::Input, 0, 5), (Table::Holding, 40, 2)]);
+        let blocks = vec![(Table::Input, 0u16, vec![3512, 300, 3820, 2550, 3]), (Table::Holding, 40, vec![1, 2])];
+        let r = decode_sample(&map, &blocks).expect("decodes");
+        assert!((r.inlet_pressure_bar - 35.12).abs() < 1e-9);
+        assert!((r.shaft_speed_rpm - 382.0).abs() < 1e-9);
+        assert_eq!((r.status_word, r.sample_counter), (3.0, 65538.0));
+        let e = decode_sample(&map, &blocks[..1]).expect_err("the holding block is missing");
+        assert_eq!(e.entry, "sample_counter");
+        let short = vec![(Table::Input, 0u16, vec![1, 2, 3]), blocks[1].clone()];
+        assert_eq!(decode_sample(&map, &short).expect_err("too short").entry, "drive_frequency_hz");
     }
 }

@@ -77,10 +77,11 @@ pub struct DriveSim {
     clock: Option<RealTime>,
 }
 
-/// Wall-clock pacing: sample k is due at `start + k·sample`.
+/// Wall-clock pacing: sample k is due at `start + k·sample`. On tokio's clock, so that a test with a paused clock
+/// runs the plant in virtual time (outside a runtime it is the system's monotonic clock).
 #[derive(Debug, Clone, Copy)]
 struct RealTime {
-    start: std::time::Instant,
+    start: tokio::time::Instant,
     done: u64,
 }
 
@@ -496,7 +497,7 @@ impl Simulator {
 async fn run_clock(drive: SimHandle, shutdown: CancellationToken) {
     let period = {
         let mut d = drive.lock();
-        d.clock = Some(RealTime { start: std::time::Instant::now(), done: 0 });
+        d.clock = Some(RealTime { start: tokio::time::Instant::now(), done: 0 });
         Duration::from_secs_f64(d.sample_s())
     };
     let mut tick = tokio::time::interval(period);

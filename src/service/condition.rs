@@ -265,8 +265,8 @@ impl Job {
         let window_s = self.settings.window.as_secs_f64();
         let points = self.drive.history(window_s, (window_s * MAX_CHECK_HZ).ceil() as usize);
         let (Some(first), Some(last)) = (points.first().copied(), points.last().copied()) else { return false };
-        let span = last.t_s - first.t_s;
-        if self.checked_up_to_s.is_some_and(|t| last.t_s <= t) {
+        let span = last.sample.t_s - first.sample.t_s;
+        if self.checked_up_to_s.is_some_and(|t| last.sample.t_s <= t) {
             tracing::debug!(drive = %self.drive.name, "no new data since the last condition check");
             return true;
         }
@@ -284,8 +284,8 @@ impl Job {
         let rec = Recording::from_columns(&source, COLUMNS.iter().map(|s| s.to_string()).collect(), cols);
         drop(points);
         let drive_label = DriveLabel { drive: self.drive.name.clone() };
-        self.checked_up_to_s = Some(last.t_s);
-        match condition::check(&rec, &self.settings.model, last.t_s, span) {
+        self.checked_up_to_s = Some(last.sample.t_s);
+        match condition::check(&rec, &self.settings.model, last.sample.t_s, span) {
             Ok(c) => {
                 if let Some(store) = &self.store {
                     match store.append(&c) {
@@ -299,7 +299,7 @@ impl Job {
                     findings = ?named, "condition check");
                 self.condition.push(c);
                 let m = self.condition.monitor();
-                for a in m.alarms().iter().filter(|a| a.since_s == last.t_s) {
+                for a in m.alarms().iter().filter(|a| a.since_s == last.sample.t_s) {
                     tracing::warn!(drive = %self.drive.name, effect = %a.effect, parameter = %a.parameter,
                         value = a.value, limit = a.limit, "condition alarm raised");
                 }

@@ -341,9 +341,9 @@ impl DriveSettings {
     /// writing mode (the setpoint may change every cycle).
     pub fn cycle_frames(&self) -> Vec<(usize, usize)> {
         let mut frames: Vec<(usize, usize)> =
-            super::drive::read_plan(&self.registers).iter().map(|&(_, _, count)| read_frames(count)).collect();
+            crate::modbus::map::read_plan(&self.registers).iter().map(|&(_, _, count)| read_frames(count)).collect();
         if self.mode.writes() {
-            frames.extend(super::drive::write_layout(&self.registers).iter().map(|&(_, n)| write_frames(n)));
+            frames.extend(crate::modbus::map::write_layout(&self.registers).iter().map(|&(_, n)| write_frames(n)));
         }
         frames
     }

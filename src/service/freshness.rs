@@ -2,7 +2,7 @@
 //! rate-of-change plausibility of the measured values. Pure: fed counters, samples and Δt.
 
 use super::config::ValidRanges;
-use super::drive::{Rejected, Sample};
+use super::cycle::{Rejected, Sample};
 
 /// Forward steps a counter must make after it ran backwards before its samples count again: a counter alternating
 /// between two values never makes two in a row; a device that restarted (counter back to 0) recovers in a few polls.

@@ -3,6 +3,7 @@
 
 pub mod condition;
 pub mod config;
+pub mod cycle;
 pub mod drive;
 pub mod freshness;
 pub mod metrics;
@@ -19,7 +20,7 @@ use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 pub use config::{ConfigError, DriveSettings, Settings};
-pub use state::{DriveSnapshot, DriveState, Point, ServiceState};
+pub use state::{DriveSnapshot, DriveState, Measured, Point, ServiceState};
 
 use crate::modbus::bus::{Bus, Connection};
 use crate::modbus::client::DriveClient;

@@ -30,53 +30,65 @@ fn try_lock<T>(m: &Mutex<T>) -> Option<MutexGuard<'_, T>> {
     }
 }
 
+crate::units::columns! {
+    /// The measured columns of a fresh sample: the snapshot's `sample`, and the start of a row.
+    #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+    pub struct Measured {
+        /// Seconds since the service started.
+        pub t_s: f64,
+        /// Setpoint written in this cycle; NaN (null) when nothing was written.
+        pub f_set_hz: f64,
+        pub f_drive_hz: f64,
+        pub p_in_bar: f64,
+        pub p_out_bar: f64,
+        pub omega_rad_s: f64,
+    }
+}
+
 /// One fresh, validated sample with what the service made of it: a row of the recording and of the history.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Point {
-    /// Seconds since the service started.
-    pub t_s: f64,
-    /// Setpoint written in this cycle; NaN (null) when nothing was written.
-    pub f_set_hz: f64,
-    pub f_drive_hz: f64,
-    pub p_in_bar: f64,
-    pub p_out_bar: f64,
-    pub omega_rad_s: f64,
-    pub omega_hat_rad_s: f64,
-    pub load_hat_nm: f64,
-    pub inertia_hat_kg_m2: f64,
-    pub viscous_hat_nm_s_rad: f64,
-    /// How sure the estimator is of J and B (standard deviations; 0 where the method takes them from the model).
-    pub inertia_sd_kg_m2: f64,
-    pub viscous_sd_nm_s_rad: f64,
+    pub sample: Measured,
+    pub estimate: Estimate,
     pub status_word: u16,
 }
 
-/// The recording's columns, in [`Point::values`] order.
-pub const COLUMNS: [&str; 13] = recording::concat(
-    recording::concat::<6, 6, 12>(
-        ["t_s", "f_set_hz", "f_drive_hz", "p_in_bar", "p_out_bar", "omega_rad_s"],
-        recording::ESTIMATE_COLUMNS,
-    ),
-    ["status_word"],
-);
+/// The recording's columns, in [`Point::values`] order: the measured ones, the estimates, the status word.
+pub const COLUMNS: [&str; 13] =
+    recording::concat(recording::concat::<6, 6, 12>(Measured::COLUMNS, Estimate::COLUMNS), ["status_word"]);
 
 impl Point {
     pub fn values(&self) -> [f64; 13] {
-        [
-            self.t_s,
-            self.f_set_hz,
-            self.f_drive_hz,
-            self.p_in_bar,
-            self.p_out_bar,
-            self.omega_rad_s,
-            self.omega_hat_rad_s,
-            self.load_hat_nm,
-            self.inertia_hat_kg_m2,
-            self.viscous_hat_nm_s_rad,
-            self.inertia_sd_kg_m2,
-            self.viscous_sd_nm_s_rad,
-            f64::from(self.status_word),
-        ]
+        let mut v = [0.0; 13];
+        v[..6].copy_from_slice(&self.sample.values());
+        v[6..12].copy_from_slice(&self.estimate.values());
+        v[12] = f64::from(self.status_word);
+        v
+    }
+}
+
+/// Points as columns named [`COLUMNS`], `{"t_s": [...], "f_set_hz": [...], ...}` (a NaN is null): the history's
+/// JSON, which the dashboard's charts take as they are.
+pub struct PointColumns<'a>(pub &'a [Point]);
+
+impl Serialize for PointColumns<'_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let rows: Vec<[f64; 13]> = self.0.iter().map(Point::values).collect();
+        let mut m = s.serialize_map(Some(COLUMNS.len()))?;
+        for (i, name) in COLUMNS.iter().enumerate() {
+            m.serialize_entry(name, &Column(&rows, i))?;
+        }
+        m.end()
+    }
+}
+
+/// Column `.1` of the rows.
+struct Column<'a>(&'a [[f64; 13]], usize);
+
+impl Serialize for Column<'_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_seq(self.0.iter().map(|r| r[self.1]))
     }
 }
 
@@ -119,7 +131,8 @@ pub struct DriveSnapshot {
     pub tripped: bool,
     pub status: DriveStatus,
     pub link: Link,
-    pub sample: Option<Point>,
+    /// The last fresh sample's measured columns; its estimates are `estimate`, its status word `status.word`.
+    pub sample: Option<Measured>,
     pub estimate: Option<Estimate>,
     pub timing: TimingStats,
     /// The recorder's health; None while recording is off.
@@ -243,8 +256,8 @@ impl DriveState {
     pub fn history(&self, seconds: f64, max_points: usize) -> Vec<Point> {
         let h = lock(&self.history);
         let Some(last) = h.back() else { return Vec::new() };
-        let from = last.t_s - seconds;
-        let start = h.partition_point(|p| p.t_s < from);
+        let from = last.sample.t_s - seconds;
+        let start = h.partition_point(|p| p.sample.t_s < from);
         let n = h.len() - start;
         let stride = n.div_ceil(max_points.max(1)).max(1);
         // walk back from the newest so that it is always included
@@ -316,21 +329,42 @@ mod tests {
     use super::*;
 
     fn point(t: f64) -> Point {
-        Point {
-            t_s: t,
-            f_set_hz: f64::NAN,
-            f_drive_hz: 0.0,
-            p_in_bar: 0.0,
-            p_out_bar: 0.0,
-            omega_rad_s: 0.0,
-            omega_hat_rad_s: 0.0,
-            load_hat_nm: 0.0,
-            inertia_hat_kg_m2: 0.0,
-            viscous_hat_nm_s_rad: 0.0,
-            inertia_sd_kg_m2: 0.0,
-            viscous_sd_nm_s_rad: 0.0,
-            status_word: 0,
+        let estimate = Estimate {
+            omega_hat_rad_s: 1.0,
+            load_hat_nm: 2.0,
+            inertia_hat_kg_m2: 3.0,
+            viscous_hat_nm_s_rad: 4.0,
+            inertia_sd_kg_m2: 5.0,
+            viscous_sd_nm_s_rad: 6.0,
+        };
+        let sample =
+            Measured { t_s: t, f_set_hz: f64::NAN, f_drive_hz: 7.0, p_in_bar: 8.0, p_out_bar: 9.0, omega_rad_s: 10.0 };
+        Point { sample, estimate, status_word: 11 }
+    }
+
+    #[test]
+    fn one_shape_for_the_row_the_recording_and_the_history() {
+        assert_eq!(COLUMNS[6..12], recording::ESTIMATE_COLUMNS, "the estimator's columns are the recording's");
+        assert!(COLUMNS.iter().all(|c| recording::KNOWN_COLUMNS.contains(c)), "every column is the contract's");
+        let p = point(0.5);
+        let json = serde_json::to_value(PointColumns(&[p, point(0.6)])).expect("serialises");
+        let obj = json.as_object().expect("an object");
+        assert_eq!(obj.len(), COLUMNS.len());
+        for (name, v) in COLUMNS.iter().zip(p.values()) {
+            let first = &obj[*name][0];
+            if v.is_nan() {
+                assert!(first.is_null(), "{name}: NaN is null");
+            } else {
+                assert_eq!(first.as_f64(), Some(v), "{name}");
+            }
         }
+        assert_eq!(obj["t_s"][1].as_f64(), Some(0.6));
+        let snapshot_sample = serde_json::to_value(p.sample).expect("serialises");
+        let mut keys: Vec<&str> = snapshot_sample.as_object().expect("object").keys().map(String::as_str).collect();
+        keys.sort_unstable();
+        let mut want = Measured::COLUMNS.to_vec();
+        want.sort_unstable();
+        assert_eq!(keys, want, "the snapshot's sample carries the measured columns only");
     }
 
     fn state(history_len: usize) -> DriveState {
@@ -362,12 +396,12 @@ mod tests {
         }
         let all = d.history(1e9, 10_000);
         assert_eq!(all.len(), 100);
-        assert!((all[0].t_s - 1.5).abs() < 1e-9);
+        assert!((all[0].sample.t_s - 1.5).abs() < 1e-9);
         let last_half_s = d.history(0.505, 10_000);
         assert_eq!(last_half_s.len(), 51);
         let thin = d.history(1e9, 10);
         assert_eq!(thin.len(), 10);
-        assert!((thin[9].t_s - 2.49).abs() < 1e-9, "the newest is kept");
+        assert!((thin[9].sample.t_s - 2.49).abs() < 1e-9, "the newest is kept");
     }
 
     #[test]

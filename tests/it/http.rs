@@ -178,3 +178,53 @@ async fn sse_delivers_snapshots_and_metrics_are_exposed() {
     };
     tokio::time::timeout(Duration::from_secs(20), run).await.expect("bounded");
 }
+
+/// One sample shape: the snapshot's `sample` holds the measured columns and `estimate` the estimates, no value in
+/// both; the history's columns are the recording's, every one as long as `t_s`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_snapshot_carries_each_value_once_and_the_history_the_recording_columns() {
+    use hydrolens::estimator::Estimate;
+    use hydrolens::service::Measured;
+    use hydrolens::service::state::COLUMNS;
+    let run = async {
+        let stack = Stack::start(5.0, 10, "[drives.control]\nmode = \"manual\"\nfixed_hz = 10.0\n").await;
+        let rows = || stack.state.drives[0].history(5.0, 10_000).len();
+        wait_for(Duration::from_secs(5), || async { stack.state.ready() && rows() > 20 }).await.expect("fresh data");
+        let status = stack.status().await;
+        let keys = |v: &serde_json::Value| {
+            let mut k: Vec<String> = v.as_object().expect("an object").keys().cloned().collect();
+            k.sort_unstable();
+            k
+        };
+        let sorted = |c: &[&str]| {
+            let mut k: Vec<String> = c.iter().map(|s| s.to_string()).collect();
+            k.sort_unstable();
+            k
+        };
+        assert_eq!(keys(&status["sample"]), sorted(&Measured::COLUMNS), "{status}");
+        assert_eq!(keys(&status["estimate"]), sorted(&Estimate::COLUMNS), "{status}");
+        assert!(status["status"]["word"].is_u64(), "the status word is in status: {status}");
+        let h: serde_json::Value = reqwest::get(format!("{}/api/history?drive=pump1&seconds=5", stack.url))
+            .await
+            .expect("GET history")
+            .json()
+            .await
+            .expect("json");
+        let mut want = sorted(&COLUMNS);
+        want.push("drive".into());
+        want.sort_unstable();
+        assert_eq!(keys(&h), want);
+        let n = h["t_s"].as_array().map_or(0, Vec::len);
+        assert!(n > 10, "{n} rows");
+        for c in COLUMNS {
+            assert_eq!(h[c].as_array().map(Vec::len), Some(n), "{c}");
+        }
+        let f_set = h["f_set_hz"][n - 1].as_f64();
+        assert!(
+            f_set.is_some_and(|f| f > 0.0 && f <= 10.0),
+            "the manual setpoint, written (ramping to 10 Hz): {f_set:?}"
+        );
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(20), run).await.expect("bounded");
+}

@@ -2,6 +2,7 @@
 
 mod analysis;
 mod cli_service;
+mod client;
 mod compressed;
 mod condition;
 mod dashboard;

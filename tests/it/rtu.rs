@@ -121,7 +121,7 @@ async fn regulates(url: &str, i: usize, sim: &SimHandle, target: f64, limit: Dur
         let truth = sim.lock().truth();
         let s = status(url).await;
         let d = &s["drives"][i];
-        let omega_hat = d["sample"]["omega_hat_rad_s"].as_f64().unwrap_or(f64::NAN);
+        let omega_hat = d["estimate"]["omega_hat_rad_s"].as_f64().unwrap_or(f64::NAN);
         !truth.tripped
             && (truth.omega_rad_s - target).abs() < 2.0
             && (omega_hat - target).abs() < 3.0

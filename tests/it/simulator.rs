@@ -35,7 +35,8 @@ async fn speed_rad_s(ctx: &mut tokio_modbus::client::Context) -> f64 {
     f64::from(regs[2] as i16) * 0.1 * 2.0 * std::f64::consts::PI / 60.0
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+/// On tokio's paused clock: the plant runs in virtual time (2–4 s of it here), the sockets are real.
+#[tokio::test(start_paused = true)]
 async fn a_setpoint_written_over_modbus_moves_the_shaft() {
     let (addr, handle, stop, task) = start(PlantModel::reference()).await;
     let mut ctx = within("connect", tcp::connect_slave(addr, Slave(1))).await.expect("connect");
@@ -77,7 +78,9 @@ async fn a_setpoint_written_over_modbus_moves_the_shaft() {
     within("stop", task).await.expect("clean stop");
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+/// On tokio's paused clock: the simulator's plant runs in virtual time, so the waits below cost nothing and the
+/// trip comes after exactly `comm_timeout_ms` of plant time.
+#[tokio::test(start_paused = true)]
 async fn the_watchdog_trips_the_drive_and_a_reset_rearms_it() {
     let mut model = PlantModel::reference();
     if let Some(d) = model.drive.as_mut() {

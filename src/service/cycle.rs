@@ -1,0 +1,515 @@
+//! PURE drive cycle: a validated sample and the time it was read → the writes to send and the row to keep. No
+//! sockets and no clock: the poll loop ([`super::drive`]) reads, calls [`DriveCycle::step`], sends what it says and
+//! reports back with [`DriveCycle::confirm`].
+//!
+//! Data are fresh when the sample counter has moved forward (and has not run backwards lately, see
+//! [`super::freshness`]), every value decodes in range and changed no faster than the plausible rates, the reply
+//! came within `stale_ms` and the previous new sample no more than `stale_ms` before: the one definition readiness
+//! also uses (only fresh samples mark the drive fresh). Only fresh data reach the estimator, and only fresh data
+//! lead to a write: on stale data nothing is written, so the drive's own watchdog takes over. A tripped drive is
+//! commanded towards 0 Hz and only re-armed by a reset request from the API.
+
+use std::time::Duration;
+
+use tokio::time::Instant;
+
+use super::config::{DriveSettings, ValidRanges};
+use super::freshness::{CounterCheck, CounterVerdict, implausible_jump};
+use super::state::{Commands, DriveStatus, Measured, Point};
+use crate::control::{Inputs, Mode, SpeedLaw};
+use crate::estimator::{Estimate, Estimator, Measurement};
+use crate::modbus::map::{MapError, Reading, RegisterMap, control, plan_writes, status};
+use crate::units::rpm_to_rad_s;
+
+/// A decoded sample whose values are in range.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sample {
+    pub p_in_bar: f64,
+    pub p_out_bar: f64,
+    pub omega_rad_s: f64,
+    pub f_drive_hz: f64,
+    pub status_word: u16,
+    pub counter: u64,
+}
+
+/// Why a read's values were refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum Rejected {
+    #[error("{entry}: {message}")]
+    Decode { entry: &'static str, message: String },
+    #[error("{entry} = {value} is outside the valid range")]
+    Range { entry: &'static str, value: f64 },
+    #[error("{entry} jumped from {from} to {to} ({rate:.0}/s, limit {max_rate}/s)")]
+    Jump { entry: &'static str, from: f64, to: f64, rate: f64, max_rate: f64 },
+}
+
+impl From<crate::modbus::map::DecodeError> for Rejected {
+    fn from(e: crate::modbus::map::DecodeError) -> Rejected {
+        Rejected::Decode { entry: e.entry, message: e.message }
+    }
+}
+
+/// Checks a decoded reading against the valid ranges. Pure.
+pub fn validate(r: &Reading, ranges: &ValidRanges) -> Result<Sample, Rejected> {
+    let entries = [
+        ("inlet_pressure_bar", r.inlet_pressure_bar),
+        ("outlet_pressure_bar", r.outlet_pressure_bar),
+        ("shaft_speed_rpm", r.shaft_speed_rpm),
+        ("drive_frequency_hz", r.drive_frequency_hz),
+        ("status_word", r.status_word),
+        ("sample_counter", r.sample_counter),
+    ];
+    if let Some(&(entry, value)) = entries.iter().find(|(_, v)| !v.is_finite()) {
+        return Err(Rejected::Range { entry, value });
+    }
+    let pressure_ok = |p: f64| (ranges.min_pressure_bar..=ranges.max_pressure_bar).contains(&p);
+    if !pressure_ok(r.inlet_pressure_bar) {
+        return Err(Rejected::Range { entry: "inlet_pressure_bar", value: r.inlet_pressure_bar });
+    }
+    if !pressure_ok(r.outlet_pressure_bar) {
+        return Err(Rejected::Range { entry: "outlet_pressure_bar", value: r.outlet_pressure_bar });
+    }
+    let omega = rpm_to_rad_s(r.shaft_speed_rpm);
+    if omega.abs() > ranges.max_speed_rad_s {
+        return Err(Rejected::Range { entry: "shaft_speed_rpm", value: r.shaft_speed_rpm });
+    }
+    if !(-0.5..=ranges.max_frequency_hz).contains(&r.drive_frequency_hz) {
+        return Err(Rejected::Range { entry: "drive_frequency_hz", value: r.drive_frequency_hz });
+    }
+    if !(0.0..=65535.0).contains(&r.status_word) || r.status_word.fract() != 0.0 {
+        return Err(Rejected::Range { entry: "status_word", value: r.status_word });
+    }
+    if !(0.0..=u32::MAX as f64).contains(&r.sample_counter) {
+        return Err(Rejected::Range { entry: "sample_counter", value: r.sample_counter });
+    }
+    Ok(Sample {
+        p_in_bar: r.inlet_pressure_bar,
+        p_out_bar: r.outlet_pressure_bar,
+        omega_rad_s: omega,
+        f_drive_hz: r.drive_frequency_hz,
+        status_word: r.status_word as u16,
+        counter: r.sample_counter as u64,
+    })
+}
+
+/// The state bits of a status word.
+pub fn drive_status(word: u16) -> DriveStatus {
+    DriveStatus {
+        word,
+        ready: word & status::READY != 0,
+        running: word & status::RUNNING != 0,
+        fault: word & status::FAULT != 0,
+        comm_loss_trip: word & status::COMM_LOSS_TRIP != 0,
+    }
+}
+
+/// What a sample turned out to be.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Verdict {
+    /// Fresh: estimated, controlled, kept as a row.
+    Fresh,
+    /// Not new or not timely: nothing estimated, nothing written.
+    Stale,
+    /// The sample counter ran backwards (a device fault): stale.
+    CounterBackwards(u64),
+    /// Values moved faster than plausible: refused.
+    Rejected(Rejected),
+}
+
+/// What one step asks of the loop.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Step {
+    pub verdict: Verdict,
+    /// The write requests to send now, in order; empty when nothing is due (stale data, monitor mode, or the same
+    /// values as last time with the watchdog not yet due).
+    pub writes: Vec<(u16, Vec<u16>)>,
+    /// The fresh sample's row. Its `f_set_hz` is the setpoint if `writes` reach the drive (NaN when none was
+    /// computed or it could not be encoded); the loop blanks it when they fail.
+    pub point: Option<Point>,
+    /// The setpoint could not be encoded into its register.
+    pub encode_error: Option<MapError>,
+}
+
+/// Writes handed to the loop and not yet confirmed.
+#[derive(Debug, Clone, PartialEq)]
+struct Pending {
+    writes: Vec<(u16, Vec<u16>)>,
+    watchdog: u16,
+    /// When the watchdog changed, if it did.
+    watchdog_at: Option<Instant>,
+    setpoint_hz: f64,
+}
+
+/// What a confirmed write did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Confirmed {
+    pub setpoint_hz: f64,
+    /// The fault-reset bit went out with it.
+    pub reset_sent: bool,
+}
+
+/// One drive's control state between cycles: everything but the link, the publishing and the recording.
+pub struct DriveCycle {
+    mode: Mode,
+    registers: RegisterMap,
+    ranges: ValidRanges,
+    poll: Duration,
+    stale_after: Duration,
+    watchdog_every: Duration,
+    /// D_m (m³/rad): the drive torque from the pressure difference.
+    motor_m3_rad: f64,
+    started: Instant,
+    estimator: Box<dyn Estimator>,
+    law: SpeedLaw,
+    counter: CounterCheck,
+    /// The last sample that passed every check but timeliness, and when it was read: the reference of the
+    /// rate-of-change check and of the gap between new samples.
+    last_valid: Option<(Instant, Sample)>,
+    last_fresh_at: Option<Instant>,
+    /// When the watchdog value last changed: it must change at least every `watchdog_ms`.
+    last_watchdog_at: Option<Instant>,
+    last_written: Vec<(u16, Vec<u16>)>,
+    watchdog: u16,
+    /// 0: none; 1: write the fault-reset bit next; 2: written, drop it next.
+    reset_phase: u8,
+    pending: Option<Pending>,
+    status: DriveStatus,
+    estimate: Option<Estimate>,
+    measured: Option<Measured>,
+}
+
+impl DriveCycle {
+    /// `started` is the service's start: rows count their time from it.
+    pub fn new(settings: &DriveSettings, estimator: Box<dyn Estimator>, started: Instant) -> DriveCycle {
+        let mut law = SpeedLaw::new(settings.mode, settings.limits, settings.gains, settings.feed_forward);
+        law.target_omega_rad_s = settings.target_omega_rad_s;
+        law.fixed_hz = settings.fixed_hz;
+        DriveCycle {
+            mode: settings.mode,
+            registers: settings.registers,
+            ranges: settings.ranges,
+            poll: settings.poll,
+            stale_after: settings.stale_after,
+            watchdog_every: settings.watchdog_every,
+            motor_m3_rad: settings.feed_forward.motor_m3_rad,
+            started,
+            estimator,
+            law,
+            counter: CounterCheck::new(16 * u32::from(settings.registers.sample_counter.kind.words())),
+            last_valid: None,
+            last_fresh_at: None,
+            last_watchdog_at: None,
+            last_written: Vec::new(),
+            watchdog: 0,
+            reset_phase: 0,
+            pending: None,
+            status: DriveStatus::default(),
+            estimate: None,
+            measured: None,
+        }
+    }
+
+    /// Takes the HTTP side's commands: the target, and a reset (re-arms a writing drive at its next write).
+    pub fn command(&mut self, c: Commands) {
+        self.law.target_omega_rad_s = c.target_omega_rad_s;
+        if c.reset_requested && self.mode.writes() {
+            self.reset_phase = 1;
+        }
+    }
+
+    /// One cycle on a validated sample: `sent_at` is when the read was sent (the data are at least as old as the
+    /// reply took), `replied_at` when its reply came.
+    pub fn step(&mut self, sample: &Sample, sent_at: Instant, replied_at: Instant) -> Step {
+        let nothing = |verdict| Step { verdict, writes: Vec::new(), point: None, encode_error: None };
+        self.pending = None;
+        self.status = drive_status(sample.status_word);
+        match self.counter.observe(sample.counter) {
+            CounterVerdict::Moved => {}
+            CounterVerdict::Unchanged | CounterVerdict::Settling => return nothing(Verdict::Stale),
+            CounterVerdict::Backwards => return nothing(Verdict::CounterBackwards(sample.counter)),
+        }
+        let now = sent_at;
+        let previous = self.last_valid;
+        if let Some((at, prev)) = previous {
+            let dt = now.saturating_duration_since(at).max(self.poll);
+            if let Some(r) = implausible_jump(&prev, sample, dt.as_secs_f64(), &self.ranges) {
+                return nothing(Verdict::Rejected(r));
+            }
+        }
+        self.last_valid = Some((now, *sample));
+        // timely: the reply came within stale_ms, and so did this sample after the one before; else readiness
+        // would call the drive stale while the loop wrote from it
+        let limit = self.stale_after;
+        let reply_took = replied_at.saturating_duration_since(now);
+        let gap_ok = previous.is_some_and(|(at, _)| now.saturating_duration_since(at) <= limit);
+        if reply_took > limit || !gap_ok {
+            return nothing(Verdict::Stale);
+        }
+        let first = self.last_fresh_at.is_none();
+        let dt = self.last_fresh_at.map_or(self.poll, |t| now.saturating_duration_since(t));
+        self.last_fresh_at = Some(now);
+        let torque = self.motor_m3_rad * (sample.p_in_bar - sample.p_out_bar) * crate::units::PA_PER_BAR;
+        let est = self.estimator.update(&Measurement {
+            dt_s: dt.as_secs_f64(),
+            omega_rad_s: sample.omega_rad_s,
+            drive_torque_nm: torque,
+        });
+        self.estimate = Some(est);
+        if first && self.mode.writes() {
+            self.law.start_from(sample.f_drive_hz);
+        }
+        let setpoint = self.law.step(&Inputs {
+            dt_s: dt.as_secs_f64(),
+            fresh: true,
+            tripped: self.tripped(),
+            omega_hat_rad_s: est.omega_hat_rad_s,
+            load_hat_nm: est.load_hat_nm,
+        });
+        let (mut f_set_hz, mut writes, mut encode_error) = (f64::NAN, Vec::new(), None);
+        if let Some(hz) = setpoint {
+            match self.plan(now, hz) {
+                Ok(w) => (f_set_hz, writes) = (hz, w),
+                Err(e) => encode_error = Some(e),
+            }
+        }
+        let measured = Measured {
+            t_s: now.saturating_duration_since(self.started).as_secs_f64(),
+            f_set_hz,
+            f_drive_hz: sample.f_drive_hz,
+            p_in_bar: sample.p_in_bar,
+            p_out_bar: sample.p_out_bar,
+            omega_rad_s: sample.omega_rad_s,
+        };
+        self.measured = Some(measured);
+        let point = Point { sample: measured, estimate: est, status_word: sample.status_word };
+        Step { verdict: Verdict::Fresh, writes, point: Some(point), encode_error }
+    }
+
+    /// The writes for setpoint `hz`: nothing when they would repeat the last ones and the watchdog is not due.
+    fn plan(&mut self, now: Instant, hz: f64) -> Result<Vec<(u16, Vec<u16>)>, MapError> {
+        let mut control_word = control::RUN;
+        if self.reset_phase == 1 {
+            control_word |= control::FAULT_RESET;
+        }
+        let due = self.last_watchdog_at.is_none_or(|t| now.saturating_duration_since(t) >= self.watchdog_every);
+        let watchdog = if due { self.watchdog.wrapping_add(1) } else { self.watchdog };
+        let writes = plan_writes(&self.registers, hz, control_word, watchdog)?;
+        if !due && writes == self.last_written {
+            return Ok(Vec::new());
+        }
+        let watchdog_at = due.then_some(now);
+        self.pending = Some(Pending { writes: writes.clone(), watchdog, watchdog_at, setpoint_hz: hz });
+        Ok(writes)
+    }
+
+    /// The loop's report on the last step's writes: all sent (`ok`), or one failed (then the next step writes
+    /// everything again). None when there was nothing to confirm or it failed.
+    pub fn confirm(&mut self, ok: bool) -> Option<Confirmed> {
+        let p = self.pending.take()?;
+        if !ok {
+            self.last_written.clear();
+            return None;
+        }
+        if p.watchdog_at.is_some() {
+            self.last_watchdog_at = p.watchdog_at;
+        }
+        self.watchdog = p.watchdog;
+        self.last_written = p.writes;
+        let reset_sent = self.reset_phase == 1;
+        self.reset_phase = if reset_sent { 2 } else { 0 };
+        Some(Confirmed { setpoint_hz: p.setpoint_hz, reset_sent })
+    }
+
+    /// The status word's bits, as of the last decoded sample.
+    pub fn status(&self) -> DriveStatus {
+        self.status
+    }
+
+    /// The drive reports a fault or a comm-loss trip.
+    pub fn tripped(&self) -> bool {
+        self.status.fault || self.status.comm_loss_trip
+    }
+
+    pub fn estimate(&self) -> Option<Estimate> {
+        self.estimate
+    }
+
+    /// The last fresh sample's measured columns.
+    pub fn measured(&self) -> Option<Measured> {
+        self.measured
+    }
+
+    pub fn target_omega_rad_s(&self) -> f64 {
+        self.law.target_omega_rad_s
+    }
+
+    /// The last setpoint the law gave.
+    pub fn setpoint_hz(&self) -> Option<f64> {
+        self.law.last_hz()
+    }
+
+    /// No fresh sample for longer than `stale_ms` before `now`.
+    pub fn stale_at(&self, now: Instant) -> bool {
+        self.last_fresh_at.is_none_or(|t| now.saturating_duration_since(t) > self.stale_after)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MS: Duration = Duration::from_millis(1);
+
+    /// Settings from a real config (poll 10 ms, stale 50 ms, watchdog 100 ms, 0–50 Hz at 20 Hz/s unless `control`
+    /// says otherwise).
+    fn settings(control: &str) -> DriveSettings {
+        let text = format!(
+            "[[drives]]\nname = \"d\"\naddress = \"127.0.0.1:1\"\npoll_ms = 10\nstale_ms = 50\nwatchdog_ms = 100\n\
+             [drives.control]\n{control}\n"
+        );
+        let mut s = super::super::config::parse(&text, "test", None).expect("valid config");
+        s.drives.remove(0)
+    }
+
+    fn cycle(control: &str) -> (DriveCycle, Instant) {
+        let s = settings(control);
+        let t0 = Instant::now();
+        (DriveCycle::new(&s, crate::estimator::build(&s.estimator, &s.model), t0), t0)
+    }
+
+    fn sample(counter: u64, omega_rad_s: f64, f_drive_hz: f64, status_word: u16) -> Sample {
+        Sample { p_in_bar: 40.0, p_out_bar: 5.0, omega_rad_s, f_drive_hz, status_word, counter }
+    }
+
+    /// Steps samples `k0 .. k0 + n` (counter k read at k·10 ms after `t0`, replied 1 ms later), confirming each
+    /// write; the steps.
+    fn run(c: &mut DriveCycle, t0: Instant, k0: u64, n: u64, omega: f64, word: u16) -> Vec<Step> {
+        (0..n)
+            .map(|k| {
+                let at = t0 + MS * (10 * (k0 + k) as u32);
+                let step = c.step(&sample(k0 + k, omega, 20.0, word), at, at + MS);
+                c.confirm(true);
+                step
+            })
+            .collect()
+    }
+
+    /// The setpoint in a step's writes (default map: one block at 0, setpoint, control word, watchdog).
+    fn written(s: &Step) -> Option<(f64, u16, u16)> {
+        let (_, w) = s.writes.first()?;
+        Some((f64::from(w[0]) * 0.01, w[1], w[2]))
+    }
+
+    #[test]
+    fn monitor_mode_never_writes_but_keeps_rows() {
+        let (mut c, t0) = cycle("mode = \"monitor\"");
+        let steps = run(&mut c, t0, 0, 20, 30.0, 3);
+        assert!(steps.iter().all(|s| s.writes.is_empty()), "monitor mode writes nothing");
+        let fresh: Vec<&Step> = steps.iter().filter(|s| s.verdict == Verdict::Fresh).collect();
+        assert_eq!(fresh.len(), 19, "all but the first (no gap to judge yet) are fresh");
+        assert!(fresh.iter().all(|s| s.point.is_some_and(|p| p.sample.f_set_hz.is_nan())));
+        assert_eq!(c.setpoint_hz(), None);
+    }
+
+    #[test]
+    fn the_setpoint_is_clamped_and_ramp_limited() {
+        // the speed law wants more than 30 Hz for 46 rad/s while the shaft turns at 30
+        let (mut c, t0) = cycle("mode = \"speed\"\ntarget_omega_rad_s = 46.0\nmax_hz = 30.0\nramp_hz_per_s = 100.0");
+        let steps = run(&mut c, t0, 0, 40, 30.0, 3);
+        let hz: Vec<f64> = steps.iter().filter_map(|s| s.point.map(|p| p.sample.f_set_hz)).collect();
+        // starts from the drive's 20 Hz and climbs at most 100 Hz/s · 10 ms = 1 Hz a cycle
+        assert!((hz[0] - 21.0).abs() < 1e-9, "{hz:?}");
+        for w in hz.windows(2) {
+            assert!(w[1] - w[0] <= 1.0 + 1e-9, "ramp limited: {hz:?}");
+        }
+        assert!(hz.iter().all(|&f| f <= 30.0), "clamped to max_hz: {hz:?}");
+        assert_eq!(*hz.last().expect("rows"), 30.0, "held at the clamp: {hz:?}");
+    }
+
+    #[test]
+    fn stale_data_write_nothing_and_move_nothing() {
+        let (mut c, t0) = cycle("mode = \"manual\"\nfixed_hz = 25.0");
+        run(&mut c, t0, 0, 5, 30.0, 3);
+        let before = c.setpoint_hz();
+        // the counter does not move: the same data again
+        let at = t0 + MS * 50;
+        let same = c.step(&sample(4, 30.0, 20.0, 3), at, at + MS);
+        assert_eq!((same.verdict, same.writes.len(), same.point), (Verdict::Stale, 0, None));
+        // the reply took longer than stale_ms
+        let at = t0 + MS * 60;
+        let late = c.step(&sample(5, 30.0, 20.0, 3), at, at + MS * 51);
+        assert_eq!((late.verdict, late.writes.len()), (Verdict::Stale, 0));
+        // a gap longer than stale_ms since the sample before
+        let at = t0 + MS * 200;
+        let gap = c.step(&sample(6, 30.0, 20.0, 3), at, at + MS);
+        assert_eq!((gap.verdict, gap.writes.len()), (Verdict::Stale, 0));
+        assert!(c.confirm(true).is_none(), "nothing to confirm");
+        assert_eq!(c.setpoint_hz(), before, "the law held");
+        assert!(c.stale_at(at + MS), "no fresh sample since 40 ms");
+        // a counter that runs backwards
+        let back = c.step(&sample(1, 30.0, 20.0, 3), at + MS * 10, at + MS * 11);
+        assert_eq!((back.verdict, back.writes.len()), (Verdict::CounterBackwards(1), 0));
+        // a jump no plant makes
+        let (mut c, t0) = cycle("mode = \"manual\"\nfixed_hz = 25.0");
+        run(&mut c, t0, 0, 3, 30.0, 3);
+        let at = t0 + MS * 30;
+        let jump = c.step(&sample(3, 900.0, 20.0, 3), at, at + MS);
+        assert!(matches!(jump.verdict, Verdict::Rejected(Rejected::Jump { .. })), "{jump:?}");
+        assert!(jump.writes.is_empty());
+    }
+
+    #[test]
+    fn the_watchdog_changes_every_watchdog_ms_and_writes_wait_otherwise() {
+        let (mut c, t0) = cycle("mode = \"manual\"\nfixed_hz = 20.0");
+        let steps = run(&mut c, t0, 0, 51, 30.0, 3);
+        // the setpoint equals the drive's 20 Hz from the start: after the first write only the watchdog is due
+        let writes: Vec<(usize, (f64, u16, u16))> =
+            steps.iter().enumerate().filter_map(|(k, s)| written(s).map(|w| (k, w))).collect();
+        let at: Vec<usize> = writes.iter().map(|(k, _)| *k).collect();
+        assert_eq!(at, vec![1, 11, 21, 31, 41], "a write every 100 ms (10 cycles), none between");
+        let dog: Vec<u16> = writes.iter().map(|(_, w)| w.2).collect();
+        assert_eq!(dog, vec![1, 2, 3, 4, 5], "a new watchdog value each time");
+        assert!(writes.iter().all(|(_, w)| (w.0 - 20.0).abs() < 1e-9 && w.1 == control::RUN));
+        assert!(
+            steps[2..].iter().all(|s| s.point.is_some_and(|p| p.sample.f_set_hz == 20.0)),
+            "an unchanged setpoint counts as written"
+        );
+    }
+
+    #[test]
+    fn a_failed_write_is_sent_whole_again() {
+        let (mut c, t0) = cycle("mode = \"manual\"\nfixed_hz = 20.0");
+        let at = |k: u32| t0 + MS * (10 * k);
+        c.step(&sample(0, 30.0, 20.0, 3), at(0), at(0) + MS);
+        let first = c.step(&sample(1, 30.0, 20.0, 3), at(1), at(1) + MS);
+        assert_eq!(written(&first).map(|w| w.2), Some(1));
+        assert!(c.confirm(false).is_none(), "a failed write confirms nothing");
+        let again = c.step(&sample(2, 30.0, 20.0, 3), at(2), at(2) + MS);
+        assert_eq!(written(&again).map(|w| w.2), Some(1), "sent again, the watchdog not counted as changed");
+        assert!(c.confirm(true).is_some());
+        let quiet = c.step(&sample(3, 30.0, 20.0, 3), at(3), at(3) + MS);
+        assert!(quiet.writes.is_empty());
+    }
+
+    #[test]
+    fn a_tripped_drive_ramps_down_and_a_reset_goes_out_once() {
+        let (mut c, t0) = cycle("mode = \"manual\"\nfixed_hz = 20.0\nramp_hz_per_s = 100.0");
+        run(&mut c, t0, 0, 3, 30.0, 3);
+        let tripped = run(&mut c, t0, 3, 5, 30.0, status::FAULT | status::READY);
+        assert!(c.tripped());
+        let hz: Vec<f64> = tripped.iter().filter_map(written).map(|w| w.0).collect();
+        assert!(hz.windows(2).all(|w| w[1] < w[0]) && hz.len() == 5, "towards 0 Hz, ramp limited: {hz:?}");
+        c.command(Commands { target_omega_rad_s: 0.0, reset_requested: true });
+        let at = t0 + MS * 80;
+        let reset = c.step(&sample(8, 30.0, 20.0, 3), at, at + MS);
+        assert_eq!(written(&reset).map(|w| w.1), Some(control::RUN | control::FAULT_RESET));
+        assert_eq!(c.confirm(true).map(|x| x.reset_sent), Some(true));
+        let at = t0 + MS * 90;
+        let after = c.step(&sample(9, 30.0, 20.0, 3), at, at + MS);
+        assert_eq!(written(&after).map(|w| w.1), Some(control::RUN), "the reset bit is dropped the next write");
+        // monitor mode ignores a reset
+        let (mut m, _) = cycle("mode = \"monitor\"");
+        m.command(Commands { target_omega_rad_s: 1.0, reset_requested: true });
+        assert_eq!(m.reset_phase, 0);
+    }
+}
