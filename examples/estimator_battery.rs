@@ -5,7 +5,8 @@
 //! `[families=brake,sine] [seed=K]`
 //! Tuned seeds are 1…N, held-out seeds 1001…1000+N (never used while tuning), `set=fresh` seeds 5001…5000+N (never
 //! looked at before their figures went into docs/estimator.md), `set=unseen` seeds 7001…7000+N (first run once, for the
-//! figures of the pooled B). `kalman-jump=0` runs the reference
+//! figures of the pooled B), `set=final` seeds 9001…9000+N (run once, with the code of 3fb5f98, for the
+//! battery table). `kalman-jump=0` runs the reference
 //! Kalman filter without its jump test (the filter before it).
 
 use hydrolens::estimator::EstimatorSettings;
@@ -35,6 +36,7 @@ fn main() {
         "held-out" => 1001,
         "fresh" => 5001,
         "unseen" => 7001,
+        "final" => 9001,
         _ => 1,
     };
     let scenarios: Vec<Scenario> = (0..runs)
