@@ -452,7 +452,7 @@ impl Simulator {
     }
 
     /// Runs the plant in real time and serves Modbus RTU on the serial device `path` until `shutdown` fires. A
-    /// device that is missing, fails or goes away (a line unplugged) is reopened every [`REOPEN_EVERY`].
+    /// device that is missing, fails or goes away (a line unplugged) is reopened every `REOPEN_EVERY`.
     pub async fn run_serial(self, path: &str, line: SerialLine, shutdown: CancellationToken) -> std::io::Result<()> {
         tracing::info!(
             path,

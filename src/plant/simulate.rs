@@ -40,7 +40,7 @@ pub enum RunError {
     Sink(std::io::Error),
 }
 
-/// As [`run`], handing each row (in [`COLUMNS`] order) to `sink` instead of keeping it: memory stays flat for
+/// As [`crate::recording::simulated::run`], handing each row (in [`COLUMNS`] order) to `sink` instead of keeping it: memory stays flat for
 /// runs of any length.
 pub fn run_into(
     model: &PlantModel,

@@ -93,7 +93,7 @@ impl DriveLoop {
     }
 
     /// Spreads the loops' ticks: loop `index` of `count` ticks `index/count` of its period (at most of
-    /// [`STAGGER_SPAN`]) after the first. Loops started together would otherwise all wake at the same instant, with
+    /// `STAGGER_SPAN`) after the first. Loops started together would otherwise all wake at the same instant, with
     /// their simulators or PLC replies, and queue for the cores: the last of 50 waited milliseconds. The cap keeps
     /// the first poll of slow loops from being put off by up to a period.
     pub fn stagger(&mut self, index: usize, count: usize) {
