@@ -16,7 +16,7 @@ OUT=$(mktemp -d)
 trap 'rm -rf "$OUT"' EXIT
 declare -A WALL CPU
 PADASIP=""
-median() { tr ' ' '\n' | grep -v '^$' | sort -g | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
+median() { tr ' ' '\n' | { grep -v '^$' || true; } | sort -g | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
 rows=$(($(wc -l <"$REC") - 1))
 for _ in $(seq "$RUNS"); do
   if [[ -n ${PADASIP_PYTHON:-} ]]; then

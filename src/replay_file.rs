@@ -133,6 +133,7 @@ pub fn estimate_file_in_batches(
         });
 
         let mut text = Vec::with_capacity(TEXT_BYTES + 1024);
+        let mut rows = RowText::default();
         let mut recording_error = None;
         for message in batch_rx {
             let batch = match message {
@@ -142,7 +143,7 @@ pub fn estimate_file_in_batches(
                     break;
                 }
             };
-            replayer.push(&batch.t_s, &batch.columns, |t, e| push_row(&mut text, t, e));
+            replayer.push(&batch.t_s, &batch.columns, |t, e| rows.push(&mut text, t, e));
             if text.len() >= TEXT_BYTES {
                 let spare = spare_text_rx.try_recv().unwrap_or_else(|_| Vec::with_capacity(TEXT_BYTES + 1024));
                 let _ = text_tx.send(std::mem::replace(&mut text, spare));
@@ -175,22 +176,37 @@ fn open_planned(recording: &Path) -> Result<(StreamReader<crate::recording::Reco
     Ok((reader, plan))
 }
 
-/// One row of the estimates file, as [`crate::recording::RowWriter`] writes it ([`push_value`] writes what its
-/// formatter does).
-fn push_row(text: &mut Vec<u8>, t: f64, e: &Estimate) {
-    push_value(text, t);
-    for v in [
-        e.omega_hat_rad_s,
-        e.load_hat_nm,
-        e.inertia_hat_kg_m2,
-        e.viscous_hat_nm_s_rad,
-        e.inertia_sd_kg_m2,
-        e.viscous_sd_nm_s_rad,
-    ] {
-        text.push(b',');
-        push_value(text, v);
+/// Rows of the estimates file as [`crate::recording::RowWriter`] writes them ([`push_value`] is its formatter). J
+/// and B and their deviations, which the RLS changes once a block and the Kalman filter never, are formatted when
+/// they change and copied while they stay the same (the same bits, the same text): half the formatting, the larger
+/// half of the estimating thread's work.
+#[derive(Default)]
+struct RowText {
+    tail_bits: Option<[u64; 4]>,
+    /// `,J,B,σ_J,σ_B\n` of the row before.
+    tail: Vec<u8>,
+}
+
+impl RowText {
+    fn push(&mut self, text: &mut Vec<u8>, t: f64, e: &Estimate) {
+        push_value(text, t);
+        for v in [e.omega_hat_rad_s, e.load_hat_nm] {
+            text.push(b',');
+            push_value(text, v);
+        }
+        let tail = [e.inertia_hat_kg_m2, e.viscous_hat_nm_s_rad, e.inertia_sd_kg_m2, e.viscous_sd_nm_s_rad];
+        let bits = tail.map(f64::to_bits);
+        if self.tail_bits != Some(bits) {
+            self.tail.clear();
+            for v in tail {
+                self.tail.push(b',');
+                push_value(&mut self.tail, v);
+            }
+            self.tail.push(b'\n');
+            self.tail_bits = Some(bits);
+        }
+        text.extend_from_slice(&self.tail);
     }
-    text.push(b'\n');
 }
 
 /// For each column, whether it holds a finite value somewhere in the file. Reads only as far as it needs to (the
