@@ -207,9 +207,7 @@ impl<R: Read> StreamReader<R> {
             plain_first: true,
         })
     }
-}
 
-impl<R: Read> StreamReader<R> {
     /// The header's column names, in file order.
     pub fn names(&self) -> &[String] {
         &self.names
