@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # Side-by-side timing of `hydrolens estimate` binaries (e.g. before and after a change), alternating runs so that the
-# machine's drift hits all alike. Each run writes a new file. Prints the median wall time (bash's clock) and the
-# median CPU time (`perf stat -e task-clock`, ms) of each binary. Not part of CI (README "Benchmarks").
+# machine's drift hits all alike. Each run writes a new file. Prints the median wall time (bash's clock), rows a
+# second and the median CPU time (`perf stat -e task-clock`, ms) of each binary. With PADASIP_PYTHON (a python with
+# numpy and padasip, bench/requirements.txt) each round also times padasip on the same job (bench/padasip_rls.py: load
+# the CSV, FilterRLS, write the estimates; its own clock) and prints each binary's ratio to it. Not part of CI.
 #   usage: bench/estimate_ab.sh REC.csv RUNS BIN...      environment: METHOD (rls-sgd), MODEL (config/plant.toml),
-#   REPLACE=1: each run replaces the output of the run before, written a moment earlier, instead of a new file
+#   PADASIP_PYTHON; REPLACE=1: each run replaces the output of the run before, written a moment earlier
 set -euo pipefail
 REC=$1
 RUNS=$2
@@ -13,8 +15,16 @@ METHOD=${METHOD:-rls-sgd}
 OUT=$(mktemp -d)
 trap 'rm -rf "$OUT"' EXIT
 declare -A WALL CPU
-median() { tr ' ' '\n' | grep -v '^$' | sort -g | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
+PADASIP=""
+median() { tr ' ' '\n' | { grep -v '^$' || true; } | sort -g | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
+rows=$(($(wc -l <"$REC") - 1))
 for _ in $(seq "$RUNS"); do
+  if [[ -n ${PADASIP_PYTHON:-} ]]; then
+    cat "$REC" >/dev/null
+    line=$(timeout 900 "$PADASIP_PYTHON" "$(dirname "$0")/padasip_rls.py" "$REC" 1 "$OUT/padasip.csv")
+    rm -f "$OUT/padasip.csv"
+    PADASIP+="$(sed -n 's/.* job_s=\([^ ]*\).*/\1/p' <<<"$line") "
+  fi
   for bin in "$@"; do
     # in the page cache before each run: this guest drops file pages idle for a minute (DAMON reclaim)
     cat "$REC" >/dev/null
@@ -29,6 +39,12 @@ for _ in $(seq "$RUNS"); do
     CPU[$bin]+="$cpu "
   done
 done
+pad=$(median <<<"$PADASIP")
+[[ -n $pad ]] && echo "padasip job_s=$pad rows_per_s=$(awk -v n="$rows" -v s="$pad" 'BEGIN { printf "%.0f", n / s }')"
 for bin in "$@"; do
-  echo "$bin wall_s=$(median <<<"${WALL[$bin]}") cpu_ms=$(median <<<"${CPU[$bin]}")"
+  wall=$(median <<<"${WALL[$bin]}")
+  line="$bin wall_s=$wall rows_per_s=$(awk -v n="$rows" -v s="$wall" 'BEGIN { printf "%.0f", n / s }')"
+  line+=" cpu_ms=$(median <<<"${CPU[$bin]}")"
+  [[ -n $pad ]] && line+=" vs_padasip=$(awk -v a="$pad" -v b="$wall" 'BEGIN { printf "%.1f", a / b }')x"
+  echo "$line"
 done

@@ -1,8 +1,7 @@
 //! The two halves of `hydrolens estimate` (src/replay_file.rs), each on one thread, on a `simulate` recording of
-//! 100 k rows (11 columns) in memory: the streaming reader (with the 4 columns the replay needs, and with all 11),
-//! and the replay with the formatting of its output (the careful way's two halves). Times are the thread's CPU
-//! time (support/cpu_time.rs). Then the whole of `estimate_file` on the same rows from a file to a file, the fast
-//! way with its two threads, in wall time.
+//! 100 k rows (11 columns) in memory: the recording reader (with the 4 columns the replay needs, and with all 11),
+//! and the replay with the formatting of its output. Times are the thread's CPU time (support/cpu_time.rs). Then the
+//! whole of `estimate_file` on the same rows from a file to a file, with its two threads, in wall time.
 
 #[path = "support/cpu_time.rs"]
 mod cpu_time;

@@ -7,15 +7,16 @@
 //! - [`units`], [`error`]: conversions and the bad-input marker shared by everyone (which errors are bad input is
 //!   decided here at the top, [`is_bad_input`]).
 //! - [`plant`]: PURE physics (model file, effects, loads, RK4 integrator, test-stand run). No clock, no I/O.
-//! - [`recording`]: the contract's CSV, read strictly and written streaming with rotation; a simulated run kept as
-//!   a recording (`recording::simulated`).
+//! - [`recording`]: the contract's CSV, read strictly by one streaming reader (whole or batch by batch, plain or
+//!   gzip) and written streaming with rotation; a simulated run kept as a recording (`recording::simulated`).
 //! - [`modbus`]: the register map with a cycle's read plan, sample decoding and write planning, and the RTU line's
 //!   timing (pure), the client (TCP, RTU, RTU over TCP), the bus task that shares an RTU line among its drives, and
 //!   the plant simulator server.
 //! - [`estimator`]: PURE RLS+SGD and Kalman estimators; fed Δt and samples.
 //! - [`replay`]: a recording's columns turned into the estimators' measurements (which column, which unit), and an
 //!   estimator run over them, whole or batch by batch.
-//! - [`replay_file`]: `hydrolens estimate`: a recording file streamed through an estimator into a CSV, two threads.
+//! - [`replay_file`]: `hydrolens estimate`: a recording file streamed through an estimator into a CSV, on two
+//!   threads (one reads and writes, one estimates and formats).
 //! - [`analysis`]: PURE mismatch analysis (fit, free-run residuals, effect search) + its HTML report at the edge.
 //! - [`condition`]: condition monitoring: the analysis on a drive's recent data, checks kept, alarms with a margin
 //!   against chatter (PURE), and the checks' JSON-lines history at the edge.

@@ -1,19 +1,17 @@
-//! Recordings: the contract's CSV (CONTRACT.md "Recording CSV"), read strictly and written streaming, with rotation;
-//! closed files may be gzip-compressed, and every reader takes them as they are.
+//! Recordings: the contract's CSV (CONTRACT.md "Recording CSV"), read strictly by one streaming reader and written
+//! streaming, with rotation; closed files may be gzip-compressed, and the reader takes them as they are.
 
 pub mod cut;
 pub mod gz;
 mod join;
 mod read;
 pub mod simulated;
-pub mod stream;
 mod write;
 
 pub use cut::RecordingFile;
 pub use join::{drive_file_key, drive_files, join, last_run};
-pub use read::{RecordingError, load, parse};
-pub use stream::{Batch, Chunk, ChunkParser, ChunkSource, StreamReader, TimeText};
-pub use write::{RotatingWriter, RowWriter, format_value, push_parsed_value, push_value, write_csv};
+pub use read::{Batch, RecordingError, StreamReader, load, parse};
+pub use write::{RotatingWriter, RowWriter, push_value, write_csv};
 
 /// The estimate columns, in the order every file that carries them writes them (`estimate`'s output after `t_s`, the
 /// service's recordings after the measured columns).

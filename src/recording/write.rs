@@ -7,15 +7,9 @@ use std::time::{Duration, Instant};
 
 use super::Recording;
 
-/// A value as the CSV holds it: shortest round-trip decimal, empty for a missing (non-finite) value.
-pub fn format_value(out: &mut String, v: f64) {
-    if v.is_finite() {
-        out.push_str(shortest(&mut ryu::Buffer::new(), v));
-    }
-}
-
-/// [`format_value`] onto bytes, about twice as fast: zmij finds the same shortest digits as ryu and lays them out
-/// the same way, but for a `+` in positive exponents (|v| ≥ 1e16), which is dropped here.
+/// A value as the CSV holds it: the shortest decimal that reads back to the same double, `3` rather than `3.0` and
+/// no `+` in exponents (the layout ryu gives, which the files have always had; a test checks it against ryu);
+/// nothing for a missing (non-finite) value.
 #[inline]
 pub fn push_value(out: &mut Vec<u8>, v: f64) {
     if v.is_finite() {
@@ -34,70 +28,18 @@ pub fn push_value(out: &mut Vec<u8>, v: f64) {
     }
 }
 
-/// [`push_value`] for a value parsed from the text `cell`: copies the text where it already is what `push_value`
-/// writes, and formats `v` otherwise. That is the case for a plain decimal (an optional `-`, digits with no leading
-/// zero but a lone one before the point, an optional point with digits that do not end in zero, no exponent) of at
-/// most 15 significant digits, 0 or between 0.0001 and 10¹⁵: no two decimals of 15 digits or fewer round to the same
-/// double, so no shorter one rounds to `v`, and the shortest round trip is the text itself. (zmij writes plain
-/// decimals from 10⁻⁵ to 10¹⁶; the limits here stay a decade inside.) Recorded times (`0.001`, `2999.998`) are
-/// mostly such texts, and copying them costs a fraction of formatting them. `cell` must be the text `v` was parsed
-/// from.
-#[inline]
-pub fn push_parsed_value(out: &mut Vec<u8>, v: f64, cell: &[u8]) {
-    if is_shortest_plain_decimal(cell) {
-        out.extend_from_slice(cell);
-    } else {
-        push_value(out, v);
-    }
-}
-
-/// Whether `s` is a decimal as [`push_value`] writes it, and the shortest that rounds to its value (see
-/// [`push_parsed_value`]).
-fn is_shortest_plain_decimal(s: &[u8]) -> bool {
-    let s = s.strip_prefix(b"-").unwrap_or(s);
-    let int = s.iter().take_while(|b| b.is_ascii_digit()).count();
-    if int == 0 || int > 15 || (int > 1 && s[0] == b'0') {
-        return false;
-    }
-    let frac = match &s[int..] {
-        [] => return true,
-        [b'.', frac @ ..] => frac,
-        _ => return false,
-    };
-    if frac.is_empty() || !frac.iter().all(u8::is_ascii_digit) || frac.last() == Some(&b'0') {
-        return false;
-    }
-    let significant = if s[0] == b'0' {
-        let zeros = frac.iter().take_while(|&&b| b == b'0').count();
-        if zeros > 3 {
-            return false;
-        }
-        frac.len() - zeros
-    } else {
-        int + frac.len()
-    };
-    significant <= 15
-}
-
-#[inline]
-fn shortest(buf: &mut ryu::Buffer, v: f64) -> &str {
-    let text = buf.format_finite(v);
-    // "3.0" → "3": shorter files, and the same numbers as before
-    text.strip_suffix(".0").unwrap_or(text)
-}
-
 /// Writes rows of a fixed set of columns.
 pub struct RowWriter<W: Write> {
     out: W,
     width: usize,
-    line: String,
+    line: Vec<u8>,
 }
 
 impl<W: Write> RowWriter<W> {
     /// Writes the header row.
     pub fn new(mut out: W, names: &[&str]) -> std::io::Result<RowWriter<W>> {
         writeln!(out, "{}", names.join(","))?;
-        Ok(RowWriter { out, width: names.len(), line: String::with_capacity(256) })
+        Ok(RowWriter { out, width: names.len(), line: Vec::with_capacity(256) })
     }
 
     /// Writes one row; it must have one value per column.
@@ -106,14 +48,14 @@ impl<W: Write> RowWriter<W> {
         let mut n = 0;
         for v in values {
             if n > 0 {
-                self.line.push(',');
+                self.line.push(b',');
             }
-            format_value(&mut self.line, v);
+            push_value(&mut self.line, v);
             n += 1;
         }
         debug_assert_eq!(n, self.width);
-        self.line.push('\n');
-        self.out.write_all(self.line.as_bytes())
+        self.line.push(b'\n');
+        self.out.write_all(&self.line)
     }
 
     pub fn flush(&mut self) -> std::io::Result<()> {
@@ -273,16 +215,22 @@ mod tests {
     use crate::recording::parse;
     use proptest::prelude::*;
 
+    /// What ryu writes for `v` (the files' layout: `3` for 3.0, nothing for a missing value), and what `push_value`
+    /// writes.
     fn both(v: f64) -> (String, String) {
         let mut s = String::new();
-        format_value(&mut s, v);
+        if v.is_finite() {
+            let mut buf = ryu::Buffer::new();
+            let text = buf.format_finite(v);
+            s.push_str(text.strip_suffix(".0").unwrap_or(text));
+        }
         let mut b = Vec::new();
         push_value(&mut b, v);
         (s, String::from_utf8(b).expect("ASCII"))
     }
 
     #[test]
-    fn push_value_writes_what_format_value_writes_at_the_edges() {
+    fn push_value_writes_what_ryu_writes_at_the_edges() {
         for e in -330..310 {
             for m in [1.0, 1.5, 9.999_999_999_999_999, 1.234_567_890_123_456_7] {
                 let v = m * 10f64.powi(e);
@@ -298,110 +246,9 @@ mod tests {
         }
     }
 
-    /// What `push_parsed_value` writes for a cell, and what `push_value` writes for its value.
-    fn parsed_both(cell: &str) -> (String, String) {
-        let v: f64 = cell.parse().expect("a number");
-        let (mut a, mut b) = (Vec::new(), Vec::new());
-        push_parsed_value(&mut a, v, cell.as_bytes());
-        push_value(&mut b, v);
-        (String::from_utf8(a).expect("ASCII"), String::from_utf8(b).expect("ASCII"))
-    }
-
-    #[test]
-    fn push_parsed_value_writes_what_push_value_writes_for_recorded_times() {
-        // every millisecond of the first 1.1 hours and some up to three years, as `simulate` writes them and as
-        // `k / 1000` is written by hand
-        let mut copied = 0;
-        for k in (0..4_000_000u64).chain((4_000_000..100_000_000_000).step_by(99_991)) {
-            let mut text = Vec::new();
-            push_value(&mut text, k as f64 * 0.001);
-            let text = String::from_utf8(text).expect("ASCII");
-            let (a, b) = parsed_both(&text);
-            assert_eq!(a, b, "{text}");
-            copied += usize::from(k < 4_000_000 && is_shortest_plain_decimal(text.as_bytes()));
-            // the same times written by hand, trailing zeros and all (these test the check; the lines above mostly
-            // test that a formatted time is copied)
-            if k % 7 == 0 {
-                let text = format!("{}.{:03}", k / 1000, k % 1000);
-                let (a, b) = parsed_both(&text);
-                assert_eq!(a, b, "{text}");
-            }
-        }
-        // the copy is the common case (a time with 17 digits, such as 0.30000000000000004, is formatted)
-        assert!(copied > 3_000_000, "{copied}");
-    }
-
-    #[test]
-    fn push_parsed_value_writes_what_push_value_writes_at_the_edges() {
-        for cell in [
-            "0",
-            "-0",
-            "0.0",
-            "00",
-            "01",
-            "1",
-            "10",
-            "100",
-            "1.5",
-            "1.50",
-            "-1.5",
-            "+1.5",
-            "1.",
-            ".5",
-            "0.1",
-            "0.0001",
-            "0.00001",
-            "0.00012",
-            "0.000123456789012345",
-            "123456789012345",
-            "1234567890123456",
-            "999999999999999",
-            "999999999999999.9",
-            "1e3",
-            "1E3",
-            "0.30000000000000004",
-            "0.3",
-            "5e-324",
-            "1e15",
-            "1e16",
-            "0.123456789012345",
-            "0.1234567890123456",
-            "12345678.1234567",
-            "12345678.12345678",
-            "9007199254740993",
-            "-123.456",
-            "0.000001",
-            "-0.0000012",
-            "0.00000123",
-            "1000000000000000",
-            "100000000000000",
-            "0.0001234567890123",
-            "1 ",
-            " 1",
-        ] {
-            if cell.trim() != cell {
-                let mut a = Vec::new();
-                push_parsed_value(&mut a, 1.0, cell.as_bytes());
-                assert_eq!(a, b"1", "{cell:?}");
-                continue;
-            }
-            let (a, b) = parsed_both(cell);
-            assert_eq!(a, b, "{cell:?}");
-        }
-    }
-
     proptest! {
         #[test]
-        fn push_parsed_value_writes_what_push_value_writes(
-            int in "-?[0-9]{1,17}", frac in "(\\.[0-9]{0,18})?", exp in "([eE][+-]?[0-9]{1,2})?",
-        ) {
-            let cell = format!("{int}{frac}{exp}");
-            let (a, b) = parsed_both(&cell);
-            prop_assert_eq!(a, b, "{}", cell);
-        }
-
-        #[test]
-        fn push_value_writes_what_format_value_writes(bits in any::<u64>(), small in -1e6f64..1e6) {
+        fn push_value_writes_what_ryu_writes(bits in any::<u64>(), small in -1e6f64..1e6) {
             for v in [f64::from_bits(bits), small] {
                 let (a, b) = both(v);
                 prop_assert_eq!(a, b);

@@ -67,12 +67,12 @@ fn assert_same_as_whole_file(dir: &Path, name: &str, text: &[u8]) {
         let got = std::fs::read(&out).expect("output");
         let expected = whole_file_estimate(&rec, method);
         assert!(got == expected, "{name} {flag}: the streamed output differs from the whole-file path's");
-        // and in small chunks, so that the two threads of the fast way take turns many times
+        // and in small batches, so that the two threads hand rows over many times
         let (model, origin, est) = model_and_estimator(method);
         let small = dir.join(format!("small-{flag}-{name}"));
-        hydrolens::replay_file::estimate_file_in_chunks(&rec, &model, &origin, est.as_ref(), &small, 4096)
+        hydrolens::replay_file::estimate_file_in_batches(&rec, &model, &origin, est.as_ref(), &small, 7)
             .expect("valid");
-        assert!(std::fs::read(&small).expect("output") == expected, "{name} {flag}: differs in chunks of 4 KiB");
+        assert!(std::fs::read(&small).expect("output") == expected, "{name} {flag}: differs in batches of 7 rows");
     }
 }
 
@@ -114,7 +114,7 @@ fn streamed_output_is_the_whole_file_output_for_every_shape_of_recording() {
         "quoted.csv",
         map_cells(&text, "\n", |_, _, v| format!("\"{v}\"")).as_bytes(),
     );
-    // quotes from the middle on: the csv crate takes over there
+    // quotes from the middle on
     let half = rec.len() / 2;
     let mid = map_cells(&text, "\n", |r, c, v| if r > half && c % 3 == 0 { format!("\"{v}\"") } else { v.into() });
     assert_same_as_whole_file(dir.path(), "midquote.csv", mid.as_bytes());
@@ -266,8 +266,8 @@ fn an_output_that_cannot_be_created_is_named_once_with_its_cause() {
     assert_eq!(err.matches("os error 2").count(), 1, "the cause once: {err}");
 }
 
-/// A 12 s test-stand recording with `nan` in `f_set_hz` (a column the replay only checks) at row 10 000: the fast
-/// way turns it down after it has estimated and written thousands of rows, and the file is read again.
+/// A 12 s test-stand recording with `nan` in `f_set_hz` (a column the replay only checks) at row 10 000, which the
+/// reader's plain path hands to the grammar's rule after thousands of rows have been estimated and written.
 fn late_fallback_recording(dir: &Path) -> PathBuf {
     let text = csv_of(&test_stand(12.0));
     let f_set = text.lines().next().expect("header").split(',').position(|c| c == "f_set_hz").expect("f_set_hz");
