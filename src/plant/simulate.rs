@@ -40,8 +40,8 @@ pub enum RunError {
     Sink(std::io::Error),
 }
 
-/// As [`crate::recording::simulated::run`], handing each row (in [`COLUMNS`] order) to `sink` instead of keeping it: memory stays flat for
-/// runs of any length.
+/// A test-stand run handing each row (in [`COLUMNS`] order) to `sink` instead of keeping it (`recording::simulated`
+/// keeps them as a recording): memory stays flat for runs of any length.
 pub fn run_into(
     model: &PlantModel,
     duration_s: f64,
