@@ -1,0 +1,71 @@
+//! How honest rls-sgd's B confidence is over a whole run, not only at its end (docs/estimator.md): the battery's
+//! scenarios from their wrong starts, and for every row from 5 s on whether the true B lies within two of the
+//! reported standard deviations, and whether a B more than 25 % off is shown as identified (the dashboard's rule:
+//! σ_B ≤ 30 % of B̂).
+//!
+//! `cargo run --release --example estimator_confidence -- [set=tuned|held-out|fresh|unseen|final] [runs=N] [polls=1,5,10]`
+
+use hydrolens::estimator::battery::{self, SCORE_FROM_S};
+use hydrolens::estimator::{EstimatorSettings, Method, try_build};
+use hydrolens::plant::PlantModel;
+use hydrolens::plant::scenario::{Family, Scenario};
+
+fn main() {
+    let (mut set, mut runs, mut polls) = ("tuned".to_string(), 24u64, vec![1u32, 5, 10]);
+    for arg in std::env::args().skip(1) {
+        match arg.split_once('=') {
+            Some(("set", v)) => set = v.to_string(),
+            Some(("runs", v)) => runs = v.parse().unwrap_or(runs),
+            Some(("polls", v)) => polls = v.split(',').filter_map(|p| p.parse().ok()).collect(),
+            _ => eprintln!("ignoring {arg}"),
+        }
+    }
+    let first = match set.as_str() {
+        "held-out" => 1001,
+        "fresh" => 5001,
+        "unseen" => 7001,
+        "final" => 9001,
+        _ => 1,
+    };
+    let truth = PlantModel::reference();
+    let b_true = truth.motor.viscous_nm_s_rad;
+    let settings = EstimatorSettings { method: Method::RlsSgd, ..EstimatorSettings::default() };
+    println!("set {set}, {runs} scenarios, B confidence from {SCORE_FROM_S} s on");
+    println!(
+        "| poll | final B within 2 sd | rows: B within 2 sd | rows: B > 25 % off | of those, shown as identified |"
+    );
+    println!("|---|---|---|---|---|");
+    for &poll in &polls {
+        let (mut final_ok, mut rows, mut covered, mut off, mut off_identified) = (0, 0usize, 0usize, 0usize, 0usize);
+        for i in 0..runs {
+            let scenario = Scenario::generate(Family::ALL[i as usize % Family::ALL.len()], first + i, 60.0);
+            let polled = battery::poll(&scenario, &truth, poll);
+            let mut wrong = truth.clone();
+            wrong.motor.inertia_kg_m2 *= scenario.inertia_factor;
+            wrong.motor.viscous_nm_s_rad *= scenario.viscous_factor;
+            let Ok(mut est) = try_build(&settings, &wrong) else { unreachable!("the battery's model is valid") };
+            let mut last = est.estimate();
+            for (k, m) in polled.measurements.iter().enumerate() {
+                last = est.update(m);
+                if polled.t_s[k] < SCORE_FROM_S {
+                    continue;
+                }
+                let err = (last.viscous_hat_nm_s_rad - b_true).abs();
+                rows += 1;
+                covered += usize::from(err <= 2.0 * last.viscous_sd_nm_s_rad);
+                if err > 0.25 * b_true {
+                    off += 1;
+                    off_identified += usize::from(last.viscous_sd_nm_s_rad <= 0.3 * last.viscous_hat_nm_s_rad);
+                }
+            }
+            final_ok += usize::from((last.viscous_hat_nm_s_rad - b_true).abs() <= 2.0 * last.viscous_sd_nm_s_rad);
+        }
+        let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
+        println!(
+            "| {poll} ms | {final_ok}/{runs} | {:.1} % | {:.1} % | {:.1} % |",
+            pct(covered, rows),
+            pct(off, rows),
+            pct(off_identified, off)
+        );
+    }
+}
