@@ -4,6 +4,7 @@
 //! σ_B ≤ 30 % of B̂).
 //!
 //! `cargo run --release --example estimator_confidence -- [set=tuned|held-out|fresh|unseen|final] [runs=N] [polls=1,5,10]`
+//! `[seed=K trace]`: only scenario K, printing B̂ ± σ_B every 2.5 s.
 
 use hydrolens::estimator::battery::{self, SCORE_FROM_S};
 use hydrolens::estimator::{EstimatorSettings, Method, try_build};
@@ -12,11 +13,14 @@ use hydrolens::plant::scenario::{Family, Scenario};
 
 fn main() {
     let (mut set, mut runs, mut polls) = ("tuned".to_string(), 24u64, vec![1u32, 5, 10]);
+    let (mut only_seed, mut trace) = (None::<u64>, false);
     for arg in std::env::args().skip(1) {
         match arg.split_once('=') {
             Some(("set", v)) => set = v.to_string(),
             Some(("runs", v)) => runs = v.parse().unwrap_or(runs),
             Some(("polls", v)) => polls = v.split(',').filter_map(|p| p.parse().ok()).collect(),
+            Some(("seed", v)) => only_seed = v.parse().ok(),
+            None if arg == "trace" => trace = true,
             _ => eprintln!("ignoring {arg}"),
         }
     }
@@ -36,8 +40,9 @@ fn main() {
     );
     println!("|---|---|---|---|---|");
     for &poll in &polls {
-        let (mut final_ok, mut rows, mut covered, mut off, mut off_identified) = (0, 0usize, 0usize, 0usize, 0usize);
-        for i in 0..runs {
+        let (mut final_ok, mut n, mut rows, mut covered, mut off, mut off_identified) =
+            (0, 0, 0usize, 0usize, 0usize, 0usize);
+        for i in (0..runs).filter(|i| only_seed.is_none_or(|k| k == first + i)) {
             let scenario = Scenario::generate(Family::ALL[i as usize % Family::ALL.len()], first + i, 60.0);
             let polled = battery::poll(&scenario, &truth, poll);
             let mut wrong = truth.clone();
@@ -47,7 +52,12 @@ fn main() {
             let mut last = est.estimate();
             for (k, m) in polled.measurements.iter().enumerate() {
                 last = est.update(m);
-                if polled.t_s[k] < SCORE_FROM_S {
+                let t = polled.t_s[k];
+                if trace && ((t * 1e3).round() as i64) % 2500 == 0 {
+                    let (b, sd) = (last.viscous_hat_nm_s_rad, last.viscous_sd_nm_s_rad);
+                    println!("{poll} ms {}: t {t:5.1} s  B {b:.4} ± {sd:.4} (true {b_true})", scenario.describe());
+                }
+                if t < SCORE_FROM_S {
                     continue;
                 }
                 let err = (last.viscous_hat_nm_s_rad - b_true).abs();
@@ -58,11 +68,12 @@ fn main() {
                     off_identified += usize::from(last.viscous_sd_nm_s_rad <= 0.3 * last.viscous_hat_nm_s_rad);
                 }
             }
+            n += 1;
             final_ok += usize::from((last.viscous_hat_nm_s_rad - b_true).abs() <= 2.0 * last.viscous_sd_nm_s_rad);
         }
         let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
         println!(
-            "| {poll} ms | {final_ok}/{runs} | {:.1} % | {:.1} % | {:.1} % |",
+            "| {poll} ms | {final_ok}/{n} | {:.1} % | {:.1} % | {:.1} % |",
             pct(covered, rows),
             pct(off, rows),
             pct(off_identified, off)
