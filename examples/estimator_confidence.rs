@@ -38,8 +38,9 @@ fn main() {
     println!(
         "| poll | final B within 2 sd | rows: B within 2 sd | rows: B > 25 % off | of those, shown as identified |"
     );
-    println!("|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|");
     for &poll in &polls {
+        let mut good_unidentified = 0usize;
         let (mut final_ok, mut n, mut rows, mut covered, mut off, mut off_identified) =
             (0, 0, 0usize, 0usize, 0usize, 0usize);
         for i in (0..runs).filter(|i| only_seed.is_none_or(|k| k == first + i)) {
@@ -66,6 +67,8 @@ fn main() {
                 if err > 0.25 * b_true {
                     off += 1;
                     off_identified += usize::from(last.viscous_sd_nm_s_rad <= 0.3 * last.viscous_hat_nm_s_rad);
+                } else {
+                    good_unidentified += usize::from(last.viscous_sd_nm_s_rad > 0.3 * last.viscous_hat_nm_s_rad);
                 }
             }
             n += 1;
@@ -73,10 +76,11 @@ fn main() {
         }
         let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
         println!(
-            "| {poll} ms | {final_ok}/{n} | {:.1} % | {:.1} % | {:.1} % |",
+            "| {poll} ms | {final_ok}/{n} | {:.1} % | {:.1} % | {:.1} % | {:.1} % |",
             pct(covered, rows),
             pct(off, rows),
-            pct(off_identified, off)
+            pct(off_identified, off),
+            pct(good_unidentified, rows - off)
         );
     }
 }
