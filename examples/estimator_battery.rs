@@ -32,12 +32,9 @@ fn main() {
             _ => eprintln!("ignoring {arg}"),
         }
     }
-    let first = match set.as_str() {
-        "held-out" => 1001,
-        "fresh" => 5001,
-        "unseen" => 7001,
-        "final" => 9001,
-        _ => 1,
+    let Some(first) = battery::first_seed(&set) else {
+        eprintln!("unknown set {set:?}: tuned, held-out, fresh, unseen or final");
+        std::process::exit(2);
     };
     let scenarios: Vec<Scenario> = (0..runs)
         .filter(|i| families.contains(&Family::ALL[*i as usize % Family::ALL.len()]))

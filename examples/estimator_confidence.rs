@@ -24,12 +24,9 @@ fn main() {
             _ => eprintln!("ignoring {arg}"),
         }
     }
-    let first = match set.as_str() {
-        "held-out" => 1001,
-        "fresh" => 5001,
-        "unseen" => 7001,
-        "final" => 9001,
-        _ => 1,
+    let Some(first) = battery::first_seed(&set) else {
+        eprintln!("unknown set {set:?}: tuned, held-out, fresh, unseen or final");
+        std::process::exit(2);
     };
     let truth = PlantModel::reference();
     let b_true = truth.motor.viscous_nm_s_rad;
@@ -46,9 +43,7 @@ fn main() {
         for i in (0..runs).filter(|i| only_seed.is_none_or(|k| k == first + i)) {
             let scenario = Scenario::generate(Family::ALL[i as usize % Family::ALL.len()], first + i, 60.0);
             let polled = battery::poll(&scenario, &truth, poll);
-            let mut wrong = truth.clone();
-            wrong.motor.inertia_kg_m2 *= scenario.inertia_factor;
-            wrong.motor.viscous_nm_s_rad *= scenario.viscous_factor;
+            let wrong = battery::wrong_model(&scenario, &truth);
             let Ok(mut est) = try_build(&settings, &wrong) else { unreachable!("the battery's model is valid") };
             let mut last = est.estimate();
             for (k, m) in polled.measurements.iter().enumerate() {

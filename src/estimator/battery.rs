@@ -139,14 +139,33 @@ pub fn score(polled: &Polled, settings: &EstimatorSettings, model: &PlantModel, 
     }
 }
 
+/// The first seed of a named seed set (docs/estimator.md): `tuned` 1…, `held-out` 1001…, `fresh` 5001…, `unseen`
+/// 7001…, `final` 9001…; `None` for another name.
+pub fn first_seed(set: &str) -> Option<u64> {
+    match set {
+        "tuned" => Some(1),
+        "held-out" => Some(1001),
+        "fresh" => Some(5001),
+        "unseen" => Some(7001),
+        "final" => Some(9001),
+        _ => None,
+    }
+}
+
+/// The scenario's wrong model: `truth` with J and B off by the scenario's factors.
+pub fn wrong_model(scenario: &Scenario, truth: &PlantModel) -> PlantModel {
+    let mut wrong = truth.clone();
+    wrong.motor.inertia_kg_m2 *= scenario.inertia_factor;
+    wrong.motor.viscous_nm_s_rad *= scenario.viscous_factor;
+    wrong
+}
+
 /// One battery run: the scenario on the reference plant at `poll_ms`, rls-sgd (with `settings`) from the wrong
 /// start against the Kalman filter (with `reference`'s settings) told the truth.
 pub fn run(scenario: &Scenario, poll_ms: u32, settings: &EstimatorSettings, reference: &EstimatorSettings) -> Run {
     let truth = PlantModel::reference();
     let polled = poll(scenario, &truth, poll_ms);
-    let mut wrong = truth.clone();
-    wrong.motor.inertia_kg_m2 *= scenario.inertia_factor;
-    wrong.motor.viscous_nm_s_rad *= scenario.viscous_factor;
+    let wrong = wrong_model(scenario, &truth);
     // rls-sgd is given the wrong model as its nominal one, as a plant engineer's model would be: its bounds and
     // normalisation come from the wrong J and B too.
     let rls_settings = EstimatorSettings { method: Method::RlsSgd, ..settings.clone() };
