@@ -131,9 +131,20 @@ async fn regulates(url: &str, i: usize, sim: &SimHandle, target: f64, limit: Dur
     .is_some()
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn two_drives_on_one_line_take_turns() {
-    let run = async {
+/// Two drives on one RTU line (units 1 and 2 of one serial simulator, polled every 40 ms), each asserted to regulate
+/// to its own target (30 and 20 rad/s) before this returns.
+struct TwoOnOneLine {
+    _dir: tempfile::TempDir,
+    line: SocatLine,
+    one: SimHandle,
+    two: SimHandle,
+    sim_stop: CancellationToken,
+    sim_task: JoinHandle<()>,
+    service: hydrolens::server::Server,
+}
+
+impl TwoOnOneLine {
+    async fn regulating() -> TwoOnOneLine {
         let dir = tempfile::tempdir().expect("tmp");
         let line = SocatLine::plug(dir.path());
         let (sim, sim_stop) = serial_sim(&[1, 2]);
@@ -145,10 +156,26 @@ async fn two_drives_on_one_line_take_turns() {
             rtu_drive("vfd2", &line.end("a"), 2, 40, 20.0)
         );
         let service = start_service(&service_text(dir.path(), &drives)).await;
-        let url = service.url.clone();
+        let url = &service.url;
+        assert!(regulates(url, 0, &one, 30.0, Duration::from_secs(15)).await, "vfd1 (unit 1) regulates");
+        assert!(regulates(url, 1, &two, 20.0, Duration::from_secs(15)).await, "vfd2 (unit 2) regulates");
+        TwoOnOneLine { _dir: dir, line, one, two, sim_stop, sim_task, service }
+    }
+
+    async fn stop(self) {
+        stop_service(self.service).await;
+        self.sim_stop.cancel();
+        tokio::time::timeout(Duration::from_secs(5), self.sim_task).await.expect("sim stops").expect("sim task");
+        drop(self.line);
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_drives_on_one_line_take_turns() {
+    let run = async {
         // each unit id reaches its own plant: two different targets are both met
-        assert!(regulates(&url, 0, &one, 30.0, Duration::from_secs(15)).await, "vfd1 (unit 1) regulates");
-        assert!(regulates(&url, 1, &two, 20.0, Duration::from_secs(15)).await, "vfd2 (unit 2) regulates");
+        let pair = TwoOnOneLine::regulating().await;
+        let (url, line) = (pair.service.url.clone(), &pair.line);
         let s = status(&url).await;
         for d in s["drives"].as_array().expect("drives") {
             assert_eq!(d["link"]["connected"], true, "{d}");
@@ -156,10 +183,7 @@ async fn two_drives_on_one_line_take_turns() {
             assert_eq!(d["address"], line.end("a").display().to_string(), "{d}");
         }
         assert_eq!(readyz(&url).await, 200);
-        stop_service(service).await;
-        sim_stop.cancel();
-        tokio::time::timeout(Duration::from_secs(5), sim_task).await.expect("sim stops").expect("sim task");
-        drop(line);
+        pair.stop().await;
     };
     tokio::time::timeout(Duration::from_secs(30), run).await.expect("within 30 s");
 }
@@ -167,20 +191,8 @@ async fn two_drives_on_one_line_take_turns() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_silent_device_does_not_starve_its_neighbour_on_the_line() {
     let run = async {
-        let dir = tempfile::tempdir().expect("tmp");
-        let line = SocatLine::plug(dir.path());
-        let (sim, sim_stop) = serial_sim(&[1, 2]);
-        let (one, two) = (plant(&sim, 1), plant(&sim, 2));
-        let sim_task = spawn_serial(sim, &line.end("b"), &sim_stop);
-        let drives = format!(
-            "{}{}",
-            rtu_drive("vfd1", &line.end("a"), 1, 40, 30.0),
-            rtu_drive("vfd2", &line.end("a"), 2, 40, 20.0)
-        );
-        let service = start_service(&service_text(dir.path(), &drives)).await;
-        let url = service.url.clone();
-        assert!(regulates(&url, 0, &one, 30.0, Duration::from_secs(15)).await, "vfd1 regulates");
-        assert!(regulates(&url, 1, &two, 20.0, Duration::from_secs(15)).await, "vfd2 regulates");
+        let pair = TwoOnOneLine::regulating().await;
+        let (url, one, two) = (pair.service.url.clone(), pair.one.clone(), pair.two.clone());
 
         // unit 2 stops answering: it goes stale and trips; unit 1 keeps being polled and regulated throughout
         two.lock().faults.no_reply = true;
@@ -218,10 +230,7 @@ async fn a_silent_device_does_not_starve_its_neighbour_on_the_line() {
         assert!(samples >= 17, "vfd1 kept {samples} polls (of about 25) in the last second");
         assert_eq!(readyz(&url).await, 503, "not ready while vfd2 is stale");
 
-        stop_service(service).await;
-        sim_stop.cancel();
-        tokio::time::timeout(Duration::from_secs(5), sim_task).await.expect("sim stops").expect("sim task");
-        drop(line);
+        pair.stop().await;
     };
     tokio::time::timeout(Duration::from_secs(40), run).await.expect("within 40 s");
 }
