@@ -350,25 +350,8 @@ pub fn analyze(
             if *db < opts.min_delta_bic {
                 return false;
             }
-            // a dead time shorter than one sample period is below what the recording resolves: a service recording
-            // stamps a row when the read is sent and the setpoint lands after the reply, so such a lag is the
-            // recorder's own, not the drive's
-            if sc.model.effects.dead_time.is_some_and(|d| d.ms < 1e3 / s.sample_hz) && t.id == "dead_time" {
+            if !resolved(t.id, &sc.model, &current.model, s.sample_hz, opts) {
                 return false;
-            }
-            // an oil's bulk modulus moves by 10–20 % with its temperature and pressure, and a service recording's
-            // poll jitter softens the fitted one by as much (a clean plant served at 5 ms on a loaded machine gave
-            // 8 % below the model's): an effective modulus within that band of the model's is not entrained air
-            if t.id == "entrained_air" {
-                let nominal_bulk = current.model.hydraulics.as_ref().map_or(f64::NAN, |h| h.bulk_modulus_bar);
-                if sc
-                    .model
-                    .effects
-                    .entrained_air
-                    .is_some_and(|a| a.bulk_modulus_bar > opts.air_max_modulus_ratio * nominal_bulk)
-                {
-                    return false;
-                }
             }
             if cv {
                 let (Some(c), Some(b)) = (&t.cv, cv_before) else { return false };
@@ -617,6 +600,25 @@ struct Regime {
 }
 
 /// The out-of-fold prediction: block k predicted by fold k's model, run free from the block's measured state.
+/// Whether effect `id`, as fitted in `candidate`, lies beyond what the recording and the plant's own variation
+/// resolve against `current` (the model before it):
+/// - a dead time shorter than one sample period is below what the recording resolves: a service recording stamps a
+///   row when the read is sent and the setpoint lands after the reply, so such a lag is the recorder's own;
+/// - an oil's bulk modulus moves by 10–20 % with its temperature and pressure, and a service recording's poll jitter
+///   softens the fitted one by as much (a plant with only Coulomb friction, served at 5 ms on a loaded machine, gave
+///   8 % below the model's): an effective modulus above `air_max_modulus_ratio` of the model's is not entrained air.
+fn resolved(id: &str, candidate: &PlantModel, current: &PlantModel, sample_hz: f64, opts: &Options) -> bool {
+    let e = &candidate.effects;
+    match id {
+        "dead_time" => e.dead_time.is_none_or(|d| d.ms >= 1e3 / sample_hz),
+        "entrained_air" => {
+            let nominal_bulk = current.hydraulics.as_ref().map_or(f64::INFINITY, |h| h.bulk_modulus_bar);
+            e.entrained_air.is_none_or(|a| a.bulk_modulus_bar <= opts.air_max_modulus_ratio * nominal_bulk)
+        }
+        _ => true,
+    }
+}
+
 fn out_of_fold(models: &[Option<(PlantModel, MechTerms)>], folds: &[Rows], s: &Series) -> Option<Prediction> {
     let n = s.len();
     let mut out: Option<Prediction> = None;
