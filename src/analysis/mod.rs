@@ -56,6 +56,9 @@ pub struct Options {
     /// Entrained air is named only when the fitted effective bulk modulus is at most this fraction of the model's:
     /// closer, it is the oil's own variation with temperature and pressure, or the recording's timing.
     pub air_max_modulus_ratio: f64,
+    /// Internal leakage (or motor slip, as the leakage it equals) is named only when the added leakage is at least
+    /// this fraction of the model's own: less is the oil's viscosity moving with its temperature.
+    pub leak_min_ratio: f64,
 }
 
 impl Default for Options {
@@ -70,6 +73,7 @@ impl Default for Options {
             regime_min_s: 5.0,
             max_cross_validated: 3,
             air_max_modulus_ratio: 0.8,
+            leak_min_ratio: 0.2,
         }
     }
 }
@@ -599,14 +603,17 @@ struct Regime {
     drop: f64,
 }
 
-/// The out-of-fold prediction: block k predicted by fold k's model, run free from the block's measured state.
 /// Whether effect `id`, as fitted in `candidate`, lies beyond what the recording and the plant's own variation
 /// resolve against `current` (the model before it):
 /// - a dead time shorter than one sample period is below what the recording resolves: a service recording stamps a
 ///   row when the read is sent and the setpoint lands after the reply, so such a lag is the recorder's own;
 /// - an oil's bulk modulus moves by 10–20 % with its temperature and pressure, and a service recording's poll jitter
 ///   softens the fitted one by as much (a plant with only Coulomb friction, served at 5 ms on a loaded machine, gave
-///   8 % below the model's): an effective modulus above `air_max_modulus_ratio` of the model's is not entrained air.
+///   8 % below the model's): an effective modulus above `air_max_modulus_ratio` of the model's is not entrained air;
+/// - leakage through a clearance goes with the oil's viscosity, which moves by 20 % and more over a few kelvin, and
+///   a few hundredths of a bar of ΔP timing error is taken up by a trace of it (the Coulomb-friction plant served at
+///   5 ms once gave 0.00034 L/min/bar, 1.7 % of the model's): an added leakage (or slip's equivalent) below
+///   `leak_min_ratio` of the model's is not a leak.
 fn resolved(id: &str, candidate: &PlantModel, current: &PlantModel, sample_hz: f64, opts: &Options) -> bool {
     let e = &candidate.effects;
     match id {
@@ -614,6 +621,14 @@ fn resolved(id: &str, candidate: &PlantModel, current: &PlantModel, sample_hz: f
         "entrained_air" => {
             let nominal_bulk = current.hydraulics.as_ref().map_or(f64::INFINITY, |h| h.bulk_modulus_bar);
             e.entrained_air.is_none_or(|a| a.bulk_modulus_bar <= opts.air_max_modulus_ratio * nominal_bulk)
+        }
+        "internal_leakage" | "motor_slip" => {
+            let nominal_leak = current.hydraulics.as_ref().map_or(0.0, |h| h.leakage_l_min_per_bar);
+            let added = match id {
+                "internal_leakage" => e.internal_leakage.map(|l| l.l_min_per_bar),
+                _ => e.motor_slip.and_then(|k| slip_as_leakage(candidate, k.rpm_per_nm)),
+            };
+            added.is_none_or(|c| c >= opts.leak_min_ratio * nominal_leak)
         }
         _ => true,
     }
