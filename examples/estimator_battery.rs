@@ -7,7 +7,9 @@
 //! looked at before their figures went into docs/estimator.md), `set=unseen` seeds 7001…7000+N (first run once, for the
 //! figures of the pooled B), `set=final` seeds 9001…9000+N (run once, with the code of 3fb5f98, for the
 //! battery table). `kalman-jump=0` runs the reference
-//! Kalman filter without its jump test (the filter before it).
+//! Kalman filter without its jump test (the filter before it). `viscous=true-start` starts rls-sgd from the true B
+//! (J still wrong, B's prior as uncertain as usual); `viscous=known` also holds B there (prior σ 0.1 %): which
+//! failures are B's, and whether the data pull a right B away.
 
 use hydrolens::estimator::EstimatorSettings;
 use hydrolens::estimator::battery::{self, Run};
@@ -19,6 +21,8 @@ fn main() {
     let (mut runs, mut seconds, mut polls) = (24u64, 60.0, vec![1u32, 5, 10]);
     let mut families: Vec<Family> = Family::ALL.to_vec();
     let mut only_seed: Option<u64> = None;
+    let mut settings = EstimatorSettings::default();
+    let mut true_viscous = false;
     for arg in std::env::args().skip(1) {
         let (k, v) = arg.split_once('=').unwrap_or((arg.as_str(), ""));
         match k {
@@ -28,6 +32,12 @@ fn main() {
             "kalman-jump" => reference.jump_load_sd_nm = v.parse().unwrap_or(reference.jump_load_sd_nm),
             "polls" => polls = v.split(',').filter_map(|p| p.parse().ok()).collect(),
             "seed" => only_seed = v.parse().ok(),
+            "viscous" if v == "true-start" || v == "known" => {
+                true_viscous = true;
+                if v == "known" {
+                    settings.viscous_prior_sd = 1e-3;
+                }
+            }
             "families" => families = Family::ALL.into_iter().filter(|f| v.split(',').any(|n| n == f.name())).collect(),
             _ => eprintln!("ignoring {arg}"),
         }
@@ -40,9 +50,9 @@ fn main() {
         .filter(|i| families.contains(&Family::ALL[*i as usize % Family::ALL.len()]))
         .filter(|i| only_seed.is_none_or(|s| s == first + i))
         .map(|i| Scenario::generate(Family::ALL[i as usize % Family::ALL.len()], first + i, seconds))
+        .map(|s| if true_viscous { Scenario { viscous_factor: 1.0, ..s } } else { s })
         .collect();
     let jobs: Vec<(&Scenario, u32)> = scenarios.iter().flat_map(|s| polls.iter().map(move |&p| (s, p))).collect();
-    let settings = EstimatorSettings::default();
     let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
     let results: Vec<Run> = std::thread::scope(|scope| {
         let chunks: Vec<_> = jobs
