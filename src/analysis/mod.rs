@@ -59,6 +59,10 @@ pub struct Options {
     /// Internal leakage (or motor slip, as the leakage it equals) is named only when the added leakage is at least
     /// this fraction of the model's own: less is the oil's viscosity moving with its temperature.
     pub leak_min_ratio: f64,
+    /// …and never below this share of the motor's mean flow at the recording's mean ΔP: a displacement off by as
+    /// much, well inside a unit's tolerance (and taken as given here), moves the flow balance as far. It decides
+    /// when the model's own leakage is small or zero.
+    pub leak_min_flow_share: f64,
 }
 
 impl Default for Options {
@@ -74,6 +78,7 @@ impl Default for Options {
             max_cross_validated: 3,
             air_max_modulus_ratio: 0.8,
             leak_min_ratio: 0.2,
+            leak_min_flow_share: 0.003,
         }
     }
 }
@@ -354,7 +359,7 @@ pub fn analyze(
             if *db < opts.min_delta_bic {
                 return false;
             }
-            if !resolved(t.id, &sc.model, &current.model, s.sample_hz, opts) {
+            if !resolved(t.id, &sc.model, &current.model, &s, opts) {
                 return false;
             }
             if cv {
@@ -613,11 +618,12 @@ struct Regime {
 /// - leakage through a clearance goes with the oil's viscosity, which moves by 20 % and more over a few kelvin, and
 ///   a few hundredths of a bar of ΔP timing error is taken up by a trace of it (the Coulomb-friction plant served at
 ///   5 ms once gave 0.00034 L/min/bar, 1.7 % of the model's): an added leakage (or slip's equivalent) below
-///   `leak_min_ratio` of the model's is not a leak.
-fn resolved(id: &str, candidate: &PlantModel, current: &PlantModel, sample_hz: f64, opts: &Options) -> bool {
+///   `leak_min_ratio` of the model's, or taking less than `leak_min_flow_share` of the motor's flow, is not a
+///   leak.
+fn resolved(id: &str, candidate: &PlantModel, current: &PlantModel, s: &Series, opts: &Options) -> bool {
     let e = &candidate.effects;
     match id {
-        "dead_time" => e.dead_time.is_none_or(|d| d.ms >= 1e3 / sample_hz),
+        "dead_time" => e.dead_time.is_none_or(|d| d.ms >= 1e3 / s.sample_hz),
         "entrained_air" => {
             let nominal_bulk = current.hydraulics.as_ref().map_or(f64::INFINITY, |h| h.bulk_modulus_bar);
             e.entrained_air.is_none_or(|a| a.bulk_modulus_bar <= opts.air_max_modulus_ratio * nominal_bulk)
@@ -628,10 +634,25 @@ fn resolved(id: &str, candidate: &PlantModel, current: &PlantModel, sample_hz: f
                 "internal_leakage" => e.internal_leakage.map(|l| l.l_min_per_bar),
                 _ => e.motor_slip.and_then(|k| slip_as_leakage(candidate, k.rpm_per_nm)),
             };
-            added.is_none_or(|c| c >= opts.leak_min_ratio * nominal_leak)
+            let floor = (opts.leak_min_ratio * nominal_leak)
+                .max(opts.leak_min_flow_share * flow_per_bar(current, s).unwrap_or(0.0));
+            added.is_none_or(|c| c >= floor)
         }
         _ => true,
     }
+}
+
+/// The motor's mean flow over the recording's mean |ΔP| (L/min/bar): the leakage coefficient that would take the
+/// whole flow.
+fn flow_per_bar(m: &PlantModel, s: &Series) -> Option<f64> {
+    let d_m = crate::units::cm3_per_rev_to_m3_per_rad(m.motor.displacement_cm3?);
+    let mean_abs = |v: &[f64]| {
+        let (sum, n) = v.iter().filter(|x| x.is_finite()).fold((0.0, 0usize), |(a, n), x| (a + x.abs(), n + 1));
+        (n > 0).then(|| sum / n as f64)
+    };
+    let flow_m3_s = d_m * mean_abs(&s.omega_f)?;
+    let dp_bar = mean_abs(s.dp_bar.as_deref()?)?;
+    (dp_bar > 0.0).then(|| flow_m3_s / crate::units::l_min_per_bar_to_si(1.0) / crate::units::bar_to_pa(dp_bar))
 }
 
 fn out_of_fold(models: &[Option<(PlantModel, MechTerms)>], folds: &[Rows], s: &Series) -> Option<Prediction> {
