@@ -655,6 +655,7 @@ fn flow_per_bar(m: &PlantModel, s: &Series) -> Option<f64> {
     (dp_bar > 0.0).then(|| flow_m3_s / crate::units::l_min_per_bar_to_si(1.0) / crate::units::bar_to_pa(dp_bar))
 }
 
+/// The out-of-fold prediction: block k predicted by fold k's model, run free from the block's measured state.
 fn out_of_fold(models: &[Option<(PlantModel, MechTerms)>], folds: &[Rows], s: &Series) -> Option<Prediction> {
     let n = s.len();
     let mut out: Option<Prediction> = None;
