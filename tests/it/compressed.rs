@@ -62,8 +62,7 @@ async fn the_service_compresses_each_closed_file_and_serves_it() {
             assert_eq!(again.t_s(), rec.t_s());
         }
         // the routes: listed, and served as the gzip file it is
-        let list: serde_json::Value =
-            reqwest::get(format!("{url}/api/recordings")).await.expect("list").json().await.expect("json");
+        let list = support::get_json(format!("{url}/api/recordings")).await;
         let listed: Vec<&str> =
             list["files"].as_array().expect("files").iter().filter_map(|f| f["name"].as_str()).collect();
         let name = gz_files()[0].clone();

@@ -14,7 +14,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
 use crate::device::{self, Device};
-use crate::support::{TOKEN, metric, root, start_service, stop_service, wait_for};
+use crate::support::{TOKEN, get_json, metric, root, start_service, stop_service, wait_for};
 
 const SPEED: &str = crate::support::SPEED_30;
 
@@ -94,11 +94,7 @@ async fn a_write_echo_that_does_not_match_is_an_error_not_a_dead_poll_thread() {
         let dev = Device::start(device::healthy()).await;
         let s = Svc::start(dev.addr, "", SPEED).await;
         wait_for(Duration::from_secs(5), || async { dev.lock().writes > 5 }).await.expect("writing while healthy");
-        let status = || async {
-            let url = format!("{}/api/status", s.url);
-            let v: serde_json::Value = reqwest::get(url).await.expect("GET").json().await.expect("json");
-            v["drives"][0]["link"].clone()
-        };
+        let status = || async { get_json(format!("{}/api/status", s.url)).await["drives"][0]["link"].clone() };
         let (errors, reconnects) = {
             let l = status().await;
             (l["errors"].as_u64().expect("errors"), l["reconnects"].as_u64().expect("reconnects"))
@@ -577,11 +573,7 @@ async fn a_full_disk_shows_in_status_metrics_and_readiness_and_recording_resumes
             .await
             .expect("joins")
             .expect("serve announces its URL");
-        let status = || async {
-            let v: serde_json::Value =
-                reqwest::get(format!("{url}/api/status")).await.expect("status").json().await.expect("json");
-            v["drives"][0].clone()
-        };
+        let status = || async { get_json(format!("{url}/api/status")).await["drives"][0].clone() };
         let failing = wait_for(Duration::from_secs(10), || async { status().await["recording"]["ok"] == false }).await;
         assert!(failing.is_some(), "recording trouble shows in /api/status: {}", status().await);
         let s = status().await;

@@ -204,12 +204,7 @@ async fn the_snapshot_carries_each_value_once_and_the_history_the_recording_colu
         assert_eq!(keys(&status["sample"]), sorted(&Measured::COLUMNS), "{status}");
         assert_eq!(keys(&status["estimate"]), sorted(&Estimate::COLUMNS), "{status}");
         assert!(status["status"]["word"].is_u64(), "the status word is in status: {status}");
-        let h: serde_json::Value = reqwest::get(format!("{}/api/history?drive=pump1&seconds=5", stack.url))
-            .await
-            .expect("GET history")
-            .json()
-            .await
-            .expect("json");
+        let h = support::get_json(format!("{}/api/history?drive=pump1&seconds=5", stack.url)).await;
         let mut want = sorted(&COLUMNS);
         want.push("drive".into());
         want.sort_unstable();

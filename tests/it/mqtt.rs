@@ -127,7 +127,7 @@ async fn next_on(rx: &mut mpsc::UnboundedReceiver<(String, String)>, topic: &str
 }
 
 async fn api_status(stack: &Stack) -> serde_json::Value {
-    reqwest::get(format!("{}/api/status", stack.url)).await.expect("GET status").json().await.expect("json")
+    support::get_json(format!("{}/api/status", stack.url)).await
 }
 
 fn keys(v: &serde_json::Value) -> Vec<String> {
@@ -231,12 +231,7 @@ async fn condition_checks_go_to_the_condition_topic_and_again_after_a_broker_res
             }
         }
         let v = with_check.expect("a condition message with a check within the bound");
-        let from_http: serde_json::Value = reqwest::get(format!("{}/api/drives/pump1/condition", stack.url))
-            .await
-            .expect("GET condition")
-            .json()
-            .await
-            .expect("json");
+        let from_http = support::get_json(format!("{}/api/drives/pump1/condition", stack.url)).await;
         assert_eq!(keys(&v), keys(&from_http), "the MQTT object is GET /api/drives/pump1/condition's");
         assert_eq!(v["checks"][0]["t_s"], from_http["checks"][0]["t_s"]);
         let dir = stack.stop().await;

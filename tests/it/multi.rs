@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use crate::support::{Stack, metric, start_service, start_sim, stop_service, test_plant, wait_for};
+use crate::support::{Stack, get_json, metric, start_service, start_sim, stop_service, test_plant, wait_for};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_drives_are_polled_and_regulated_independently() {
@@ -30,8 +30,7 @@ async fn two_drives_are_polled_and_regulated_independently() {
         wait_for(Duration::from_secs(10), || async { near(&sim_a, 30.0) && near(&sim_b, 45.0) })
             .await
             .expect("both drives at their own targets");
-        let status: serde_json::Value =
-            reqwest::get(format!("{url}/api/status")).await.expect("status").json().await.expect("json");
+        let status = get_json(format!("{url}/api/status")).await;
         let names: Vec<&str> =
             status["drives"].as_array().expect("drives").iter().filter_map(|d| d["name"].as_str()).collect();
         assert_eq!(names, ["pump1", "pump2"]);

@@ -11,7 +11,7 @@ use hydrolens::modbus::simulator::{SimHandle, Simulator};
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
-use crate::support::{TOKEN, bin, start_service, stop_service, test_plant, wait_for};
+use crate::support::{TOKEN, bin, get_json, start_service, stop_service, test_plant, wait_for};
 
 /// A virtual serial line: two ptys joined by socat, reached through the links `a` (the service's end) and `b`
 /// (the simulator's). Dropping it unplugs the line.
@@ -108,7 +108,7 @@ fn service_text(dir: &Path, drives: &str) -> String {
 }
 
 async fn status(url: &str) -> serde_json::Value {
-    reqwest::get(format!("{url}/api/status")).await.expect("GET status").json().await.expect("json")
+    get_json(format!("{url}/api/status")).await
 }
 
 async fn readyz(url: &str) -> u16 {
@@ -218,12 +218,7 @@ async fn a_silent_device_does_not_starve_its_neighbour_on_the_line() {
         assert!(!t.tripped && (t.omega_rad_s - 30.0).abs() < 2.0, "vfd1 still regulated: {t:?}");
         // the silent device is held back on its own: vfd1 keeps most of its polls (25 in a second at 40 ms)
         tokio::time::sleep(Duration::from_secs(1)).await;
-        let h: serde_json::Value = reqwest::get(format!("{url}/api/history?drive=vfd1&seconds=1"))
-            .await
-            .expect("GET history")
-            .json()
-            .await
-            .expect("json");
+        let h = get_json(format!("{url}/api/history?drive=vfd1&seconds=1")).await;
         let samples = h["t_s"].as_array().map_or(0, Vec::len);
         // measured: 25 with the device held back alone, 7 when the whole line backs off after each of its timeouts
         eprintln!("vfd1 kept {samples} polls (of about 25) in the last second beside a silent vfd2");

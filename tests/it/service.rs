@@ -173,12 +173,7 @@ async fn recordings_hold_every_fresh_sample_and_are_readable() {
         let stack = Stack::start(6.0, 10, SPEED).await;
         wait_for(Duration::from_secs(5), || async { stack.state.ready() }).await.expect("fresh data");
         tokio::time::sleep(Duration::from_millis(1500)).await;
-        let list: serde_json::Value = reqwest::get(format!("{}/api/recordings", stack.url))
-            .await
-            .expect("GET recordings")
-            .json()
-            .await
-            .expect("json");
+        let list = support::get_json(format!("{}/api/recordings", stack.url)).await;
         let name = list["files"][0]["name"].as_str().expect("a recording").to_string();
         assert!(name.starts_with("pump1-") && name.ends_with(".csv"), "{name}");
         let live = reqwest::get(format!("{}/api/recordings/{name}", stack.url)).await.expect("GET file");
@@ -303,8 +298,7 @@ async fn each_drive_polls_on_its_own_thread_with_the_priority_asked_for() {
         assert_eq!(plain.1, 0, "no realtime_priority: SCHED_OTHER");
         assert_eq!(rt.1, if allowed { 1 } else { 0 }, "SCHED_FIFO exactly when the kernel allows it");
         // and the status says what the kernel granted
-        let status: serde_json::Value =
-            reqwest::get(format!("{url}/api/status")).await.expect("status").json().await.expect("json");
+        let status = support::get_json(format!("{url}/api/status")).await;
         let timing = |i: usize| status["drives"][i]["timing"].clone();
         assert_eq!(
             timing(0)["realtime_priority"],

@@ -178,20 +178,25 @@ impl Stack {
         self.dir
     }
 
-    /// The drive's snapshot as JSON from /api/status.
     pub fn recording_dir(&self) -> &std::path::Path {
         self.dir.path()
     }
 
+    /// The drive's snapshot as JSON from /api/status.
     pub async fn status(&self) -> serde_json::Value {
-        let v: serde_json::Value =
-            reqwest::get(format!("{}/api/status", self.url)).await.expect("GET status").json().await.expect("json");
-        v["drives"][0].clone()
+        get_json(format!("{}/api/status", self.url)).await["drives"][0].clone()
     }
 
     pub async fn metrics(&self) -> String {
         reqwest::get(format!("{}/metrics", self.url)).await.expect("GET metrics").text().await.expect("text")
     }
+}
+
+/// `GET url`, its body as JSON.
+pub async fn get_json(url: impl AsRef<str>) -> serde_json::Value {
+    let url = url.as_ref();
+    let r = reqwest::get(url).await.unwrap_or_else(|e| panic!("GET {url}: {e}"));
+    r.json().await.unwrap_or_else(|e| panic!("GET {url}: not JSON: {e}"))
 }
 
 /// Polls `cond` every 20 ms until it holds or `limit` passes; returns the time it took.
