@@ -1,12 +1,13 @@
 //! The estimator battery of docs/estimator.md: generated scenarios × poll periods, rls-sgd from a wrong start
 //! against the Kalman filter told the truth, on the same rows. Prints one line a run and a table per poll period.
 //!
-//! `cargo run --release --example estimator_battery -- [set=tuned|held-out] [runs=N] [seconds=S] [polls=1,5,10]`
-//! `[families=brake,sine] [seed=K]`
+//! `cargo run --release --example estimator_battery -- [set=tuned|held-out|…] [runs=N] [seconds=S] [polls=1,5,10]`
+//! `[families=brake,sine] [seed=K] [periodic=0]`
 //! Tuned seeds are 1…N, held-out seeds 1001…1000+N (never used while tuning), `set=fresh` seeds 5001…5000+N (never
 //! looked at before their figures went into docs/estimator.md), `set=unseen` seeds 7001…7000+N (first run once, for the
 //! figures of the pooled B), `set=final` seeds 9001…9000+N (run once, with the code of 3fb5f98, for the
-//! battery table). `kalman-jump=0` runs the reference
+//! battery table), `set=sealed` seeds 11001…11000+N (run once, for the table of the periodic-load fit).
+//! `periodic=0` runs rls-sgd without its periodic-load fit (the version before it). `kalman-jump=0` runs the reference
 //! Kalman filter without its jump test (the filter before it). `viscous=true-start` starts rls-sgd from the true B
 //! (J still wrong, B's prior as uncertain as usual); `viscous=known` also holds B there (prior σ 0.1 %): which
 //! failures are B's, and whether the data pull a right B away.
@@ -38,12 +39,13 @@ fn main() {
                     settings.viscous_prior_sd = 1e-3;
                 }
             }
+            "periodic" => settings.periodic_load = v != "0",
             "families" => families = Family::ALL.into_iter().filter(|f| v.split(',').any(|n| n == f.name())).collect(),
             _ => eprintln!("ignoring {arg}"),
         }
     }
     let Some(first) = battery::first_seed(&set) else {
-        eprintln!("unknown set {set:?}: tuned, held-out, fresh, unseen or final");
+        eprintln!("unknown set {set:?}: tuned, held-out, fresh, unseen, final or sealed");
         std::process::exit(2);
     };
     let scenarios: Vec<Scenario> = (0..runs)
@@ -68,7 +70,7 @@ fn main() {
     });
     for r in &results {
         println!(
-            "{:>2} ms {:<70} rls ω {:.3} L {:.2} J {:+5.1}% (±{:.1}%) B {:+6.1}% (±{:.0}%) | kalman ω {:.3} L {:.2} | {}",
+            "{:>2} ms {:<70} rls ω {:.3} L {:.2} J {:+5.1}% (±{:.1}%) B {:+6.1}% (±{:.1}%) | kalman ω {:.3} L {:.2} | {}",
             r.poll_ms,
             r.describe,
             r.rls.omega_rmse_rad_s,
@@ -107,4 +109,6 @@ fn main() {
     }
     let holding = results.iter().filter(|r| r.holds()).count();
     println!("all: {holding}/{} hold ({:.0} %)", results.len(), 100.0 * holding as f64 / results.len().max(1) as f64);
+    let honest = results.iter().filter(|r| r.viscous_honest()).count();
+    println!("B within 2 sd of the truth at the end: {honest}/{}", results.len());
 }

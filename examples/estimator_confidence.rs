@@ -3,8 +3,9 @@
 //! reported standard deviations, and whether a B more than 25 % off is shown as identified (the dashboard's rule:
 //! σ_B ≤ 30 % of B̂).
 //!
-//! `cargo run --release --example estimator_confidence -- [set=tuned|held-out|fresh|unseen|final] [runs=N] [polls=1,5,10]`
-//! `[seed=K trace]`: only scenario K, printing B̂ ± σ_B every 2.5 s.
+//! `cargo run --release --example estimator_confidence -- [set=tuned|held-out|fresh|unseen|final|sealed] [runs=N]`
+//! `[polls=1,5,10] [periodic=0]` (`periodic=0`: without the periodic-load fit); `[seed=K trace]`: only scenario K,
+//! printing B̂ ± σ_B every 2.5 s.
 
 use hydrolens::estimator::battery::{self, SCORE_FROM_S};
 use hydrolens::estimator::{EstimatorSettings, Method, try_build};
@@ -13,24 +14,26 @@ use hydrolens::plant::scenario::{Family, Scenario};
 
 fn main() {
     let (mut set, mut runs, mut polls) = ("tuned".to_string(), 24u64, vec![1u32, 5, 10]);
-    let (mut only_seed, mut trace) = (None::<u64>, false);
+    let (mut only_seed, mut trace, mut periodic) = (None::<u64>, false, true);
     for arg in std::env::args().skip(1) {
         match arg.split_once('=') {
             Some(("set", v)) => set = v.to_string(),
             Some(("runs", v)) => runs = v.parse().unwrap_or(runs),
             Some(("polls", v)) => polls = v.split(',').filter_map(|p| p.parse().ok()).collect(),
             Some(("seed", v)) => only_seed = v.parse().ok(),
+            Some(("periodic", v)) => periodic = v != "0",
             None if arg == "trace" => trace = true,
             _ => eprintln!("ignoring {arg}"),
         }
     }
     let Some(first) = battery::first_seed(&set) else {
-        eprintln!("unknown set {set:?}: tuned, held-out, fresh, unseen or final");
+        eprintln!("unknown set {set:?}: tuned, held-out, fresh, unseen, final or sealed");
         std::process::exit(2);
     };
     let truth = PlantModel::reference();
     let b_true = truth.motor.viscous_nm_s_rad;
-    let settings = EstimatorSettings { method: Method::RlsSgd, ..EstimatorSettings::default() };
+    let settings =
+        EstimatorSettings { method: Method::RlsSgd, periodic_load: periodic, ..EstimatorSettings::default() };
     println!("set {set}, {runs} scenarios, B confidence from {SCORE_FROM_S} s on");
     println!(
         "| poll | final B within 2 sd | rows: B within 2 sd | rows: B > 25 % off | of those, shown as identified |"

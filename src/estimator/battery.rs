@@ -69,6 +69,12 @@ impl Run {
     pub fn holds(&self) -> bool {
         self.failures().is_empty()
     }
+
+    /// B's confidence is honest in this run: the true B lies within two of rls-sgd's final standard deviations.
+    pub fn viscous_honest(&self) -> bool {
+        let (b, e) = (self.rls.last.viscous_hat_nm_s_rad, self.rls.viscous_error);
+        (e * b / (1.0 + e)).abs() <= 2.0 * self.rls.last.viscous_sd_nm_s_rad
+    }
 }
 
 /// The polled rows of a scenario: measurements as the service would hand them over, and the truth beside them.
@@ -148,6 +154,7 @@ pub fn first_seed(set: &str) -> Option<u64> {
         "fresh" => Some(5001),
         "unseen" => Some(7001),
         "final" => Some(9001),
+        "sealed" => Some(11001),
         _ => None,
     }
 }

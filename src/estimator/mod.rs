@@ -11,6 +11,7 @@
 pub mod battery;
 mod kalman;
 mod paper;
+mod periodic;
 mod rls_sgd;
 pub mod settings;
 

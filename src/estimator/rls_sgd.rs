@@ -29,6 +29,7 @@
 use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
 
 use super::kalman::Kalman;
+use super::periodic::PeriodicLoad;
 use super::settings::Resolved;
 use super::{Checked, Estimate, Estimator, Measurement};
 
@@ -296,15 +297,11 @@ impl WindowRls {
         self.j0 / self.theta[0]
     }
 
-    fn viscous_nm_s_rad(&self) -> f64 {
-        self.viscous.estimate.0
-    }
-
-    /// Standard deviations of J (from P, first-order propagation) and of B (from the pool).
-    fn standard_deviations(&self) -> (f64, f64) {
+    /// Standard deviation of J (from P, first-order propagation).
+    fn inertia_sd(&self) -> f64 {
         let t0 = self.theta[0];
         let gj = Vector2::new(-self.j0 / (t0 * t0), 0.0);
-        (gj.dot(&(self.p * gj)).max(0.0).sqrt(), self.viscous.estimate.1.sqrt())
+        gj.dot(&(self.p * gj)).max(0.0).sqrt()
     }
 
     /// Fits one window (rows in `w`) and learns from it.
@@ -641,6 +638,8 @@ pub struct RlsSgd {
     /// Two window sequences staggered by half a window, so that every speed change lies well inside one of them.
     windows: [Window; 2],
     rls: WindowRls,
+    /// B from one fit over a long horizon, where the load is periodic (`periodic_load`).
+    periodic: PeriodicLoad,
 }
 
 impl RlsSgd {
@@ -651,7 +650,25 @@ impl RlsSgd {
             last_pair: None,
             windows: [Window::default(), Window::default()],
             rls: WindowRls::new(s),
+            periodic: PeriodicLoad::default(),
         }
+    }
+
+    /// B and its variance: the windows' pool, and the periodic fit beside it by precision where it has an answer.
+    fn viscous(&self) -> (f64, f64) {
+        let (b, v) = self.rls.viscous.estimate;
+        match self.periodic.estimate() {
+            Some((bp, vp)) if self.s.periodic_load && vp > 0.0 && v > 0.0 => {
+                let info = 1.0 / v + 1.0 / vp;
+                ((b / v + bp / vp) / info, 1.0 / info)
+            }
+            _ => (b, v),
+        }
+    }
+
+    /// Periodic fits accepted and refused, for diagnostics.
+    pub fn periodic_fits(&self) -> [u64; 2] {
+        self.periodic.fits
     }
 
     /// The RLS covariance of θ = [J₀/J, (B/J)·J₀/B₀], for tests and diagnostics.
@@ -673,6 +690,7 @@ impl RlsSgd {
             for w in &mut self.windows {
                 w.rows.clear();
             }
+            self.periodic.restart();
             if let Some((w, _)) = pair {
                 self.windows[0].rows.push(Row { s: 0.0, omega: w, i_torque: 0.0, i_speed: 0.0 });
             }
@@ -680,6 +698,9 @@ impl RlsSgd {
             return;
         };
         self.last_pair = pair;
+        if self.s.periodic_load {
+            self.periodic.push(dt, (w0, t0), (w1, t1), self.s.viscous_bounds_nm_s_rad);
+        }
         let length = self.s.rls_period_s;
         let first_age = self.windows[0].rows.last().map(|r| r.s);
         for i in 0..2 {
@@ -710,7 +731,7 @@ impl Estimator for RlsSgd {
     fn update(&mut self, m: &Measurement) -> Estimate {
         let c = Checked::new(m, self.s.max_gap_s);
         self.integrate(&c);
-        let (j, b) = (self.rls.inertia_kg_m2(), self.rls.viscous_nm_s_rad());
+        let (j, b) = (self.rls.inertia_kg_m2(), self.viscous().0);
         self.tracker.step_with(m, j, b, self.s.eta / PAPER_ETA);
         if !self.rls.theta.iter().all(|v| v.is_finite()) {
             // Cannot happen with the guards above; if it does, start over rather than report garbage.
@@ -724,15 +745,16 @@ impl Estimator for RlsSgd {
     }
 
     fn estimate(&self) -> Estimate {
-        let (inertia_sd, viscous_sd) = self.rls.standard_deviations();
+        let inertia_sd = self.rls.inertia_sd();
+        let (viscous, viscous_var) = self.viscous();
         let fast = self.tracker.estimate();
         Estimate {
             omega_hat_rad_s: fast.omega_hat_rad_s,
             load_hat_nm: fast.load_hat_nm,
             inertia_hat_kg_m2: self.rls.inertia_kg_m2(),
-            viscous_hat_nm_s_rad: self.rls.viscous_nm_s_rad(),
+            viscous_hat_nm_s_rad: viscous,
             inertia_sd_kg_m2: inertia_sd,
-            viscous_sd_nm_s_rad: viscous_sd,
+            viscous_sd_nm_s_rad: viscous_var.sqrt(),
         }
     }
 }

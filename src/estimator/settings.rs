@@ -87,6 +87,9 @@ pub struct EstimatorSettings {
     pub jump_threshold: f64,
     /// A detected jump widens the load's standard deviation by this much (N·m; kalman, and rls-sgd's tracker).
     pub jump_load_sd_nm: f64,
+    /// rls-sgd: also estimate B from one fit over the last 20 s with a periodic load (constant, trend and one
+    /// sinusoid of a searched period), where the windows alone cannot tell a sine load's curvature from B·ω.
+    pub periodic_load: bool,
     /// Physical range of J as factors of the model's J.
     pub inertia_bounds_factor: [f64; 2],
     /// Physical range of B (N·m·s/rad).
@@ -130,6 +133,7 @@ impl Default for EstimatorSettings {
             jump_drift: 0.5,
             jump_threshold: 8.0,
             jump_load_sd_nm: 4.0,
+            periodic_load: true,
             inertia_bounds_factor: [0.2, 5.0],
             viscous_bounds_nm_s_rad: None,
             max_load_nm: 1e4,
@@ -164,6 +168,7 @@ pub struct Resolved {
     pub jump_drift: f64,
     pub jump_threshold: f64,
     pub jump_load_sd_nm: f64,
+    pub periodic_load: bool,
     /// The model's nominal J and B: the scale of the normalised RLS parameters and of the bounds.
     pub nominal_inertia_kg_m2: f64,
     pub nominal_viscous_nm_s_rad: f64,
@@ -258,6 +263,7 @@ impl EstimatorSettings {
             jump_drift: nonneg("jump_drift", s.jump_drift)?,
             jump_threshold: pos("jump_threshold", s.jump_threshold)?,
             jump_load_sd_nm: nonneg("jump_load_sd_nm", s.jump_load_sd_nm)?,
+            periodic_load: s.periodic_load,
             nominal_inertia_kg_m2: j0,
             nominal_viscous_nm_s_rad: b0,
             inertia_bounds_kg_m2: inertia_bounds,
@@ -307,7 +313,10 @@ mod tests {
             format!("{}\n[estimator]\nlambda = 0.98\nmethod = \"kalman\"\n", crate::plant::model::REFERENCE_TOML);
         let m = PlantModel::parse(&text, "p.toml").expect("model");
         let s = EstimatorSettings::from_model(&m, "p.toml").expect("valid");
-        assert_eq!((s.lambda, s.method), (0.98, Method::Kalman));
+        assert_eq!((s.lambda, s.method, s.periodic_load), (0.98, Method::Kalman, true));
+        let off = text.replace("lambda = 0.98", "periodic_load = false");
+        let m = PlantModel::parse(&off, "p.toml").expect("model");
+        assert!(!EstimatorSettings::from_model(&m, "p.toml").expect("valid").periodic_load);
         let bad = text.replace("lambda = 0.98", "lamda = 0.98");
         let m = PlantModel::parse(&bad, "p.toml").expect("model");
         let e = EstimatorSettings::from_model(&m, "p.toml").expect_err("unknown key");

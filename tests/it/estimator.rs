@@ -335,7 +335,7 @@ fn verdicts(runs: &[hydrolens::estimator::battery::Run]) -> (Vec<String>, Vec<St
         .collect();
     let overconfident = runs
         .iter()
-        .filter(|r| (r.rls.viscous_error * b_true).abs() > 2.0 * r.rls.last.viscous_sd_nm_s_rad)
+        .filter(|r| !r.viscous_honest())
         .map(|r| {
             let (b, sd) = (r.rls.last.viscous_hat_nm_s_rad, r.rls.last.viscous_sd_nm_s_rad);
             format!("{} ms {}: B {b:.4} ± {sd:.4}, true {b_true}", r.poll_ms, r.describe)
@@ -345,21 +345,21 @@ fn verdicts(runs: &[hydrolens::estimator::battery::Run]) -> (Vec<String>, Vec<St
 }
 
 /// The fast subset: one scenario of each family (tuned seeds 1–6) at 1, 5 and 10 ms. The tuned battery holds
-/// in 15 of these 18 runs (the sine scenario fails at all three rates: docs/estimator.md); fewer is a regression.
-/// B's standard deviation is honest: the truth within two of them in at least 16 of the 18 runs.
+/// in 16 of these 18 runs (sine seed 6 fails at 1 and 10 ms: its 6.6 s period needs 13 s of data before the
+/// periodic fit answers, and B is wrong until then: docs/estimator.md); fewer is a regression. B's standard
+/// deviation is honest: the truth within two of them in at least 17 of the 18 runs (18 today).
 #[test]
 fn battery_fast_subset_holds_against_the_kalman_reference() {
     let runs = battery(1, 6, 60.0);
     let (failures, overconfident) = verdicts(&runs);
     eprintln!("{} of {} runs hold; failing:\n{}", runs.len() - failures.len(), runs.len(), failures.join("\n"));
     eprintln!("B beyond 2 sd in {}:\n{}", overconfident.len(), overconfident.join("\n"));
-    assert!(runs.len() - failures.len() >= 15, "{failures:#?}");
-    assert!(runs.len() - overconfident.len() >= 16, "{overconfident:#?}");
+    assert!(runs.len() - failures.len() >= 16, "{failures:#?}");
+    assert!(runs.len() - overconfident.len() >= 17, "{overconfident:#?}");
 }
 
 /// The whole battery's gate: 24 held-out scenarios (seeds 1001–1024, never tuned on) × 3 poll rates, at least 90 %
-/// of runs holding, and B's truth within two of its standard deviations in at least 90 %. The first does not hold
-/// yet (sinusoidal loads, docs/estimator.md); it stays here, failing, until it does.
+/// of runs holding, and B's truth within two of its standard deviations in at least 90 %.
 /// `cargo test --release --test it -- --ignored battery_held_out`
 #[test]
 #[ignore]
