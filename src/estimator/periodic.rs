@@ -23,8 +23,10 @@ const BLOCK_S: f64 = 0.1;
 const HORIZON_S: f64 = 20.0;
 /// No fit before the blocks span this long (s).
 const MIN_SPAN_S: f64 = 8.0;
-/// A fit every this much data (s).
+/// A fit every this much data (s); after each refused fit the interval doubles, up to `FIT_AT_MOST_EVERY_S`, so
+/// that a load that is not periodic costs little.
 const FIT_EVERY_S: f64 = 2.5;
+const FIT_AT_MOST_EVERY_S: f64 = 10.0;
 /// Periods searched (s): from this, up to half the span (at least two cycles in the horizon).
 const MIN_PERIOD_S: f64 = 1.2;
 /// Ratio between neighbouring periods of the search grid; the best is then refined within one step.
@@ -66,6 +68,7 @@ pub(crate) struct PeriodicLoad {
     i_torque: f64,
     i_speed: f64,
     since_fit: f64,
+    fit_every: f64,
     /// The period of the last accepted fit, where the next search starts.
     period: Option<f64>,
     /// B, its variance and the time of the last accepted fit.
@@ -85,6 +88,7 @@ impl Default for PeriodicLoad {
             i_torque: 0.0,
             i_speed: 0.0,
             since_fit: 0.0,
+            fit_every: FIT_EVERY_S,
             period: None,
             accepted: None,
             fits: [0; 2],
@@ -150,10 +154,12 @@ impl PeriodicLoad {
             (Some(a), Some(b)) => b.t - a.t,
             _ => 0.0,
         };
-        if self.since_fit >= FIT_EVERY_S && covered >= MIN_SPAN_S {
+        if self.since_fit >= self.fit_every && covered >= MIN_SPAN_S {
             self.since_fit = 0.0;
             let answer = self.fit(covered, bounds);
             self.fits[usize::from(answer.is_none())] += 1;
+            self.fit_every =
+                if answer.is_some() { FIT_EVERY_S } else { (2.0 * self.fit_every).min(FIT_AT_MOST_EVERY_S) };
             if let Some((b, var)) = answer {
                 self.accepted = Some((b, var, self.t));
             }
@@ -170,9 +176,11 @@ impl PeriodicLoad {
             _ => (MIN_PERIOD_S, max_period),
         };
         let mut best: Option<(f64, f64)> = None;
+        // The grid on every other row (the period's valley is as wide), then the refinement on all.
+        let coarse = prepare(prepared.rows.iter().step_by(2).copied().collect());
         let mut p = from;
         while p <= to {
-            if let Some(f) = solve(&prepared, p)
+            if let Some(f) = solve(&coarse, p)
                 && best.is_none_or(|(s, _)| f.ssr < s)
             {
                 best = Some((f.ssr, p));
