@@ -654,15 +654,21 @@ impl RlsSgd {
         }
     }
 
-    /// B and its variance: the windows' pool, and the periodic fit beside it by precision where it has an answer.
-    fn viscous(&self) -> (f64, f64) {
-        let (b, v) = self.rls.viscous.estimate;
-        match self.periodic.estimate() {
-            Some((bp, vp)) if self.s.periodic_load && vp > 0.0 && v > 0.0 => {
+    /// B and J with their variances: the windows' (B from their pool, J from the RLS), and the periodic fit's beside
+    /// them by precision where it has an answer.
+    fn parameters(&self) -> ((f64, f64), (f64, f64)) {
+        let windows = (self.rls.viscous.estimate, (self.rls.inertia_kg_m2(), self.rls.inertia_sd().powi(2)));
+        let combine = |(x, v): (f64, f64), (xp, vp): (f64, f64)| {
+            if v > 0.0 && vp > 0.0 {
                 let info = 1.0 / v + 1.0 / vp;
-                ((b / v + bp / vp) / info, 1.0 / info)
+                ((x / v + xp / vp) / info, 1.0 / info)
+            } else {
+                (x, v)
             }
-            _ => (b, v),
+        };
+        match self.periodic.estimate() {
+            Some(a) if self.s.periodic_load => (combine(windows.0, a.viscous), combine(windows.1, a.inertia)),
+            _ => windows,
         }
     }
 
@@ -731,7 +737,7 @@ impl Estimator for RlsSgd {
     fn update(&mut self, m: &Measurement) -> Estimate {
         let c = Checked::new(m, self.s.max_gap_s);
         self.integrate(&c);
-        let (j, b) = (self.rls.inertia_kg_m2(), self.viscous().0);
+        let ((b, _), (j, _)) = self.parameters();
         self.tracker.step_with(m, j, b, self.s.eta / PAPER_ETA);
         if !self.rls.theta.iter().all(|v| v.is_finite()) {
             // Cannot happen with the guards above; if it does, start over rather than report garbage.
@@ -745,15 +751,14 @@ impl Estimator for RlsSgd {
     }
 
     fn estimate(&self) -> Estimate {
-        let inertia_sd = self.rls.inertia_sd();
-        let (viscous, viscous_var) = self.viscous();
+        let ((viscous, viscous_var), (inertia, inertia_var)) = self.parameters();
         let fast = self.tracker.estimate();
         Estimate {
             omega_hat_rad_s: fast.omega_hat_rad_s,
             load_hat_nm: fast.load_hat_nm,
-            inertia_hat_kg_m2: self.rls.inertia_kg_m2(),
+            inertia_hat_kg_m2: inertia,
             viscous_hat_nm_s_rad: viscous,
-            inertia_sd_kg_m2: inertia_sd,
+            inertia_sd_kg_m2: inertia_var.sqrt(),
             viscous_sd_nm_s_rad: viscous_var.sqrt(),
         }
     }
