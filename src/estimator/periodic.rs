@@ -41,6 +41,9 @@ const MODEL_SD: f64 = 0.01;
 /// An accepted answer ages: its standard deviation grows by this fraction of B per minute (the oil's temperature
 /// moves B), so the windows' pool takes over again when no later fit is accepted.
 const AGING_PER_MIN: f64 = 0.1;
+/// A fit that knows B or J no better than this fraction of its value has identified nothing (one steady speed:
+/// ∫τ, ∫ω and time are then nearly the same column) and is refused, so the estimates hold instead of drifting.
+const MAX_RELATIVE_SD: f64 = 0.25;
 /// Contiguous segments of the jackknife.
 const SEGMENTS: usize = 6;
 
@@ -274,7 +277,8 @@ impl PeriodicLoad {
         let var = own.max(jackknife(|o| o.0)).max((MODEL_SD * b_hat).powi(2));
         let var_j = own_j.max(jackknife(|o| o.1)).max((MODEL_SD * j_hat).powi(2));
         let sd = var.sqrt();
-        if !(var.is_finite() && b_hat > lo - 2.0 * sd && b_hat < hi + 2.0 * sd) {
+        let identified = sd <= MAX_RELATIVE_SD * b_hat.abs() && var_j.sqrt() <= MAX_RELATIVE_SD * j_hat;
+        if !(var.is_finite() && var_j.is_finite() && identified && b_hat > lo - 2.0 * sd && b_hat < hi + 2.0 * sd) {
             self.period = None;
             return None;
         }
