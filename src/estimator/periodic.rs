@@ -138,8 +138,9 @@ impl PeriodicLoad {
         self.since_fit = 0.0;
     }
 
-    /// One complete sample pair (speeds and torques at both ends of `dt`). `bounds` is B's physical range.
-    pub fn push(&mut self, dt: f64, (w0, t0): (f64, f64), (w1, t1): (f64, f64), bounds: [f64; 2]) {
+    /// One complete sample pair (speeds and torques at both ends of `dt`). `bounds` is B's physical range. True when
+    /// it closed a block (the estimate may have changed, and it has aged).
+    pub fn push(&mut self, dt: f64, (w0, t0): (f64, f64), (w1, t1): (f64, f64), bounds: [f64; 2]) -> bool {
         self.t += dt;
         self.i_torque += dt * 0.5 * (t0 + t1);
         self.i_speed += dt * 0.5 * (w0 + w1);
@@ -150,7 +151,7 @@ impl PeriodicLoad {
         self.count += 1;
         self.span += dt;
         if self.span < BLOCK_S - 1e-9 {
-            return;
+            return false;
         }
         let n = f64::from(self.count);
         let s = self.sum;
@@ -179,6 +180,7 @@ impl PeriodicLoad {
                 self.accepted = Some((answer, self.t));
             }
         }
+        true
     }
 
     /// Searches the period, fits, and judges the fit: B and its variance, or nothing.

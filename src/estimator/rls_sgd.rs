@@ -640,18 +640,24 @@ pub struct RlsSgd {
     rls: WindowRls,
     /// B from one fit over a long horizon, where the load is periodic (`periodic_load`).
     periodic: PeriodicLoad,
+    /// B and J with their variances, as [`RlsSgd::parameters`] combines them: refreshed when a window is learnt or a
+    /// block of the periodic fit closes (every 0.1 s of data), not every sample.
+    combined: ((f64, f64), (f64, f64)),
 }
 
 impl RlsSgd {
     pub fn new(s: Resolved) -> RlsSgd {
-        RlsSgd {
+        let mut est = RlsSgd {
             s,
             tracker: Kalman::new(s),
             last_pair: None,
             windows: [Window::default(), Window::default()],
             rls: WindowRls::new(s),
             periodic: PeriodicLoad::default(),
-        }
+            combined: ((0.0, 0.0), (0.0, 0.0)),
+        };
+        est.combined = est.parameters();
+        est
     }
 
     /// B and J with their variances: the windows' (B from their pool, J from the RLS), and the periodic fit's beside
@@ -704,9 +710,8 @@ impl RlsSgd {
             return;
         };
         self.last_pair = pair;
-        if self.s.periodic_load {
-            self.periodic.push(dt, (w0, t0), (w1, t1), self.s.viscous_bounds_nm_s_rad);
-        }
+        let mut changed =
+            self.s.periodic_load && self.periodic.push(dt, (w0, t0), (w1, t1), self.s.viscous_bounds_nm_s_rad);
         let length = self.s.rls_period_s;
         let first_age = self.windows[0].rows.last().map(|r| r.s);
         for i in 0..2 {
@@ -726,9 +731,13 @@ impl RlsSgd {
             self.windows[i].rows.push(row);
             if row.s >= length {
                 self.rls.learn(&mut self.windows[i], i, self.s.speed_noise_rad_s);
+                changed = true;
                 self.windows[i].rows.clear();
                 self.windows[i].rows.push(Row { s: 0.0, omega: w1, i_torque: 0.0, i_speed: 0.0 });
             }
+        }
+        if changed {
+            self.combined = self.parameters();
         }
     }
 }
@@ -737,7 +746,7 @@ impl Estimator for RlsSgd {
     fn update(&mut self, m: &Measurement) -> Estimate {
         let c = Checked::new(m, self.s.max_gap_s);
         self.integrate(&c);
-        let ((b, _), (j, _)) = self.parameters();
+        let ((b, _), (j, _)) = self.combined;
         self.tracker.step_with(m, j, b, self.s.eta / PAPER_ETA);
         if !self.rls.theta.iter().all(|v| v.is_finite()) {
             // Cannot happen with the guards above; if it does, start over rather than report garbage.
@@ -751,7 +760,7 @@ impl Estimator for RlsSgd {
     }
 
     fn estimate(&self) -> Estimate {
-        let ((viscous, viscous_var), (inertia, inertia_var)) = self.parameters();
+        let ((viscous, viscous_var), (inertia, inertia_var)) = self.combined;
         let fast = self.tracker.estimate();
         Estimate {
             omega_hat_rad_s: fast.omega_hat_rad_s,
