@@ -412,17 +412,17 @@ mod tests {
     use crate::plant::PlantModel;
     use crate::plant::scenario::{Family, Scenario};
 
-    /// Feeds a battery scenario's polled rows, from `from_s` on, to a fresh periodic fit.
-    fn fed(family: Family, seed: u64, poll_ms: u32, from_s: f64) -> PeriodicLoad {
+    /// Feeds a battery scenario's polled rows to a fresh periodic fit; with `drop_every` = k,
+    /// every k-th row is lost (as a late poll would be), so the steps and blocks are uneven.
+    fn fed(family: Family, seed: u64, poll_ms: u32, drop_every: Option<usize>) -> PeriodicLoad {
         let truth = PlantModel::reference();
         let p = battery::poll(&Scenario::generate(family, seed, 60.0), &truth, poll_ms);
+        let kept: Vec<usize> = (0..p.t_s.len()).filter(|&k| drop_every.is_none_or(|d| k % d != d - 1)).collect();
         let mut fit = PeriodicLoad::default();
-        for k in 1..p.t_s.len() {
-            if p.t_s[k] < from_s {
-                continue;
-            }
-            let (a, b) = (&p.measurements[k - 1], &p.measurements[k]);
-            fit.push(b.dt_s, (a.omega_rad_s, a.drive_torque_nm), (b.omega_rad_s, b.drive_torque_nm), [0.0, 0.2]);
+        for pair in kept.windows(2) {
+            let (a, b) = (&p.measurements[pair[0]], &p.measurements[pair[1]]);
+            let dt = p.t_s[pair[1]] - p.t_s[pair[0]];
+            fit.push(dt, (a.omega_rad_s, a.drive_torque_nm), (b.omega_rad_s, b.drive_torque_nm), [0.0, 0.2]);
         }
         fit
     }
@@ -440,13 +440,16 @@ mod tests {
     /// over the horizon finds B = 0.04 and J = 0.08 within a few per cent, and says how sure it is.
     #[test]
     fn under_a_sine_load_the_fit_finds_b_and_j_and_says_how_sure() {
-        let fit = fed(Family::Sine, 6, 10, 0.0);
-        let answer = fit.estimate().expect("accepted");
-        assert!(fit.fits[0] >= 10, "{:?}", fit.fits);
-        for ((x, var), truth) in [(answer.viscous, 0.04), (answer.inertia, 0.08)] {
-            let sd = var.sqrt();
-            assert!((x - truth).abs() < 0.05 * truth, "{x} ± {sd}, true {truth}");
-            assert!((x - truth).abs() <= 2.0 * sd && sd < 0.05 * truth, "{x} ± {sd}, true {truth}");
+        // evenly polled, and with every 7th poll lost (uneven rows: the rotation is then computed row by row)
+        for drop_every in [None, Some(7)] {
+            let fit = fed(Family::Sine, 6, 10, drop_every);
+            let answer = fit.estimate().expect("accepted");
+            assert!(fit.fits[0] >= 10, "{drop_every:?}: {:?}", fit.fits);
+            for ((x, var), truth) in [(answer.viscous, 0.04), (answer.inertia, 0.08)] {
+                let sd = var.sqrt();
+                assert!((x - truth).abs() < 0.05 * truth, "{drop_every:?}: {x} ± {sd}, true {truth}");
+                assert!((x - truth).abs() <= 2.0 * sd && sd < 0.05 * truth, "{drop_every:?}: {x} ± {sd}, true {truth}");
+            }
         }
     }
 
@@ -455,7 +458,7 @@ mod tests {
     #[test]
     fn under_brake_steps_there_is_no_answer() {
         for seed in [1, 7] {
-            let fit = fed(Family::Brake, seed, 10, 0.0);
+            let fit = fed(Family::Brake, seed, 10, None);
             assert!(fit.estimate().is_none() && fit.fits[0] == 0 && fit.fits[1] >= 5, "{:?}", fit.fits);
         }
     }
@@ -463,7 +466,7 @@ mod tests {
     /// An answer stands when later fits are refused, but grows less sure with its age; a restart keeps it.
     #[test]
     fn an_answer_ages_and_outlives_a_restart() {
-        let mut fit = fed(Family::Sine, 6, 10, 0.0);
+        let mut fit = fed(Family::Sine, 6, 10, None);
         let (b, var) = fit.estimate().expect("accepted").viscous;
         fit.restart();
         for _ in 0..6000 {
