@@ -4,7 +4,9 @@
 //! B scatter far beyond their own claims and only many of them average it out (docs/estimator.md). Over a horizon
 //! of several periods they are not: if the load is a constant, a trend and one sinusoid, the measured speed is
 //!
-//!     ω(u) = ω₀ + (1/J)·∫τ − (B/J)·∫ω − (m/J)·u − (k/J)·u²/2 − (a/J)·sin(wu)/w − (b/J)·(1 − cos(wu))/w
+//! ```text
+//! ω(u) = ω₀ + (1/J)·∫τ − (B/J)·∫ω − (m/J)·u − (k/J)·u²/2 − (a/J)·sin(wu)/w − (b/J)·(1 − cos(wu))/w
+//! ```
 //!
 //! linear in everything but w. The speed is kept as block means (`BLOCK_S`), the period searched on a grid and
 //! refined, and the fit accepted only where its residual is as rough as noise (Durbin–Watson): a brake step or a
