@@ -114,7 +114,8 @@ pub(crate) struct Answer {
     pub inertia: (f64, f64),
 }
 
-/// The fit at one period: the solution (unscaled), the residual sum of squares, and the normal matrix (scaled).
+/// The fit at one period: the solution (unscaled), the residual sum of squares, and the Cholesky factor of the
+/// normal matrix with its columns scaled by `scale`.
 struct Fit {
     x: Column,
     ssr: f64,
@@ -176,17 +177,17 @@ impl PeriodicLoad {
             self.since_fit = 0.0;
             let answer = self.fit(covered, bounds);
             self.fits[usize::from(answer.is_none())] += 1;
-            self.fit_every =
-                if answer.is_some() { FIT_EVERY_S } else { (2.0 * self.fit_every).min(FIT_AT_MOST_EVERY_S) };
-            if let Some(answer) = answer {
-                self.accepted = Some((answer, self.t));
+            self.period = answer.map(|(_, p)| p);
+            match answer {
+                Some((a, _)) => (self.accepted, self.fit_every) = (Some((a, self.t)), FIT_EVERY_S),
+                None => self.fit_every = (2.0 * self.fit_every).min(FIT_AT_MOST_EVERY_S),
             }
         }
         true
     }
 
-    /// Searches the period, fits, and judges the fit: B and its variance, or nothing.
-    fn fit(&mut self, covered: f64, [lo, hi]: [f64; 2]) -> Option<Answer> {
+    /// Searches the period, fits, and judges the fit: B and J with their variances, and the period; or nothing.
+    fn fit(&self, covered: f64, [lo, hi]: [f64; 2]) -> Option<(Answer, f64)> {
         let prepared = prepare(self.rows());
         let max_period = 0.5 * covered;
         // Search: the whole grid, or around the last accepted period.
@@ -231,10 +232,10 @@ impl PeriodicLoad {
         let len = n.div_ceil(SEGMENTS);
         let mut parts = [(Normal::zeros(), Column::zeros(), 0.0); SEGMENTS];
         let w = TAU / p;
-        for (i, r) in rows.iter().enumerate() {
-            let x = regressors(r, w);
+        let xs: Vec<Column> = rows.iter().map(|r| regressors(r, w)).collect();
+        for (i, (x, r)) in xs.iter().zip(rows).enumerate() {
             let part = &mut parts[i / len];
-            part.0.ger(1.0, &x, &x, 1.0);
+            part.0.ger(1.0, x, x, 1.0);
             part.1 += x * r.y;
             part.2 += r.y * r.y;
         }
@@ -246,14 +247,13 @@ impl PeriodicLoad {
         }
         let fit = factorise(&a, &b, yy)?;
         // Durbin–Watson on the residual.
-        let residual: Vec<f64> = rows.iter().map(|r| r.y - regressors(r, w).dot(&fit.x)).collect();
+        let residual: Vec<f64> = xs.iter().zip(rows).map(|(x, r)| r.y - x.dot(&fit.x)).collect();
         let rough: f64 = residual.windows(2).map(|w| (w[1] - w[0]).powi(2)).sum();
         let level: f64 = residual.iter().map(|r| r * r).sum();
         let viscous = |x: &Column| x[2] / x[1];
         let b_hat = viscous(&fit.x);
         let j_hat = 1.0 / fit.x[1];
         if !(level > 0.0 && rough / level >= MIN_DURBIN_WATSON && fit.x[1] > 0.0 && b_hat.is_finite()) {
-            self.period = None;
             return None;
         }
         // The fit's own variance of B = x₂/x₁ (first order), residual-scaled.
@@ -283,11 +283,9 @@ impl PeriodicLoad {
         let sd = var.sqrt();
         let identified = sd <= MAX_RELATIVE_SD * b_hat.abs() && var_j.sqrt() <= MAX_RELATIVE_SD * j_hat;
         if !(var.is_finite() && var_j.is_finite() && identified && b_hat > lo - 2.0 * sd && b_hat < hi + 2.0 * sd) {
-            self.period = None;
             return None;
         }
-        self.period = Some(p);
-        Some(Answer { viscous: (b_hat.clamp(lo, hi), var), inertia: (j_hat, var_j) })
+        Some((Answer { viscous: (b_hat.clamp(lo, hi), var), inertia: (j_hat, var_j) }, p))
     }
 
     /// The horizon's rows, relative to its first block.
@@ -313,10 +311,19 @@ struct Row {
     i_speed: f64,
 }
 
-/// The regressors of one row at angular frequency `w`: [1, ∫τ, −∫ω, −u, −u²/2, −sin(wu)/w, −(1 − cos(wu))/w].
+/// The regressors of one row that do not depend on the period: [1, ∫τ, −∫ω, −u, −u²/2].
+fn fixed_regressors(r: &Row) -> SVector<f64, FIXED> {
+    SVector::from([1.0, r.i_torque, -r.i_speed, -r.u, -0.5 * r.u * r.u])
+}
+
+/// All regressors of one row at angular frequency `w`: the fixed ones, then −sin(wu)/w and −(1 − cos(wu))/w.
 fn regressors(r: &Row, w: f64) -> Column {
     let (s, c) = (w * r.u).sin_cos();
-    Column::from([1.0, r.i_torque, -r.i_speed, -r.u, -0.5 * r.u * r.u, -s / w, -(1.0 - c) / w])
+    let mut x = Column::zeros();
+    x.fixed_rows_mut::<FIXED>(0).copy_from(&fixed_regressors(r));
+    x[FIXED] = -s / w;
+    x[FIXED + 1] = -(1.0 - c) / w;
+    x
 }
 
 /// The horizon's fixed part, gathered once per fit: the normal equations of [1, ∫τ, −∫ω, −u, −u²/2].
@@ -333,8 +340,7 @@ struct Prepared {
 const FIXED: usize = N - 2;
 
 fn prepare(rows: Vec<Row>) -> Prepared {
-    let fixed: Vec<SVector<f64, FIXED>> =
-        rows.iter().map(|r| regressors(r, 1.0).fixed_rows::<FIXED>(0).into_owned()).collect();
+    let fixed: Vec<SVector<f64, FIXED>> = rows.iter().map(fixed_regressors).collect();
     let mut ff = SMatrix::<f64, FIXED, FIXED>::zeros();
     let mut fy = SVector::<f64, FIXED>::zeros();
     let mut yy = 0.0;

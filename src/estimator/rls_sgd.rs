@@ -673,14 +673,10 @@ impl RlsSgd {
             }
         };
         match self.periodic.estimate() {
-            Some(a) if self.s.periodic_load => (combine(windows.0, a.viscous), combine(windows.1, a.inertia)),
-            _ => windows,
+            // (never an answer with `periodic_load` off: the fit is not fed)
+            Some(a) => (combine(windows.0, a.viscous), combine(windows.1, a.inertia)),
+            None => windows,
         }
-    }
-
-    /// Periodic fits accepted and refused, for diagnostics.
-    pub fn periodic_fits(&self) -> [u64; 2] {
-        self.periodic.fits
     }
 
     /// The RLS covariance of θ = [J₀/J, (B/J)·J₀/B₀], for tests and diagnostics.
