@@ -29,7 +29,7 @@ use crate::recording::{Batch, RecordingError, StreamReader, push_value};
 use crate::replay::{Plan, ReplayError, Replayer};
 
 /// The columns of an estimates file.
-pub const COLUMNS: [&str; 7] = crate::recording::concat(["t_s"], crate::recording::ESTIMATE_COLUMNS);
+pub const COLUMNS: [&str; 10] = crate::recording::concat(["t_s"], crate::recording::ESTIMATE_COLUMNS);
 
 /// Rows per batch handed from the reading thread to the estimating one, and batches under way at once: enough to
 /// keep both threads busy, little enough to stay in cache (4 k rows × 4 columns × 8 bytes = 128 KiB a batch).

@@ -129,6 +129,9 @@ impl Estimator for Kalman {
             viscous_hat_nm_s_rad: self.s.initial_viscous_nm_s_rad,
             inertia_sd_kg_m2: 0.0,
             viscous_sd_nm_s_rad: 0.0,
+            inertia_identified: super::Identification::FromModel.code(),
+            viscous_identified: super::Identification::FromModel.code(),
+            load_character: super::LoadCharacter::Unknown.code(),
         }
     }
 }

@@ -9,12 +9,14 @@
 //! docs/estimator.md gives the design, the measured accuracy and the settings.
 
 pub mod battery;
+mod guard;
 mod kalman;
 mod paper;
 mod periodic;
 mod rls_sgd;
 pub mod settings;
 
+pub use guard::{Identification, LoadCharacter};
 pub use kalman::Kalman;
 pub use paper::PaperLiteral;
 pub use rls_sgd::RlsSgd;
@@ -46,6 +48,12 @@ crate::units::columns! {
         /// they are not estimated but taken from the model (kalman, paper-literal).
         pub inertia_sd_kg_m2: f64,
         pub viscous_sd_nm_s_rad: f64,
+        /// What the data say of J and B ([`Identification::code`]): 1 identified, 0 too little excitation, −1 the
+        /// nominal predicts as well (and stands), −2 not separable from the load, −3 the model's value.
+        pub inertia_identified: f64,
+        pub viscous_identified: f64,
+        /// What the load looks like ([`LoadCharacter::code`]).
+        pub load_character: f64,
     }
 }
 
@@ -159,5 +167,8 @@ pub(crate) fn finite_or(e: Estimate, fallback: Estimate) -> Estimate {
         viscous_hat_nm_s_rad: pick(e.viscous_hat_nm_s_rad, fallback.viscous_hat_nm_s_rad),
         inertia_sd_kg_m2: pick(e.inertia_sd_kg_m2, fallback.inertia_sd_kg_m2),
         viscous_sd_nm_s_rad: pick(e.viscous_sd_nm_s_rad, fallback.viscous_sd_nm_s_rad),
+        inertia_identified: pick(e.inertia_identified, fallback.inertia_identified),
+        viscous_identified: pick(e.viscous_identified, fallback.viscous_identified),
+        load_character: pick(e.load_character, fallback.load_character),
     }
 }

@@ -101,6 +101,9 @@ impl Estimator for PaperLiteral {
             // The paper's P is not a calibrated covariance (no noise weighting): no confidence is claimed.
             inertia_sd_kg_m2: 0.0,
             viscous_sd_nm_s_rad: 0.0,
+            inertia_identified: super::Identification::FromModel.code(),
+            viscous_identified: super::Identification::FromModel.code(),
+            load_character: super::LoadCharacter::Unknown.code(),
         }
     }
 }

@@ -28,6 +28,7 @@
 
 use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
 
+use super::guard::{Character, Identification, Validation};
 use super::kalman::Kalman;
 use super::periodic::PeriodicLoad;
 use super::settings::Resolved;
@@ -260,6 +261,8 @@ pub(crate) struct WindowRls {
     /// Windows learnt from, rejected, and with a step found: for diagnostics.
     pub counts: [u64; 4],
     viscous: ViscousPool,
+    /// The last window's residual sums of squares under the [nominal, adapted] hypotheses and what noise leaves.
+    score: Option<(f64, f64, f64)>,
     s: Resolved,
 }
 
@@ -284,6 +287,7 @@ impl WindowRls {
             last_window: [None, None],
             overdispersion: Vector2::new(1.0, 1.0),
             counts: [0; 4],
+            score: None,
             viscous: ViscousPool::new(
                 s.initial_viscous_nm_s_rad,
                 (s.viscous_prior_sd * s.initial_viscous_nm_s_rad.max(b0)).powi(2),
@@ -297,6 +301,11 @@ impl WindowRls {
         self.j0 / self.theta[0]
     }
 
+    /// θ of a J and B.
+    fn theta_of(&self, j: f64, b: f64) -> Vector2<f64> {
+        Vector2::new(self.j0 / j, b / j * self.j0 / self.b0)
+    }
+
     /// Standard deviation of J (from P, first-order propagation).
     fn inertia_sd(&self) -> f64 {
         let t0 = self.theta[0];
@@ -305,7 +314,8 @@ impl WindowRls {
     }
 
     /// Fits one window (rows in `w`) and learns from it.
-    fn learn(&mut self, w: &mut Window, sequence: usize, speed_sd: f64) -> Verdict {
+    fn learn(&mut self, w: &mut Window, sequence: usize, speed_sd: f64, hypotheses: [Vector2<f64>; 2]) -> Verdict {
+        self.score = None;
         let n = w.rows.len();
         let Some(last) = w.rows.last() else { return Verdict::Uninformative };
         let length = last.s;
@@ -435,6 +445,16 @@ impl WindowRls {
         // cannot tell J apart from the load, whatever its fit says.
         let load_alone = Model { dynamics: false, ..model };
         let moved = load_alone.solve(&a_m, &b_m, yy).map_or(0.0, |(_, r)| (r - rss) / sigma2);
+        // The window under each hypothesis, θ held, its load nuisance fitted: the guard's held-out test.
+        let rss_at = |theta: Vector2<f64>| {
+            let mut b_h = b_m;
+            for i in 0..ALL {
+                b_h[i] -= a_m[(i, 0)] * theta[0] + a_m[(i, 1)] * theta[1];
+            }
+            let a_tt = Matrix2::new(a_m[(0, 0)], a_m[(0, 1)], a_m[(1, 0)], a_m[(1, 1)]);
+            let yy_h = yy - 2.0 * (theta[0] * b_m[0] + theta[1] * b_m[1]) + theta.dot(&(a_tt * theta));
+            load_alone.solve(&a_m, &b_h, yy_h).map(|(_, r)| r)
+        };
         // A load the nuisance cannot follow leaves far more than noise behind.
         let dof = (n - model.parameters()) as f64;
         let misfit = rss / sigma2 > dof + 6.0 * (2.0 * dof).sqrt() + 10.0;
@@ -445,6 +465,12 @@ impl WindowRls {
         // The window's own residual variance, where it is above the sensor's: what the nuisance left unexplained
         // counts as noise, so such a window teaches (and contradicts) less.
         let variance = sigma2.max(rss / dof);
+        if !misfit
+            && moved > SPEED_MOVED_GLR
+            && let (Some(n), Some(a)) = (rss_at(hypotheses[0]), rss_at(hypotheses[1]))
+        {
+            self.score = Some((n, a, sigma2 * dof));
+        }
         let verdict = if misfit || (informative && impossible) {
             Verdict::Misfit
         } else if moved <= SPEED_MOVED_GLR {
@@ -643,7 +669,17 @@ pub struct RlsSgd {
     /// B and J with their variances, as [`RlsSgd::parameters`] combines them: refreshed when a window is learnt or a
     /// block of the periodic fit closes (every 0.1 s of data), not every sample.
     combined: ((f64, f64), (f64, f64)),
+    /// The do-no-harm guard (`guard.rs`): the load tracked on the nominal J and B, the prequential test of the
+    /// adapted parameters against them, and the load's character.
+    nominal: Kalman,
+    validation: Validation,
+    character: Character,
 }
+
+/// J known to this relative standard deviation is identified (the battery asks ±15 % at 2.5 sd).
+const INERTIA_IDENTIFIED_SD: f64 = 0.06;
+/// B known to this relative standard deviation is identified.
+const VISCOUS_IDENTIFIED_SD: f64 = 0.25;
 
 impl RlsSgd {
     pub fn new(s: Resolved) -> RlsSgd {
@@ -655,6 +691,9 @@ impl RlsSgd {
             rls: WindowRls::new(s),
             periodic: PeriodicLoad::default(),
             combined: ((0.0, 0.0), (0.0, 0.0)),
+            nominal: Kalman::new(s),
+            validation: Validation::default(),
+            character: Character::default(),
         };
         est.combined = est.parameters();
         est
@@ -726,7 +765,13 @@ impl RlsSgd {
             };
             self.windows[i].rows.push(row);
             if row.s >= length {
-                self.rls.learn(&mut self.windows[i], i, self.s.speed_noise_rad_s);
+                let (j, b) = self.adapted_parameters();
+                let (j0, b0) = self.nominal_parameters();
+                let hypotheses = [self.rls.theta_of(j0, b0), self.rls.theta_of(j, b)];
+                self.rls.learn(&mut self.windows[i], i, self.s.speed_noise_rad_s, hypotheses);
+                if let Some((n, a, noise)) = self.rls.score {
+                    self.validation.score(n, a, noise);
+                }
                 changed = true;
                 self.windows[i].rows.clear();
                 self.windows[i].rows.push(Row { s: 0.0, omega: w1, i_torque: 0.0, i_speed: 0.0 });
@@ -738,12 +783,32 @@ impl RlsSgd {
     }
 }
 
+impl RlsSgd {
+    /// The nominal J and B (the model's), which stand until the adapted ones predict better.
+    fn nominal_parameters(&self) -> (f64, f64) {
+        (self.s.initial_inertia_kg_m2, self.s.initial_viscous_nm_s_rad)
+    }
+
+    /// The adapted J and B the tracker predicts with: B stays nominal where the load follows the speed.
+    fn adapted_parameters(&self) -> (f64, f64) {
+        let ((b, _), (j, _)) = self.combined;
+        (j, b)
+    }
+}
+
 impl Estimator for RlsSgd {
     fn update(&mut self, m: &Measurement) -> Estimate {
         let c = Checked::new(m, self.s.max_gap_s);
         self.integrate(&c);
-        let ((b, _), (j, _)) = self.combined;
-        self.tracker.step_with(m, j, b, self.s.eta / PAPER_ETA);
+        let (j, b) = self.adapted_parameters();
+        let (j0, b0) = self.nominal_parameters();
+        let scale = self.s.eta / PAPER_ETA;
+        let adapted = self.tracker.step_with(m, j, b, scale);
+        let nominal = self.nominal.step_with(m, j0, b0, scale);
+        if let Some(dt) = c.dt_s {
+            let used = if self.validation.in_force { adapted } else { nominal };
+            self.character.push(dt, adapted.load_hat_nm, used.load_hat_nm, used.omega_hat_rad_s);
+        }
         if !self.rls.theta.iter().all(|v| v.is_finite()) {
             // Cannot happen with the guards above; if it does, start over rather than report garbage.
             *self = RlsSgd::new(self.s);
@@ -756,15 +821,38 @@ impl Estimator for RlsSgd {
     }
 
     fn estimate(&self) -> Estimate {
-        let ((viscous, viscous_var), (inertia, inertia_var)) = self.combined;
-        let fast = self.tracker.estimate();
+        let ((_, viscous_var), (_, inertia_var)) = self.combined;
+        let (j, b) = self.adapted_parameters();
+        let (j0, b0) = self.nominal_parameters();
+        let (j_sd, b_sd) = (inertia_var.sqrt(), viscous_var.sqrt());
+        let follows = self.character.follows_speed;
+        let in_force = self.validation.in_force;
+        let known = |sd: f64, x: f64, limit: f64| sd <= limit * x.abs();
+        let inertia = match (in_force, known(j_sd, j, INERTIA_IDENTIFIED_SD)) {
+            (true, true) => Identification::Identified,
+            (false, true) => Identification::NominalPredictsAsWell,
+            (_, false) => Identification::TooLittleExcitation,
+        };
+        let viscous = match (follows, in_force, known(b_sd, b, VISCOUS_IDENTIFIED_SD)) {
+            (true, _, _) => Identification::LoadFollowsSpeed,
+            (false, true, true) => Identification::Identified,
+            (false, false, true) => Identification::NominalPredictsAsWell,
+            (false, _, false) => Identification::TooLittleExcitation,
+        };
+        let (fast, j, b) = if in_force { (self.tracker.estimate(), j, b) } else { (self.nominal.estimate(), j0, b0) };
+        // a value that stands without the data's backing carries the prior's uncertainty
+        let prior_j_sd = self.s.inertia_prior_sd * j0;
+        let prior_b_sd = self.s.viscous_prior_sd * b0.max(self.s.viscous_bounds_nm_s_rad[1] / 5.0);
         Estimate {
             omega_hat_rad_s: fast.omega_hat_rad_s,
             load_hat_nm: fast.load_hat_nm,
-            inertia_hat_kg_m2: inertia,
-            viscous_hat_nm_s_rad: viscous,
-            inertia_sd_kg_m2: inertia_var.sqrt(),
-            viscous_sd_nm_s_rad: viscous_var.sqrt(),
+            inertia_hat_kg_m2: j,
+            viscous_hat_nm_s_rad: b,
+            inertia_sd_kg_m2: if in_force { j_sd } else { prior_j_sd },
+            viscous_sd_nm_s_rad: if in_force { b_sd } else { prior_b_sd },
+            inertia_identified: inertia.code(),
+            viscous_identified: viscous.code(),
+            load_character: self.character.character.code(),
         }
     }
 }

@@ -15,18 +15,21 @@ pub use write::{RotatingWriter, RowWriter, push_value, write_csv};
 
 /// The estimate columns, in the order every file that carries them writes them (`estimate`'s output after `t_s`, the
 /// service's recordings after the measured columns).
-pub const ESTIMATE_COLUMNS: [&str; 6] = [
+pub const ESTIMATE_COLUMNS: [&str; 9] = [
     "omega_hat_rad_s",
     "load_hat_nm",
     "inertia_hat_kg_m2",
     "viscous_hat_nm_s_rad",
     "inertia_sd_kg_m2",
     "viscous_sd_nm_s_rad",
+    "inertia_identified",
+    "viscous_identified",
+    "load_character",
 ];
 
 /// The columns the contract names; anything else in a file is kept but reported once as unknown.
-pub const KNOWN_COLUMNS: [&str; 16] = concat(
-    concat::<9, 6, 15>(
+pub const KNOWN_COLUMNS: [&str; 19] = concat(
+    concat::<9, 9, 18>(
         ["t_s", "f_set_hz", "f_drive_hz", "p_in_bar", "p_out_bar", "omega_rad_s", "theta_rad", "load_nm", "torque_nm"],
         ESTIMATE_COLUMNS,
     ),

@@ -54,15 +54,15 @@ pub struct Point {
 }
 
 /// The recording's columns, in [`Point::values`] order: the measured ones, the estimates, the status word.
-pub const COLUMNS: [&str; 13] =
-    recording::concat(recording::concat::<6, 6, 12>(Measured::COLUMNS, Estimate::COLUMNS), ["status_word"]);
+pub const COLUMNS: [&str; 16] =
+    recording::concat(recording::concat::<6, 9, 15>(Measured::COLUMNS, Estimate::COLUMNS), ["status_word"]);
 
 impl Point {
-    pub fn values(&self) -> [f64; 13] {
-        let mut v = [0.0; 13];
+    pub fn values(&self) -> [f64; COLUMNS.len()] {
+        let mut v = [0.0; COLUMNS.len()];
         v[..6].copy_from_slice(&self.sample.values());
-        v[6..12].copy_from_slice(&self.estimate.values());
-        v[12] = f64::from(self.status_word);
+        v[6..15].copy_from_slice(&self.estimate.values());
+        v[15] = f64::from(self.status_word);
         v
     }
 }
@@ -74,7 +74,7 @@ pub struct PointColumns<'a>(pub &'a [Point]);
 impl Serialize for PointColumns<'_> {
     fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         use serde::ser::SerializeMap;
-        let rows: Vec<[f64; 13]> = self.0.iter().map(Point::values).collect();
+        let rows: Vec<[f64; COLUMNS.len()]> = self.0.iter().map(Point::values).collect();
         let mut m = s.serialize_map(Some(COLUMNS.len()))?;
         for (i, name) in COLUMNS.iter().enumerate() {
             m.serialize_entry(name, &Column(&rows, i))?;
@@ -84,7 +84,7 @@ impl Serialize for PointColumns<'_> {
 }
 
 /// Column `.1` of the rows.
-struct Column<'a>(&'a [[f64; 13]], usize);
+struct Column<'a>(&'a [[f64; COLUMNS.len()]], usize);
 
 impl Serialize for Column<'_> {
     fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
@@ -344,7 +344,7 @@ mod tests {
 
     #[test]
     fn one_shape_for_the_row_the_recording_and_the_history() {
-        assert_eq!(COLUMNS[6..12], recording::ESTIMATE_COLUMNS, "the estimator's columns are the recording's");
+        assert_eq!(COLUMNS[6..15], recording::ESTIMATE_COLUMNS, "the estimator's columns are the recording's");
         assert!(COLUMNS.iter().all(|c| recording::KNOWN_COLUMNS.contains(c)), "every column is the contract's");
         let p = point(0.5);
         let json = serde_json::to_value(PointColumns(&[p, point(0.6)])).expect("serialises");

@@ -1,0 +1,460 @@
+//! The guard of rls-sgd: adapted J and B stand only where they predict the speed better than the nominal model's,
+//! on data they were not fitted to; and what the load looks like, which says why B is or is not known.
+//!
+//! **Validation (prequential).** Beside the adapted load tracker runs one on the nominal J and B. Every
+//! [`BLOCK_S`], both trackers' ω̂ and T̂_L and the parameters in force are frozen, and each hypothesis predicts the
+//! speed over the next block from the measured drive torque alone, the load held at its frozen T̂_L:
+//! `J·dω/dt = τ − B·ω − T̂_L`. The block's score is `d = ln(SSE_nominal / SSE_adapted)` (each SSE at least the
+//! noise's), clipped to ±[`MAX_BLOCK_SCORE`] so that a load step, which both miss alike, decides nothing. The
+//! adapted parameters were fitted only on data before the block, so this is a test on held-out data; it measures
+//! T̂_L's error at the block start (integrated twice), and J's and B's on the speed changes inside the block.
+//! Exponentially forgotten sums of d give its mean and standard error; the adapted parameters come into force when
+//! the mean is positive by [`ENTER_Z`] standard errors and leave it below [`LEAVE_Z`].
+//!
+//! **The load's character.** 0.1 s block means of the nominal tracker's T̂_L, the reported T̂_L, ω and the shaft
+//! angle (integrated from ω) over the last [`HORIZON_S`]. A nominal T̂_L that a function of the speed explains
+//! (R² of `1, ω, ω·|ω|` at least [`FOLLOWS_SPEED_R2`]) is a load that follows the speed, and no method can tell
+//! its speed-dependent part from B: B is then reported as not identified and the nominal B stands. Otherwise the
+//! reported T̂_L is steady, periodic in time or in shaft angle (an autocorrelation peak after the first zero
+//! crossing, on a time or on an angle grid), stepping (a few increments carry most of its movement), or random.
+
+use serde::Serialize;
+
+/// A window whose log ratio of residuals is within this of 0 is a tie.
+const TIE: f64 = 0.02;
+/// Forgetting of the window scores: about this many windows remembered (each 0.75 s at the default window).
+const REMEMBERED_WINDOWS: f64 = 30.0;
+/// The adapted parameters stand from the start; they leave force when the sign test says the nominal predicts better
+/// (z below `LEAVE_Z`, after at least `MIN_WINDOWS` decisive windows), and come back above `ENTER_Z`.
+const ENTER_Z: f64 = 1.0;
+const LEAVE_Z: f64 = -2.0;
+const MIN_WINDOWS: f64 = 4.0;
+/// Character: block length (s), horizon (s), classification interval (blocks), least span to classify (blocks).
+const CHAR_BLOCK_S: f64 = 0.1;
+const HORIZON_S: f64 = 20.0;
+const CLASSIFY_EVERY: usize = 25;
+const MIN_CHAR_BLOCKS: usize = 80;
+/// The nominal T̂_L follows the speed when a function of ω explains this share of its variance, and moves by at least
+/// `FOLLOWS_SPEED_NM` (sd) with it.
+const FOLLOWS_SPEED_R2: f64 = 0.6;
+const FOLLOWS_SPEED_NM: f64 = 1.0;
+/// Below this sd (N·m) the load is steady.
+const STEADY_NM: f64 = 0.5;
+/// An autocorrelation peak at least this high (after the first zero crossing) is a period.
+const PERIODIC_PEAK: f64 = 0.5;
+/// The largest tenth of the increments carries at least this share of the movement: stepping.
+const STEPPING_SHARE: f64 = 0.6;
+
+/// What the data say of one parameter (J or B).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Identification {
+    /// Adapted, predicting better than the nominal on held-out data, and known to its stated standard deviation.
+    Identified,
+    /// Not yet: the data have not excited it enough (its standard deviation is wide).
+    TooLittleExcitation,
+    /// The adapted value does not predict the speed better than the nominal one: the nominal stands.
+    NominalPredictsAsWell,
+    /// The load follows the speed, so its speed-dependent part cannot be told from friction: the nominal stands.
+    LoadFollowsSpeed,
+    /// Not estimated: the model's value (kalman, paper-literal).
+    FromModel,
+}
+
+impl Identification {
+    /// The code in recordings and metrics: 1 identified, 0 too little excitation, −1 the nominal predicts as well,
+    /// −2 not separable from the load, −3 the model's value.
+    pub fn code(self) -> f64 {
+        match self {
+            Identification::Identified => 1.0,
+            Identification::TooLittleExcitation => 0.0,
+            Identification::NominalPredictsAsWell => -1.0,
+            Identification::LoadFollowsSpeed => -2.0,
+            Identification::FromModel => -3.0,
+        }
+    }
+
+    pub const ALL: [Identification; 5] = [
+        Identification::Identified,
+        Identification::TooLittleExcitation,
+        Identification::NominalPredictsAsWell,
+        Identification::LoadFollowsSpeed,
+        Identification::FromModel,
+    ];
+
+    /// The identification of a code (recordings); `FromModel` for anything else.
+    pub fn from_code(code: f64) -> Identification {
+        Identification::ALL.into_iter().find(|c| c.code() == code).unwrap_or(Identification::FromModel)
+    }
+
+    /// The name in JSON and metric labels.
+    pub fn name(self) -> &'static str {
+        match self {
+            Identification::Identified => "identified",
+            Identification::TooLittleExcitation => "too_little_excitation",
+            Identification::NominalPredictsAsWell => "nominal_predicts_as_well",
+            Identification::LoadFollowsSpeed => "load_follows_speed",
+            Identification::FromModel => "from_model",
+        }
+    }
+
+    /// A plant engineer's sentence.
+    pub fn reason(self) -> &'static str {
+        match self {
+            Identification::Identified => "identified",
+            Identification::TooLittleExcitation => "not identified yet: too little excitation (setpoint changes)",
+            Identification::NominalPredictsAsWell => {
+                "not identified: the adapted value predicts no better than the nominal, which stands"
+            }
+            Identification::LoadFollowsSpeed => {
+                "not identified: the load follows the speed and cannot be told from friction; the nominal stands"
+            }
+            Identification::FromModel => "not estimated: the model's value",
+        }
+    }
+}
+
+/// What the load looks like over the last 20 s.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LoadCharacter {
+    /// Too little data yet (or not estimated).
+    Unknown,
+    Steady,
+    Stepping,
+    PeriodicInTime,
+    PeriodicInShaftAngle,
+    FollowingTheSpeed,
+    Random,
+}
+
+impl LoadCharacter {
+    /// The code in recordings and metrics: 0 unknown, 1 steady, 2 stepping, 3 periodic in time, 4 periodic in shaft
+    /// angle, 5 following the speed, 6 random.
+    pub fn code(self) -> f64 {
+        match self {
+            LoadCharacter::Unknown => 0.0,
+            LoadCharacter::Steady => 1.0,
+            LoadCharacter::Stepping => 2.0,
+            LoadCharacter::PeriodicInTime => 3.0,
+            LoadCharacter::PeriodicInShaftAngle => 4.0,
+            LoadCharacter::FollowingTheSpeed => 5.0,
+            LoadCharacter::Random => 6.0,
+        }
+    }
+
+    pub const ALL: [LoadCharacter; 7] = [
+        LoadCharacter::Unknown,
+        LoadCharacter::Steady,
+        LoadCharacter::Stepping,
+        LoadCharacter::PeriodicInTime,
+        LoadCharacter::PeriodicInShaftAngle,
+        LoadCharacter::FollowingTheSpeed,
+        LoadCharacter::Random,
+    ];
+
+    /// The name in JSON and metric labels.
+    pub fn name(self) -> &'static str {
+        match self {
+            LoadCharacter::Unknown => "unknown",
+            LoadCharacter::Steady => "steady",
+            LoadCharacter::Stepping => "stepping",
+            LoadCharacter::PeriodicInTime => "periodic_in_time",
+            LoadCharacter::PeriodicInShaftAngle => "periodic_in_shaft_angle",
+            LoadCharacter::FollowingTheSpeed => "following_the_speed",
+            LoadCharacter::Random => "random",
+        }
+    }
+
+    /// The character of a code (recordings), `Unknown` for anything else.
+    pub fn from_code(code: f64) -> LoadCharacter {
+        LoadCharacter::ALL.into_iter().find(|c| c.code() == code).unwrap_or(LoadCharacter::Unknown)
+    }
+}
+
+/// The prequential comparison of the adapted against the nominal parameters (module doc): scores of the windows,
+/// each computed before the window was learnt from.
+#[derive(Debug, Clone)]
+pub(crate) struct Validation {
+    /// Forgotten sums: decisive windows, and wins minus losses of the adapted parameters.
+    sums: [f64; 2],
+    pub in_force: bool,
+}
+
+impl Default for Validation {
+    fn default() -> Self {
+        Validation { sums: [0.0; 2], in_force: true }
+    }
+}
+
+impl Validation {
+    /// A window's residual sums of squares under the nominal and the adapted parameters (each with its own best
+    /// load nuisance), and what noise alone would leave.
+    pub fn score(&mut self, nominal_rss: f64, adapted_rss: f64, noise_rss: f64) {
+        if !(nominal_rss.is_finite() && adapted_rss.is_finite() && noise_rss > 0.0) {
+            return;
+        }
+        let d = (nominal_rss.max(noise_rss) / adapted_rss.max(noise_rss)).ln();
+        // a sign test: a window the nuisance followed badly can be far off either way, so only who won counts
+        let won: f64 = if d > TIE {
+            1.0
+        } else if d < -TIE {
+            -1.0
+        } else {
+            0.0
+        };
+        let keep = 1.0 - 1.0 / REMEMBERED_WINDOWS;
+        self.sums = [keep * self.sums[0] + won.abs(), keep * self.sums[1] + won];
+        let z = self.z();
+        self.in_force = if self.in_force {
+            self.sums[0] < MIN_WINDOWS || z > LEAVE_Z
+        } else {
+            self.sums[0] >= MIN_WINDOWS && z > ENTER_Z
+        };
+    }
+
+    /// Wins minus losses of the adapted parameters over the standard error of a fair coin's (0 before any).
+    pub fn z(&self) -> f64 {
+        let [decisive, net] = self.sums;
+        if decisive < 1.0 { 0.0 } else { net / decisive.sqrt() }
+    }
+}
+
+/// One 0.1 s block of the character's horizon.
+#[derive(Debug, Clone, Copy, Default)]
+struct CharBlock {
+    nominal_load: f64,
+    load: f64,
+    omega: f64,
+    angle: f64,
+}
+
+/// The load's character over the horizon (module doc).
+#[derive(Debug, Clone)]
+pub(crate) struct Character {
+    blocks: std::collections::VecDeque<CharBlock>,
+    sum: CharBlock,
+    count: u32,
+    span: f64,
+    angle: f64,
+    since: usize,
+    pub follows_speed: bool,
+    pub character: LoadCharacter,
+}
+
+impl Default for Character {
+    fn default() -> Self {
+        Character {
+            blocks: std::collections::VecDeque::with_capacity(blocks_kept() + 1),
+            sum: CharBlock::default(),
+            count: 0,
+            span: 0.0,
+            angle: 0.0,
+            since: 0,
+            follows_speed: false,
+            character: LoadCharacter::Unknown,
+        }
+    }
+}
+
+fn blocks_kept() -> usize {
+    (HORIZON_S / CHAR_BLOCK_S).round() as usize
+}
+
+impl Character {
+    /// One sample: Δt, the nominal and the reported T̂_L, and ω̂. True when it re-classified.
+    pub fn push(&mut self, dt: f64, nominal_load: f64, load: f64, omega: f64) -> bool {
+        self.angle += omega * dt;
+        self.sum.nominal_load += nominal_load;
+        self.sum.load += load;
+        self.sum.omega += omega;
+        self.count += 1;
+        self.span += dt;
+        if self.span < CHAR_BLOCK_S - 1e-9 {
+            return false;
+        }
+        let n = f64::from(self.count);
+        let s = self.sum;
+        self.blocks.push_back(CharBlock {
+            nominal_load: s.nominal_load / n,
+            load: s.load / n,
+            omega: s.omega / n,
+            angle: self.angle,
+        });
+        if self.blocks.len() > blocks_kept() {
+            self.blocks.pop_front();
+        }
+        (self.sum, self.count, self.span) = (CharBlock::default(), 0, 0.0);
+        self.since += 1;
+        if self.since < CLASSIFY_EVERY || self.blocks.len() < MIN_CHAR_BLOCKS {
+            return false;
+        }
+        self.since = 0;
+        self.classify();
+        true
+    }
+
+    fn classify(&mut self) {
+        let b: Vec<CharBlock> = self.blocks.iter().copied().collect();
+        let nominal: Vec<f64> = b.iter().map(|x| x.nominal_load).collect();
+        let speed: Vec<[f64; 3]> = b.iter().map(|x| [1.0, x.omega, x.omega * x.omega.abs()]).collect();
+        let (r2, explained_sd) = explained(&nominal, &speed);
+        self.follows_speed = r2 >= FOLLOWS_SPEED_R2 && explained_sd >= FOLLOWS_SPEED_NM;
+        let load: Vec<f64> = b.iter().map(|x| x.load).collect();
+        let mean = load.iter().sum::<f64>() / load.len() as f64;
+        let sd = (load.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / load.len() as f64).sqrt();
+        self.character = if self.follows_speed {
+            LoadCharacter::FollowingTheSpeed
+        } else if sd < STEADY_NM {
+            LoadCharacter::Steady
+        } else {
+            let in_time = periodic_peak(&load);
+            let monotone =
+                b.windows(2).all(|w| w[1].angle >= w[0].angle) || b.windows(2).all(|w| w[1].angle <= w[0].angle);
+            let in_angle = if monotone { periodic_peak(&on_angle_grid(&b)) } else { 0.0 };
+            if in_time.max(in_angle) >= PERIODIC_PEAK {
+                if in_angle > in_time { LoadCharacter::PeriodicInShaftAngle } else { LoadCharacter::PeriodicInTime }
+            } else if stepping_share(&load) >= STEPPING_SHARE {
+                LoadCharacter::Stepping
+            } else {
+                LoadCharacter::Random
+            }
+        };
+    }
+}
+
+/// R² of a least-squares fit of `y` on three regressors, and the standard deviation of the fitted part.
+fn explained(y: &[f64], x: &[[f64; 3]]) -> (f64, f64) {
+    let mut a = nalgebra::Matrix3::<f64>::zeros();
+    let mut r = nalgebra::Vector3::<f64>::zeros();
+    for (row, &v) in x.iter().zip(y) {
+        let c = nalgebra::Vector3::from(*row);
+        a += c * c.transpose();
+        r += c * v;
+    }
+    let n = y.len().max(1) as f64;
+    let mean = y.iter().sum::<f64>() / n;
+    let total: f64 = y.iter().map(|v| (v - mean).powi(2)).sum();
+    // scaled for conditioning: ω·|ω| is thousands
+    let scale = nalgebra::Vector3::from_fn(|i, _| a[(i, i)].sqrt().max(1e-12));
+    let d = nalgebra::Matrix3::from_diagonal(&scale.map(|s| 1.0 / s));
+    let Some(coef) = (d * a * d + nalgebra::Matrix3::identity() * 1e-9).cholesky().map(|c| d * c.solve(&(d * r)))
+    else {
+        return (0.0, 0.0);
+    };
+    let fitted: Vec<f64> = x.iter().map(|row| nalgebra::Vector3::from(*row).dot(&coef)).collect();
+    let residual: f64 = fitted.iter().zip(y).map(|(f, v)| (v - f).powi(2)).sum();
+    let fmean = fitted.iter().sum::<f64>() / n;
+    let fsd = (fitted.iter().map(|f| (f - fmean).powi(2)).sum::<f64>() / n).sqrt();
+    if total <= 0.0 { (0.0, 0.0) } else { (1.0 - residual / total, fsd) }
+}
+
+/// The highest autocorrelation of `x` (mean removed) after its first zero crossing, over lags up to half its length.
+fn periodic_peak(x: &[f64]) -> f64 {
+    let n = x.len();
+    let mean = x.iter().sum::<f64>() / n.max(1) as f64;
+    let c: Vec<f64> = x.iter().map(|v| v - mean).collect();
+    let mut crossed = false;
+    let mut best: f64 = 0.0;
+    for lag in 1..n / 2 {
+        let (mut xy, mut xx, mut yy) = (0.0, 0.0, 0.0);
+        for i in 0..n - lag {
+            xy += c[i] * c[i + lag];
+            xx += c[i] * c[i];
+            yy += c[i + lag] * c[i + lag];
+        }
+        let r = if xx > 0.0 && yy > 0.0 { xy / (xx * yy).sqrt() } else { 0.0 };
+        if r < 0.0 {
+            crossed = true;
+        } else if crossed {
+            best = best.max(r);
+        }
+    }
+    best
+}
+
+/// The blocks' load resampled on a uniform grid of shaft angle (as many points as blocks), by linear interpolation.
+fn on_angle_grid(b: &[CharBlock]) -> Vec<f64> {
+    let (Some(first), Some(last)) = (b.first(), b.last()) else { return Vec::new() };
+    let (a0, a1) = (first.angle, last.angle);
+    let n = b.len();
+    let mut out = Vec::with_capacity(n);
+    let mut k = 0;
+    let up = a1 >= a0;
+    for i in 0..n {
+        let a = a0 + (a1 - a0) * i as f64 / (n - 1).max(1) as f64;
+        while k + 2 < n && if up { b[k + 1].angle < a } else { b[k + 1].angle > a } {
+            k += 1;
+        }
+        let (p, q) = (b[k], b[(k + 1).min(n - 1)]);
+        let span = q.angle - p.angle;
+        let x = if span.abs() > 1e-12 { ((a - p.angle) / span).clamp(0.0, 1.0) } else { 0.0 };
+        out.push(p.load + (q.load - p.load) * x);
+    }
+    out
+}
+
+/// The share of the total movement Σ|Δx| that the largest tenth of the increments carry.
+fn stepping_share(x: &[f64]) -> f64 {
+    let mut d: Vec<f64> = x.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
+    let total: f64 = d.iter().sum();
+    if total <= 0.0 {
+        return 0.0;
+    }
+    d.sort_by(|a, b| b.total_cmp(a));
+    let top = d.len().div_ceil(10);
+    d[..top].iter().sum::<f64>() / total
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn classify(load: impl Fn(f64, f64, f64) -> f64, omega: impl Fn(f64) -> f64) -> Character {
+        let mut c = Character::default();
+        let dt = 0.01;
+        let mut angle = 0.0;
+        for k in 0..3000 {
+            let t = k as f64 * dt;
+            let w = omega(t);
+            angle += w * dt;
+            let l = load(t, w, angle);
+            c.push(dt, l, l, w);
+        }
+        c
+    }
+
+    /// Speed program: steps between levels every 2.7 s.
+    fn program(t: f64) -> f64 {
+        [20.0, 45.0, 30.0, 60.0, 10.0, 50.0][(t / 2.7) as usize % 6]
+    }
+
+    #[test]
+    fn the_character_of_typical_loads() {
+        let fan = classify(|_, w, _| 12.0 * (w / 60.0).powi(2), program);
+        assert_eq!(fan.character, LoadCharacter::FollowingTheSpeed);
+        assert!(fan.follows_speed);
+        let steady = classify(|_, _, _| 8.0, program);
+        assert_eq!(steady.character, LoadCharacter::Steady);
+        let brake = classify(|t, _, _| [0.0, 12.0, 5.0, 20.0, 9.0][(t / 1.9) as usize % 5], program);
+        assert_eq!(brake.character, LoadCharacter::Stepping);
+        let sine = classify(|t, _, _| 10.0 + 4.0 * (t * std::f64::consts::TAU / 3.3).sin(), program);
+        assert_eq!(sine.character, LoadCharacter::PeriodicInTime);
+        let gear = classify(|_, _, a| 10.0 + 4.0 * (0.3 * a).sin(), program);
+        assert_eq!(gear.character, LoadCharacter::PeriodicInShaftAngle);
+    }
+
+    #[test]
+    fn adapted_parameters_come_into_force_only_when_they_predict_better() {
+        let run = |scores: &[(f64, f64)]| {
+            let mut v = Validation::default();
+            for &(n, a) in scores.iter().cycle().take(40) {
+                v.score(n, a, 100.0);
+            }
+            v.in_force
+        };
+        assert!(run(&[(300.0, 120.0), (150.0, 110.0), (105.0, 101.0), (2000.0, 2100.0)]));
+        assert!(!run(&[(300.0, 120.0), (110.0, 150.0), (101.0, 105.0), (2100.0, 2000.0)]));
+        assert!(!run(&[(100.0, 100.0)]), "no evidence, no force");
+    }
+}
