@@ -187,7 +187,17 @@ impl Series {
             };
             return Err(need("load_nm", why));
         } else {
-            (t_s.iter().map(|&t| model.load.torque_nm(t - t_s[0])).collect(), "model")
+            // the model's load at the recording's (filtered) speed and the shaft angle turned since its first row
+            let mut angle_rad = 0.0;
+            let load = (0..n)
+                .map(|k| {
+                    if k > 0 {
+                        angle_rad += 0.5 * (omega_f[k - 1] + omega_f[k]) * (t_s[k] - t_s[k - 1]);
+                    }
+                    model.load.torque_at(t_s[k] - t_s[0], omega_f[k], angle_rad)
+                })
+                .collect();
+            (load, "model")
         };
         let drive_torque_f = filtfilt_butter4(&drive_torque_nm, cutoff_hz, sample_hz);
         let load_f = filtfilt_butter4(&load_nm, cutoff_hz, sample_hz);

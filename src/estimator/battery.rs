@@ -87,7 +87,10 @@ pub struct Polled {
 
 /// Runs the scenario on `truth` at its 1 ms sample and keeps every `poll_ms`-th row, quantised by the register map.
 pub fn poll(scenario: &Scenario, truth: &PlantModel, poll_ms: u32) -> Polled {
-    let inputs = Inputs { setpoint_hz: &|t| scenario.setpoint_hz(t), load_nm: &|t| scenario.load.torque_nm(t) };
+    let inputs = Inputs {
+        setpoint_hz: &|t| scenario.setpoint_hz(t),
+        load_nm: &|t, omega, angle| scenario.load.torque_at(t, omega, angle),
+    };
     let mut model = truth.clone();
     model.sensors.sample_ms = 1.0;
     let rec = match simulated::run(&model, scenario.duration_s, scenario.seed, &inputs, &mut |_| {}) {

@@ -61,13 +61,14 @@ pub enum LoadProgram {
 }
 
 impl LoadProgram {
-    pub fn torque_nm(&self, t_s: f64) -> f64 {
+    /// The load torque (N·m) at `t_s` with the motor at `omega_rad_s` and its shaft at `angle_rad`.
+    pub fn torque_at(&self, t_s: f64, omega_rad_s: f64, angle_rad: f64) -> f64 {
         match self {
             LoadProgram::Steps { times_s, levels_nm } => {
                 let i = times_s.partition_point(|t| *t <= t_s);
                 if i == 0 { 0.0 } else { levels_nm[i - 1] }
             }
-            LoadProgram::Profile(spec) => spec.torque_nm(t_s),
+            LoadProgram::Profile(spec) => spec.torque_at(t_s, omega_rad_s, angle_rad),
         }
     }
 }
@@ -208,8 +209,8 @@ mod tests {
         let s = Scenario::generate(Family::StartUp, 3, 60.0);
         let LoadProgram::Steps { times_s, levels_nm } = &s.load else { panic!("{s:?}") };
         assert!(times_s[0] - s.setpoint[0].t_s <= 1.0 && levels_nm[0] >= 15.0, "{s:?}");
-        assert_eq!(s.load.torque_nm(times_s[0] - 1e-9), 0.0);
-        assert_eq!(s.load.torque_nm(times_s[0]), levels_nm[0]);
+        assert_eq!(s.load.torque_at(times_s[0] - 1e-9, 0.0, 0.0), 0.0);
+        assert_eq!(s.load.torque_at(times_s[0], 0.0, 0.0), levels_nm[0]);
     }
 
     #[test]

@@ -100,7 +100,7 @@ fn both_methods_follow_steps_ramp_and_trend() {
 /// Measurements of the plant held at one operating point: constant ΔP, nothing to excite J and B.
 fn constant_operation(seconds: f64, load_nm: f64) -> Vec<Measurement> {
     let model = PlantModel::reference();
-    let load = move |_t: f64| load_nm;
+    let load = move |_t: f64, _omega: f64, _angle: f64| load_nm;
     let inputs = Inputs { setpoint_hz: &|_t| 30.0, load_nm: &load };
     let rec = simulated::run(&model, seconds, 3, &inputs, &mut |_| {}).expect("run");
     hydrolens::replay::measurements(&rec, &model, "model").expect("measurements")
