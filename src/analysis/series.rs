@@ -306,3 +306,26 @@ pub fn percentile(x: &[f64], q: f64) -> f64 {
     v.sort_by(f64::total_cmp);
     v[((v.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize]
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_model_load_is_taken_at_the_recordings_speed_and_shaft_angle() {
+        // a torque-driven recording at a steady 50 rad/s
+        let n = 2000;
+        let t: Vec<f64> = (0..n).map(|k| k as f64 * 1e-3).collect();
+        let names = ["t_s", "omega_rad_s", "torque_nm"].map(String::from).to_vec();
+        let rec = Recording::from_columns("steady", names, vec![t.clone(), vec![50.0; n], vec![10.0; n]]);
+        let mut model = PlantModel::reference();
+        model.load = LoadSpec::Centrifugal { torque_nm: 12.0, at_rad_s: 60.0 };
+        let s = Series::extract(&rec, &model, 0.3).expect("extracts");
+        assert!(s.load_nm.iter().all(|l| (l - 12.0 * (50.0f64 / 60.0).powi(2)).abs() < 1e-6), "{:?}", &s.load_nm[..3]);
+        model.load = LoadSpec::ShaftAngle { mean_nm: 0.0, amplitude_nm: 1.0, cycles_per_rev: 1.0 };
+        let s = Series::extract(&rec, &model, 0.3).expect("extracts");
+        for (k, l) in s.load_nm.iter().enumerate() {
+            assert!((l - (50.0 * t[k]).sin()).abs() < 1e-6, "row {k}: {l}");
+        }
+    }
+}
