@@ -7,7 +7,7 @@
 //! `loads=old` (the default) runs the six time-only families of `Family::ALL` (scenario i is `ALL[i % 6]`),
 //! `loads=new` the seven of `Family::NEW` (speed-, angle-dependent, random, impacts, two sines, mixed: `NEW[i % 7]`),
 //! `loads=all` both, the old then the new, each on the set's seeds. `families=` keeps only the named families of
-//! either. `lost=F` loses that fraction of the polls (default `battery::LOST_POLLS`, 0.02; `lost=0` polls all).
+//! either (without `loads=`, the sets of the families named). `lost=F` loses that fraction of the polls (default `battery::LOST_POLLS`, 0.02; `lost=0` polls all).
 //! Tuned seeds are 1…N, held-out seeds 1001…1000+N (never used while tuning), `set=fresh` seeds 5001…5000+N (never
 //! looked at before their figures went into docs/estimator.md), `set=unseen` seeds 7001…7000+N (first run once, for the
 //! figures of the pooled B), `set=final` seeds 9001…9000+N (run once, with the code of 3fb5f98, for the
@@ -26,7 +26,7 @@ fn main() {
     let mut reference = EstimatorSettings::default();
     let (mut runs, mut seconds, mut polls) = (24u64, 60.0, vec![1u32, 5, 10]);
     let mut families: Option<Vec<Family>> = None;
-    let mut loads = "old".to_string();
+    let mut loads: Option<String> = None;
     let mut lost = battery::LOST_POLLS;
     let mut only_seed: Option<u64> = None;
     let mut settings = EstimatorSettings::default();
@@ -54,7 +54,7 @@ fn main() {
                 }
                 families = Some(named);
             }
-            "loads" if ["old", "new", "all"].contains(&v) => loads = v.to_string(),
+            "loads" if ["old", "new", "all"].contains(&v) => loads = Some(v.to_string()),
             "lost" => lost = v.parse().ok().filter(|f: &f64| (0.0..1.0).contains(f)).unwrap_or(lost),
             _ => eprintln!("ignoring {arg}"),
         }
@@ -63,6 +63,16 @@ fn main() {
         eprintln!("unknown set {set:?}: tuned, held-out, fresh, unseen, final or sealed");
         std::process::exit(2);
     };
+    // without loads=, the sets of the families named (old ones by default)
+    let named_in = |set: &[Family]| families.as_ref().is_some_and(|fs| fs.iter().any(|f| set.contains(f)));
+    let loads = loads.unwrap_or_else(|| {
+        match (named_in(&Family::ALL), named_in(&Family::NEW)) {
+            (true, true) => "all",
+            (false, true) => "new",
+            _ => "old",
+        }
+        .to_string()
+    });
     let sets: Vec<&[Family]> = match loads.as_str() {
         "new" => vec![&Family::NEW],
         "all" => vec![&Family::ALL, &Family::NEW],
