@@ -1,8 +1,13 @@
 //! The estimator battery of docs/estimator.md: generated scenarios × poll periods, rls-sgd from a wrong start
-//! against the Kalman filter told the truth, on the same rows. Prints one line a run and a table per poll period.
+//! against the Kalman filter told the truth and against that filter on the wrong model (no adaptation), on the same
+//! rows. Prints one line a run and a table per poll period.
 //!
 //! `cargo run --release --example estimator_battery -- [set=tuned|held-out|…] [runs=N] [seconds=S] [polls=1,5,10]`
-//! `[families=brake,sine] [seed=K] [periodic=0]`
+//! `[loads=old|new|all] [families=brake,sine,centrifugal] [seed=K] [periodic=0] [lost=0.02]`
+//! `loads=old` (the default) runs the six time-only families of `Family::ALL` (scenario i is `ALL[i % 6]`),
+//! `loads=new` the seven of `Family::NEW` (speed-, angle-dependent, random, impacts, two sines, mixed: `NEW[i % 7]`),
+//! `loads=all` both, the old then the new, each on the set's seeds. `families=` keeps only the named families of
+//! either (without `loads=`, the sets of the families named). `lost=F` loses that fraction of the polls (default `battery::LOST_POLLS`, 0.02; `lost=0` polls all).
 //! Tuned seeds are 1…N, held-out seeds 1001…1000+N (never used while tuning), `set=fresh` seeds 5001…5000+N (never
 //! looked at before their figures went into docs/estimator.md), `set=unseen` seeds 7001…7000+N (first run once, for the
 //! figures of the pooled B), `set=final` seeds 9001…9000+N (run once, with the code of 3fb5f98, for the
@@ -20,7 +25,9 @@ fn main() {
     let mut set = "tuned".to_string();
     let mut reference = EstimatorSettings::default();
     let (mut runs, mut seconds, mut polls) = (24u64, 60.0, vec![1u32, 5, 10]);
-    let mut families: Vec<Family> = Family::ALL.to_vec();
+    let mut families: Option<Vec<Family>> = None;
+    let mut loads: Option<String> = None;
+    let mut lost = battery::LOST_POLLS;
     let mut only_seed: Option<u64> = None;
     let mut settings = EstimatorSettings::default();
     let mut true_viscous = false;
@@ -40,7 +47,15 @@ fn main() {
                 }
             }
             "periodic" => settings.periodic_load = v != "0",
-            "families" => families = Family::ALL.into_iter().filter(|f| v.split(',').any(|n| n == f.name())).collect(),
+            "families" => {
+                let named: Vec<Family> = v.split(',').filter_map(Family::from_name).collect();
+                for n in v.split(',').filter(|n| Family::from_name(n).is_none()) {
+                    eprintln!("ignoring unknown family {n:?}");
+                }
+                families = Some(named);
+            }
+            "loads" if ["old", "new", "all"].contains(&v) => loads = Some(v.to_string()),
+            "lost" => lost = v.parse().ok().filter(|f: &f64| (0.0..1.0).contains(f)).unwrap_or(lost),
             _ => eprintln!("ignoring {arg}"),
         }
     }
@@ -48,10 +63,27 @@ fn main() {
         eprintln!("unknown set {set:?}: tuned, held-out, fresh, unseen, final or sealed");
         std::process::exit(2);
     };
-    let scenarios: Vec<Scenario> = (0..runs)
-        .filter(|i| families.contains(&Family::ALL[*i as usize % Family::ALL.len()]))
-        .filter(|i| only_seed.is_none_or(|s| s == first + i))
-        .map(|i| Scenario::generate(Family::ALL[i as usize % Family::ALL.len()], first + i, seconds))
+    // without loads=, the sets of the families named (old ones by default)
+    let named_in = |set: &[Family]| families.as_ref().is_some_and(|fs| fs.iter().any(|f| set.contains(f)));
+    let loads = loads.unwrap_or_else(|| {
+        match (named_in(&Family::ALL), named_in(&Family::NEW)) {
+            (true, true) => "all",
+            (false, true) => "new",
+            _ => "old",
+        }
+        .to_string()
+    });
+    let sets: Vec<&[Family]> = match loads.as_str() {
+        "new" => vec![&Family::NEW],
+        "all" => vec![&Family::ALL, &Family::NEW],
+        _ => vec![&Family::ALL],
+    };
+    let scenarios: Vec<Scenario> = sets
+        .into_iter()
+        .flat_map(|set| (0..runs).map(move |i| (set[i as usize % set.len()], i)))
+        .filter(|(f, _)| families.as_ref().is_none_or(|fs| fs.contains(f)))
+        .filter(|(_, i)| only_seed.is_none_or(|s| s == first + i))
+        .map(|(f, i)| Scenario::generate(f, first + i, seconds))
         .map(|s| if true_viscous { Scenario { viscous_factor: 1.0, ..s } } else { s })
         .collect();
     let jobs: Vec<(&Scenario, u32)> = scenarios.iter().flat_map(|s| polls.iter().map(move |&p| (s, p))).collect();
@@ -62,7 +94,7 @@ fn main() {
             .map(|chunk| {
                 let (settings, reference) = (&settings, &reference);
                 scope.spawn(move || {
-                    chunk.iter().map(|(s, p)| battery::run(s, *p, settings, reference)).collect::<Vec<_>>()
+                    chunk.iter().map(|(s, p)| battery::run(s, *p, lost, settings, reference)).collect::<Vec<_>>()
                 })
             })
             .collect();
@@ -70,7 +102,8 @@ fn main() {
     });
     for r in &results {
         println!(
-            "{:>2} ms {:<70} rls ω {:.3} L {:.2} J {:+5.1}% (±{:.1}%) B {:+6.1}% (±{:.1}%) | kalman ω {:.3} L {:.2} | {}",
+            "{:>2} ms {:<70} rls ω {:.3} L {:.2} J {:+5.1}% (±{:.1}%) B {:+6.1}% (±{:.1}%) | kalman ω {:.3} L {:.2} | \
+             nominal L {:.2} (rls/nominal {:.2}) | {}",
             r.poll_ms,
             r.describe,
             r.rls.omega_rmse_rad_s,
@@ -81,14 +114,21 @@ fn main() {
             r.rls.last.viscous_sd_nm_s_rad / r.rls.last.viscous_hat_nm_s_rad * 100.0,
             r.kalman.omega_rmse_rad_s,
             r.kalman.load_rmse_nm,
+            r.nominal.load_rmse_nm,
+            r.nominal_ratio(),
             if r.holds() { "holds".to_string() } else { r.failures().join(", ") }
         );
     }
-    println!("\nset {set}, {runs} scenarios × {polls:?} ms, {seconds} s each");
     println!(
-        "| poll | runs holding | median ω̂ ratio | median T̂_L ratio | median |J err| | worst |J err| | Kalman median T̂_L RMSE |"
+        "\nset {set}, loads {loads}: {} scenarios × {polls:?} ms, {seconds} s each, {:.1} % of polls lost",
+        scenarios.len(),
+        lost * 100.0
     );
-    println!("|---|---|---|---|---|---|---|");
+    println!(
+        "| poll | runs holding | median ω̂ ratio | median T̂_L ratio | median |J err| | worst |J err| | Kalman median T̂_L RMSE \
+         | median T̂_L / nominal-Kalman | runs with T̂_L ≤ 1.05× nominal |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|");
     for p in &polls {
         let rs: Vec<&Run> = results.iter().filter(|r| r.poll_ms == *p).collect();
         let med = |mut v: Vec<f64>| {
@@ -97,14 +137,17 @@ fn main() {
         };
         let holding = rs.iter().filter(|r| r.holds()).count();
         let jerr: Vec<f64> = rs.iter().map(|r| r.rls.inertia_error.abs()).collect();
+        let beats_nominal = rs.iter().filter(|r| r.nominal_ratio() <= 1.05).count();
         println!(
-            "| {p} ms | {holding}/{} | {:.2} | {:.2} | {:.1} % | {:.1} % | {:.2} N·m |",
+            "| {p} ms | {holding}/{} | {:.2} | {:.2} | {:.1} % | {:.1} % | {:.2} N·m | {:.2} | {beats_nominal}/{} |",
             rs.len(),
             med(rs.iter().map(|r| r.speed_ratio()).collect()),
             med(rs.iter().map(|r| r.load_ratio()).collect()),
             med(jerr.clone()) * 100.0,
             jerr.iter().cloned().fold(0.0, f64::max) * 100.0,
             med(rs.iter().map(|r| r.kalman.load_rmse_nm).collect()),
+            med(rs.iter().map(|r| r.nominal_ratio()).collect()),
+            rs.len(),
         );
     }
     let holding = results.iter().filter(|r| r.holds()).count();

@@ -321,8 +321,10 @@ fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyhow::
         recording::RowWriter::new(std::io::BufWriter::with_capacity(1 << 16, file), &plant::simulate::COLUMNS)
             .with_context(|| format!("writing {}", out.display()))?;
     let load = model.load.clone();
-    let inputs =
-        plant::simulate::Inputs { setpoint_hz: &plant::excitation::setpoint_hz, load_nm: &move |t| load.torque_nm(t) };
+    let inputs = plant::simulate::Inputs {
+        setpoint_hz: &plant::excitation::setpoint_hz,
+        load_nm: &move |t, w, a| load.torque_at(t, w, a),
+    };
     let mut sink = |row: &[f64; plant::simulate::COLUMNS.len()]| writer.write_row(row.iter().copied());
     let rows = plant::simulate::run_into(&model, duration, seed, &inputs, &mut progress("simulate"), &mut sink)
         .map_err(|e| match e {

@@ -187,7 +187,17 @@ impl Series {
             };
             return Err(need("load_nm", why));
         } else {
-            (t_s.iter().map(|&t| model.load.torque_nm(t - t_s[0])).collect(), "model")
+            // the model's load at the recording's (filtered) speed and the shaft angle turned since its first row
+            let mut angle_rad = 0.0;
+            let load = (0..n)
+                .map(|k| {
+                    if k > 0 {
+                        angle_rad += 0.5 * (omega_f[k - 1] + omega_f[k]) * (t_s[k] - t_s[k - 1]);
+                    }
+                    model.load.torque_at(t_s[k] - t_s[0], omega_f[k], angle_rad)
+                })
+                .collect();
+            (load, "model")
         };
         let drive_torque_f = filtfilt_butter4(&drive_torque_nm, cutoff_hz, sample_hz);
         let load_f = filtfilt_butter4(&load_nm, cutoff_hz, sample_hz);
@@ -295,4 +305,27 @@ pub fn percentile(x: &[f64], q: f64) -> f64 {
     }
     v.sort_by(f64::total_cmp);
     v[((v.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_model_load_is_taken_at_the_recordings_speed_and_shaft_angle() {
+        // a torque-driven recording at a steady 50 rad/s
+        let n = 2000;
+        let t: Vec<f64> = (0..n).map(|k| k as f64 * 1e-3).collect();
+        let names = ["t_s", "omega_rad_s", "torque_nm"].map(String::from).to_vec();
+        let rec = Recording::from_columns("steady", names, vec![t.clone(), vec![50.0; n], vec![10.0; n]]);
+        let mut model = PlantModel::reference();
+        model.load = LoadSpec::Centrifugal { torque_nm: 12.0, at_rad_s: 60.0 };
+        let s = Series::extract(&rec, &model, 0.3).expect("extracts");
+        assert!(s.load_nm.iter().all(|l| (l - 12.0 * (50.0f64 / 60.0).powi(2)).abs() < 1e-6), "{:?}", &s.load_nm[..3]);
+        model.load = LoadSpec::ShaftAngle { mean_nm: 0.0, amplitude_nm: 1.0, cycles_per_rev: 1.0 };
+        let s = Series::extract(&rec, &model, 0.3).expect("extracts");
+        for (k, l) in s.load_nm.iter().enumerate() {
+            assert!((l - (50.0 * t[k]).sin()).abs() < 1e-6, "row {k}: {l}");
+        }
+    }
 }

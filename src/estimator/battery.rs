@@ -1,9 +1,11 @@
 //! The estimator battery (docs/estimator.md): a generated scenario run through the plant at 1 ms, polled at a
-//! service's rate with the register map's quantisation, then estimated on the same rows by rls-sgd from the
-//! scenario's wrong J and B and by the Kalman filter told the true J and B, both scored against the truth.
+//! service's rate with the register map's quantisation (and a seeded few polls lost), then estimated on the same
+//! rows by rls-sgd from the scenario's wrong J and B, by the Kalman filter told the true J and B, and by the Kalman
+//! filter on the wrong J and B (what a user gets with no adaptation), all scored against the truth.
 
 use super::{Estimate, EstimatorSettings, Measurement, Method, try_build};
 use crate::plant::PlantModel;
+use crate::plant::load::unit_hash;
 use crate::plant::scenario::Scenario;
 use crate::plant::simulate::Inputs;
 use crate::recording::simulated;
@@ -17,12 +19,20 @@ pub const LOAD_RMSE_FACTOR: f64 = 1.3;
 /// …and its final J within this fraction of the truth.
 pub const INERTIA_TOLERANCE: f64 = 0.15;
 
+/// The fraction of polls lost on the link in [`run`] by default (the example's `lost=`): a lost poll's row is not
+/// handed over, so the next one comes with twice the Δt.
+pub const LOST_POLLS: f64 = 0.02;
+/// The times (s) at which a [`Score`] keeps the estimate: the first row at or after each, within the run.
+pub const CHECKPOINTS_S: [f64; 4] = [15.0, 30.0, 45.0, 60.0];
+/// Mixed into the scenario's seed for the lost polls, so that they do not follow the scenario's other draws.
+const LOST_POLL_SALT: u64 = 0x6c6f_7374_706f_6c6c;
+
 /// Register resolution of the default map (CONTRACT.md): pressures 0.01 bar, speed 0.1 rpm.
 const PRESSURE_LSB_BAR: f64 = 0.01;
 const SPEED_LSB_RAD_S: f64 = 0.1 * std::f64::consts::TAU / 60.0;
 
 /// How one estimator did on one run.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct Score {
     pub omega_rmse_rad_s: f64,
     pub load_rmse_nm: f64,
@@ -31,6 +41,8 @@ pub struct Score {
     /// Final J and B relative to the truth (0 = exact).
     pub inertia_error: f64,
     pub viscous_error: f64,
+    /// The estimate at each of [`CHECKPOINTS_S`] the run reaches: how it converges, not only where it ends.
+    pub checkpoints: Vec<(f64, Estimate)>,
 }
 
 /// One scenario at one poll period.
@@ -38,8 +50,12 @@ pub struct Score {
 pub struct Run {
     pub describe: String,
     pub poll_ms: u32,
+    /// The fraction of polls lost.
+    pub lost_fraction: f64,
     pub rls: Score,
     pub kalman: Score,
+    /// The Kalman filter on the scenario's wrong J and B: what a user gets with no adaptation.
+    pub nominal: Score,
 }
 
 impl Run {
@@ -49,6 +65,11 @@ impl Run {
 
     pub fn load_ratio(&self) -> f64 {
         self.rls.load_rmse_nm / self.kalman.load_rmse_nm
+    }
+
+    /// rls-sgd's T̂_L RMSE over that of the Kalman filter on the wrong model: below 1, adapting paid.
+    pub fn nominal_ratio(&self) -> f64 {
+        self.rls.load_rmse_nm / self.nominal.load_rmse_nm
     }
 
     /// The gates that fail, empty when the run holds.
@@ -85,9 +106,19 @@ pub struct Polled {
     pub true_load_nm: Vec<f64>,
 }
 
-/// Runs the scenario on `truth` at its 1 ms sample and keeps every `poll_ms`-th row, quantised by the register map.
+/// Runs the scenario on `truth` at its 1 ms sample and keeps every `poll_ms`-th row, quantised by the register map;
+/// no poll is lost.
 pub fn poll(scenario: &Scenario, truth: &PlantModel, poll_ms: u32) -> Polled {
-    let inputs = Inputs { setpoint_hz: &|t| scenario.setpoint_hz(t), load_nm: &|t| scenario.load.torque_nm(t) };
+    poll_losing(scenario, truth, poll_ms, 0.0)
+}
+
+/// As [`poll`], with `lost_fraction` of the polls (after the first) lost: drawn per row from the scenario's seed,
+/// so the same rows are lost on every run. The row after a lost one carries the longer Δt.
+pub fn poll_losing(scenario: &Scenario, truth: &PlantModel, poll_ms: u32, lost_fraction: f64) -> Polled {
+    let inputs = Inputs {
+        setpoint_hz: &|t| scenario.setpoint_hz(t),
+        load_nm: &|t, omega, angle| scenario.load.torque_at(t, omega, angle),
+    };
     let mut model = truth.clone();
     model.sensors.sample_ms = 1.0;
     let rec = match simulated::run(&model, scenario.duration_s, scenario.seed, &inputs, &mut |_| {}) {
@@ -98,7 +129,8 @@ pub fn poll(scenario: &Scenario, truth: &PlantModel, poll_ms: u32) -> Polled {
     let d_m = cm3_per_rev_to_m3_per_rad(truth.motor.displacement_cm3.unwrap_or(0.0));
     let q = |v: f64, lsb: f64| (v / lsb).round() * lsb;
     let (t, p_in, p_out, w) = (rec.t_s(), col("p_in_bar"), col("p_out_bar"), col("omega_rad_s"));
-    let rows: Vec<usize> = (0..rec.len()).step_by(poll_ms.max(1) as usize).collect();
+    let lost = |k: usize| k > 0 && unit_hash(scenario.seed ^ LOST_POLL_SALT, k as u64) < lost_fraction;
+    let rows: Vec<usize> = (0..rec.len()).step_by(poll_ms.max(1) as usize).filter(|&k| !lost(k)).collect();
     let measurements = rows
         .iter()
         .enumerate()
@@ -127,8 +159,14 @@ pub fn score(polled: &Polled, settings: &EstimatorSettings, model: &PlantModel, 
     let k0 = polled.t_s.iter().take_while(|t| **t < SCORE_FROM_S).count();
     let (mut se_w, mut se_l, mut n) = (0.0, 0.0, 0usize);
     let mut last = est.estimate();
+    let mut checkpoints = Vec::new();
     for (k, m) in polled.measurements.iter().enumerate() {
         last = est.update(m);
+        if let Some(&c) = CHECKPOINTS_S.get(checkpoints.len())
+            && polled.t_s[k] >= c - 1e-9
+        {
+            checkpoints.push((c, last));
+        }
         if k >= k0 {
             se_w += (last.omega_hat_rad_s - polled.true_omega_rad_s[k]).powi(2);
             se_l += (last.load_hat_nm - polled.true_load_nm[k]).powi(2);
@@ -142,6 +180,7 @@ pub fn score(polled: &Polled, settings: &EstimatorSettings, model: &PlantModel, 
         last,
         inertia_error: last.inertia_hat_kg_m2 / truth.motor.inertia_kg_m2 - 1.0,
         viscous_error: last.viscous_hat_nm_s_rad / truth.motor.viscous_nm_s_rad - 1.0,
+        checkpoints,
     }
 }
 
@@ -167,11 +206,18 @@ pub fn wrong_model(scenario: &Scenario, truth: &PlantModel) -> PlantModel {
     wrong
 }
 
-/// One battery run: the scenario on the reference plant at `poll_ms`, rls-sgd (with `settings`) from the wrong
-/// start against the Kalman filter (with `reference`'s settings) told the truth.
-pub fn run(scenario: &Scenario, poll_ms: u32, settings: &EstimatorSettings, reference: &EstimatorSettings) -> Run {
+/// One battery run: the scenario on the reference plant at `poll_ms` with `lost_fraction` of the polls lost
+/// ([`LOST_POLLS`] as a rule), rls-sgd (with `settings`) from the wrong start against the Kalman filter (with
+/// `reference`'s settings) told the truth, and against that filter on the wrong model.
+pub fn run(
+    scenario: &Scenario,
+    poll_ms: u32,
+    lost_fraction: f64,
+    settings: &EstimatorSettings,
+    reference: &EstimatorSettings,
+) -> Run {
     let truth = PlantModel::reference();
-    let polled = poll(scenario, &truth, poll_ms);
+    let polled = poll_losing(scenario, &truth, poll_ms, lost_fraction);
     let wrong = wrong_model(scenario, &truth);
     // rls-sgd is given the wrong model as its nominal one, as a plant engineer's model would be: its bounds and
     // normalisation come from the wrong J and B too.
@@ -180,7 +226,46 @@ pub fn run(scenario: &Scenario, poll_ms: u32, settings: &EstimatorSettings, refe
     Run {
         describe: scenario.describe(),
         poll_ms,
+        lost_fraction,
         rls: score(&polled, &rls_settings, &wrong, &truth),
         kalman: score(&polled, &kalman_settings, &truth, &truth),
+        nominal: score(&polled, &kalman_settings, &wrong, &truth),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plant::scenario::Family;
+
+    #[test]
+    fn lost_polls_are_seeded_and_lengthen_the_next_step() {
+        let truth = PlantModel::reference();
+        let s = Scenario::generate(Family::Centrifugal, 3, 20.0);
+        let whole = poll(&s, &truth, 10);
+        let lossy = poll_losing(&s, &truth, 10, 0.05);
+        assert_eq!(whole.t_s.len(), 2001);
+        let lost = whole.t_s.len() - lossy.t_s.len();
+        assert!((50..=150).contains(&lost), "{lost} of 2000 lost at 5 %");
+        assert_eq!(lossy.t_s, poll_losing(&s, &truth, 10, 0.05).t_s, "the same polls are lost every run");
+        let doubled = lossy.measurements.iter().filter(|m| (m.dt_s - 0.02).abs() < 1e-9).count();
+        assert!(doubled > 0 && doubled <= lost, "{doubled}");
+        assert!(lossy.measurements.iter().skip(1).all(|m| m.dt_s > 0.0099));
+        // a kept row is the row of the lossless poll at the same time, truth included
+        let k = whole.t_s.iter().position(|t| *t == lossy.t_s[500]).expect("same rows");
+        assert_eq!(whole.true_load_nm[k], lossy.true_load_nm[500]);
+    }
+
+    #[test]
+    fn a_run_scores_the_nominal_filter_and_keeps_checkpoints() {
+        let s = Scenario::generate(Family::Brake, 1, 32.0);
+        let settings = EstimatorSettings::default();
+        let r = run(&s, 10, LOST_POLLS, &settings, &settings);
+        let times: Vec<f64> = r.rls.checkpoints.iter().map(|(t, _)| *t).collect();
+        assert_eq!(times, [15.0, 30.0], "only the checkpoints within 32 s");
+        assert_eq!(r.nominal.checkpoints.len(), 2);
+        assert!(r.nominal.load_rmse_nm.is_finite() && r.nominal_ratio().is_finite(), "{r:?}");
+        let j = r.nominal.inertia_error;
+        assert!((j - (s.inertia_factor - 1.0)).abs() < 1e-9, "the filter on the wrong model keeps its J: {j}");
     }
 }

@@ -48,6 +48,8 @@ pub struct Truth {
     pub omega_rad_s: f64,
     pub p_in_bar: f64,
     pub load_nm: f64,
+    /// The motor's shaft angle turned since the start (rad): what a `shaft_angle` load follows.
+    pub shaft_angle_rad: f64,
     pub f_drive_hz: f64,
     pub f_set_hz: f64,
     pub tripped: bool,
@@ -69,7 +71,10 @@ pub struct DriveSim {
     tripped: bool,
     fault: bool,
     input_image: Vec<u16>,
+    /// The load applied over the last sample, from the plant's state at its start.
     load_nm: f64,
+    /// The motor's shaft angle since the start (rad): ω integrated by the trapezoid over each sample.
+    shaft_angle_rad: f64,
     pub faults: Faults,
     /// Writes accepted (all holding-register writes), for tests that check a client wrote nothing.
     pub writes: u64,
@@ -105,6 +110,7 @@ impl DriveSim {
             fault: false,
             input_image: vec![0; 6],
             load_nm: 0.0,
+            shaft_angle_rad: 0.0,
             faults: Faults::default(),
             writes: 0,
             clock: None,
@@ -173,9 +179,11 @@ impl DriveSim {
         let run = self.control_word & control::RUN != 0;
         let f_cmd = if run && self.ready() { self.setpoint_hz } else { 0.0 };
         let t = self.plant.t_s();
-        self.load_nm = self.model.load.torque_nm(t);
+        let omega_rad_s = self.plant.state().omega_rad_s;
+        self.load_nm = self.model.load.torque_at(t, omega_rad_s, self.shaft_angle_rad);
         self.plant.wear(&self.model);
         self.plant.advance(self.sample_s(), f_cmd, self.load_nm);
+        self.shaft_angle_rad += 0.5 * (omega_rad_s + self.plant.state().omega_rad_s) * self.sample_s();
         self.sample += 1;
         if !self.faults.freeze_counter {
             self.counter = self.counter.wrapping_add(1);
@@ -210,6 +218,7 @@ impl DriveSim {
             omega_rad_s: s.omega_rad_s,
             p_in_bar: pa_to_bar(s.p_in_pa),
             load_nm: self.load_nm,
+            shaft_angle_rad: self.shaft_angle_rad,
             f_drive_hz: s.f_hz,
             f_set_hz: self.setpoint_hz,
             tripped: self.tripped,
@@ -562,5 +571,46 @@ mod tests {
         assert_eq!(d.read(Table::Input, 5, 1).expect("counter")[0], c0.wrapping_add(2));
         assert_eq!(d.read(Table::Input, 4, 3), Err(ExceptionCode::IllegalDataAddress));
         assert_eq!(d.write(3, &[1]), Err(ExceptionCode::IllegalDataAddress));
+    }
+
+    #[test]
+    fn a_state_dependent_load_is_the_one_simulate_applies() {
+        use crate::plant::load::LoadSpec;
+        use crate::plant::simulate::{COLUMNS, Inputs, run_into};
+        let mut model = PlantModel::reference();
+        let loads = [
+            LoadSpec::Centrifugal { torque_nm: 12.0, at_rad_s: 60.0 },
+            LoadSpec::ShaftAngle { mean_nm: 8.0, amplitude_nm: 4.0, cycles_per_rev: 0.3 },
+            LoadSpec::Random { mean_nm: 8.0, sd_nm: 3.0, correlation_s: 0.5, seed: 4 },
+        ];
+        for load in loads {
+            model.load = load.clone();
+            let mut d = DriveSim::new(model.clone(), 1).expect("reference is hydraulic");
+            d.write(0, &[3000]).expect("setpoint 30 Hz");
+            d.write(1, &[control::RUN]).expect("run");
+            let mut sim_rows = Vec::new();
+            for _ in 0..3000 {
+                let before = d.truth();
+                d.step();
+                sim_rows.push((before.omega_rad_s, before.shaft_angle_rad, d.truth().load_nm));
+            }
+            let spec = load.clone();
+            let inputs = Inputs { setpoint_hz: &|_| 30.0, load_nm: &move |t, w, a| spec.torque_at(t, w, a) };
+            let mut rows = Vec::new();
+            let mut sink = |row: &[f64; COLUMNS.len()]| {
+                rows.push((row[7], row[9]));
+                Ok(())
+            };
+            run_into(&model, 3.0, 1, &inputs, &mut |_| {}, &mut sink).expect("runs");
+            assert!(rows.len() >= sim_rows.len());
+            for (k, ((w, l), (w_sim, _, l_sim))) in rows.iter().zip(&sim_rows).enumerate() {
+                assert!(
+                    (w - w_sim).abs() < 1e-9 && (l - l_sim).abs() < 1e-9,
+                    "{load:?} row {k}: {w} {l} vs {w_sim} {l_sim}"
+                );
+            }
+            let (w_end, angle_end, _) = sim_rows[sim_rows.len() - 1];
+            assert!(w_end > 30.0 && angle_end > 30.0, "{load:?}: turning, {w_end} rad/s, {angle_end} rad");
+        }
     }
 }

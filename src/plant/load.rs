@@ -1,9 +1,10 @@
-//! Load-torque profiles the simulator can apply (`[load]` of the plant model).
+//! Load-torque profiles the simulator can apply (`[load]` of the plant model): functions of time and, for the
+//! speed- and angle-dependent kinds, of the motor shaft's state.
 
 use crate::error::KeyError;
 use serde::{Deserialize, Serialize};
 
-/// `[load]`: what the load torque T_L(t) is. `recorded` means "taken from a recording" (estimate, analyze) or,
+/// `[load]`: what the load torque T_L(t, ω, θ) is (ω the motor's speed, θ its shaft angle). `recorded` means "taken from a recording" (estimate, analyze) or,
 /// for the test-stand run of `simulate`, the built-in brake-load steps; `unknown` says that no recording has it.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize, Default)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
@@ -20,6 +21,23 @@ pub enum LoadSpec {
     Trend { start_nm: f64, rate_nm_per_s: f64, max_nm: f64 },
     /// `mean_nm + amplitude_nm·sin(2πt/period_s)`.
     Sine { mean_nm: f64, amplitude_nm: f64, period_s: f64 },
+    /// A load that depends on speed: `constant_nm + linear_nm_s_rad·ω + quadratic_nm_s2_rad2·ω·|ω|` (a load ∝ ω is
+    /// the linear term, a centrifugal fan or pump the quadratic one).
+    Speed { constant_nm: f64, linear_nm_s_rad: f64, quadratic_nm_s2_rad2: f64 },
+    /// A fan or centrifugal pump said the plant engineer's way: `torque_nm` at `at_rad_s`, ∝ ω·|ω|.
+    Centrifugal { torque_nm: f64, at_rad_s: f64 },
+    /// A reciprocating machine behind a gearbox: `mean_nm + amplitude_nm·sin(cycles_per_rev·θ)`, periodic in the
+    /// motor's shaft angle θ, so that its period in time follows the speed. `cycles_per_rev` is 1/gear ratio (may be
+    /// below 1, and need not be a whole number).
+    ShaftAngle { mean_nm: f64, amplitude_nm: f64, cycles_per_rev: f64 },
+    /// A smooth random load that never repeats: `mean_nm` plus value noise of standard deviation about `sd_nm`,
+    /// smooth over `correlation_s`; a pure function of t and `seed`, so that every run of a seed shows the same load.
+    Random { mean_nm: f64, sd_nm: f64, correlation_s: f64, seed: u64 },
+    /// `base_nm` plus half-sine pulses of height `peak_nm` and width `width_s`, one in each `mean_interval_s`, at a
+    /// pseudo-random place within it drawn from `seed` (deterministic, as `random`).
+    Impacts { base_nm: f64, peak_nm: f64, width_s: f64, mean_interval_s: f64, seed: u64 },
+    /// `mean_nm + Σ amplitudes_nm[i]·sin(2πt/periods_s[i])`: sines of unrelated periods.
+    Sines { mean_nm: f64, amplitudes_nm: Vec<f64>, periods_s: Vec<f64> },
     /// From a recording (the `load_nm` column), or the test stand's brake program.
     #[default]
     Recorded,
@@ -34,8 +52,9 @@ const BRAKE_LEVELS_NM: [f64; 6] = [0.0, 6.0, 12.0, 4.0, 15.0, 9.0];
 const BRAKE_PERIOD_S: f64 = 3.7;
 
 impl LoadSpec {
-    /// The load torque at time `t_s` (N·m).
-    pub fn torque_nm(&self, t_s: f64) -> f64 {
+    /// The load torque (N·m) at time `t_s` with the motor turning at `omega_rad_s`, its shaft at `angle_rad` (the
+    /// angle turned since the start). The time-only kinds ignore the state.
+    pub fn torque_at(&self, t_s: f64, omega_rad_s: f64, angle_rad: f64) -> f64 {
         match self {
             LoadSpec::None => 0.0,
             LoadSpec::Constant { torque_nm } => *torque_nm,
@@ -53,6 +72,26 @@ impl LoadSpec {
             LoadSpec::Trend { start_nm, rate_nm_per_s, max_nm } => (start_nm + rate_nm_per_s * t_s).min(*max_nm),
             LoadSpec::Sine { mean_nm, amplitude_nm, period_s } => {
                 mean_nm + amplitude_nm * (2.0 * std::f64::consts::PI * t_s / period_s).sin()
+            }
+            LoadSpec::Speed { constant_nm, linear_nm_s_rad, quadratic_nm_s2_rad2 } => {
+                constant_nm + linear_nm_s_rad * omega_rad_s + quadratic_nm_s2_rad2 * omega_rad_s * omega_rad_s.abs()
+            }
+            LoadSpec::Centrifugal { torque_nm, at_rad_s } => {
+                let x = omega_rad_s / at_rad_s;
+                torque_nm * x * x.abs()
+            }
+            LoadSpec::ShaftAngle { mean_nm, amplitude_nm, cycles_per_rev } => {
+                mean_nm + amplitude_nm * (cycles_per_rev * angle_rad).sin()
+            }
+            LoadSpec::Random { mean_nm, sd_nm, correlation_s, seed } => {
+                mean_nm + sd_nm * value_noise(*seed, t_s / correlation_s)
+            }
+            LoadSpec::Impacts { base_nm, peak_nm, width_s, mean_interval_s, seed } => {
+                base_nm + peak_nm * impacts(*seed, *width_s, *mean_interval_s, t_s)
+            }
+            LoadSpec::Sines { mean_nm, amplitudes_nm, periods_s } => {
+                let tau = std::f64::consts::TAU;
+                mean_nm + amplitudes_nm.iter().zip(periods_s).map(|(a, p)| a * (tau * t_s / p).sin()).sum::<f64>()
             }
             LoadSpec::Recorded | LoadSpec::Unknown => steps(&BRAKE_LEVELS_NM, BRAKE_PERIOD_S, t_s),
         }
@@ -95,6 +134,66 @@ impl LoadSpec {
             LoadSpec::Constant { torque_nm } if !torque_nm.is_finite() => {
                 return bad("torque_nm", format!("must be finite, got {torque_nm}"));
             }
+            LoadSpec::Speed { constant_nm, linear_nm_s_rad, quadratic_nm_s2_rad2 } => {
+                for (key, v) in [
+                    ("constant_nm", constant_nm),
+                    ("linear_nm_s_rad", linear_nm_s_rad),
+                    ("quadratic_nm_s2_rad2", quadratic_nm_s2_rad2),
+                ] {
+                    if !v.is_finite() {
+                        return bad(key, format!("must be finite, got {v}"));
+                    }
+                }
+            }
+            LoadSpec::Centrifugal { torque_nm, at_rad_s } => {
+                if !torque_nm.is_finite() {
+                    return bad("torque_nm", format!("must be finite, got {torque_nm}"));
+                }
+                if !(*at_rad_s > 0.0 && at_rad_s.is_finite()) {
+                    return bad("at_rad_s", format!("must be > 0, got {at_rad_s}"));
+                }
+            }
+            LoadSpec::ShaftAngle { mean_nm, amplitude_nm, cycles_per_rev } => {
+                if !all_finite(&[*mean_nm, *amplitude_nm]) {
+                    return bad("amplitude_nm", "mean_nm and amplitude_nm must be finite".into());
+                }
+                if !(*cycles_per_rev > 0.0 && cycles_per_rev.is_finite()) {
+                    return bad("cycles_per_rev", format!("must be > 0, got {cycles_per_rev}"));
+                }
+            }
+            LoadSpec::Random { mean_nm, sd_nm, correlation_s, .. } => {
+                if !mean_nm.is_finite() {
+                    return bad("mean_nm", format!("must be finite, got {mean_nm}"));
+                }
+                if !(*sd_nm >= 0.0 && sd_nm.is_finite()) {
+                    return bad("sd_nm", format!("must be ≥ 0, got {sd_nm}"));
+                }
+                if !(*correlation_s > 0.0 && correlation_s.is_finite()) {
+                    return bad("correlation_s", format!("must be > 0, got {correlation_s}"));
+                }
+            }
+            LoadSpec::Impacts { base_nm, peak_nm, width_s, mean_interval_s, .. } => {
+                if !all_finite(&[*base_nm, *peak_nm]) {
+                    return bad("peak_nm", "base_nm and peak_nm must be finite".into());
+                }
+                if !(*width_s > 0.0 && width_s.is_finite()) {
+                    return bad("width_s", format!("must be > 0, got {width_s}"));
+                }
+                if !(*mean_interval_s > 0.0 && mean_interval_s.is_finite()) {
+                    return bad("mean_interval_s", format!("must be > 0, got {mean_interval_s}"));
+                }
+            }
+            LoadSpec::Sines { mean_nm, amplitudes_nm, periods_s } => {
+                if !mean_nm.is_finite() {
+                    return bad("mean_nm", format!("must be finite, got {mean_nm}"));
+                }
+                if amplitudes_nm.is_empty() || !all_finite(amplitudes_nm) {
+                    return bad("amplitudes_nm", "must be a non-empty list of finite numbers".into());
+                }
+                if periods_s.len() != amplitudes_nm.len() || !periods_s.iter().all(|p| *p > 0.0 && p.is_finite()) {
+                    return bad("periods_s", "must be one period > 0 for each of amplitudes_nm".into());
+                }
+            }
             _ => {}
         }
         Ok(())
@@ -109,6 +208,58 @@ fn steps(levels: &[f64], period_s: f64, t_s: f64) -> f64 {
     levels[i]
 }
 
+/// splitmix64's finaliser: a well-mixed 64-bit hash of `x`.
+pub(crate) fn splitmix64(x: u64) -> u64 {
+    let mut z = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// A uniform number in [0, 1) that is a pure function of `seed` and `k`.
+pub(crate) fn unit_hash(seed: u64, k: u64) -> f64 {
+    (splitmix64(seed ^ splitmix64(k)) >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// A standard normal number that is a pure function of `seed` and `k` (Box–Muller on two hashed uniforms).
+fn normal_hash(seed: u64, k: u64) -> f64 {
+    let u1 = 1.0 - unit_hash(seed, k.wrapping_mul(2)); // in (0, 1]: its log is finite
+    let u2 = unit_hash(seed, k.wrapping_mul(2).wrapping_add(1));
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
+/// Value noise of unit standard deviation (about): standard normals at the integers, joined by smoothstep. The
+/// blend of two independent values has variance (1−s)² + s², 26/35 on average over a cell: hence the scale.
+fn value_noise(seed: u64, x: f64) -> f64 {
+    if !x.is_finite() {
+        return 0.0;
+    }
+    let k = x.floor();
+    let f = x - k;
+    let s = f * f * (3.0 - 2.0 * f);
+    let k = k as i64 as u64;
+    let (a, b) = (normal_hash(seed, k), normal_hash(seed, k.wrapping_add(1)));
+    (a + (b - a) * s) * (35.0f64 / 26.0).sqrt()
+}
+
+/// The pulse train of `impacts` at `t_s`, in units of the peak: one half-sine of `width_s` in each interval of
+/// `interval_s`, starting at a hashed place within it (pulses wider than the interval overlap and add).
+fn impacts(seed: u64, width_s: f64, interval_s: f64, t_s: f64) -> f64 {
+    if !(t_s.is_finite() && width_s > 0.0 && interval_s > 0.0) {
+        return 0.0;
+    }
+    let j = (t_s / interval_s).floor() as i64;
+    let back = (width_s / interval_s).ceil() as i64;
+    let room = (interval_s - width_s).max(0.0);
+    (j - back..=j)
+        .map(|i| {
+            let start = i as f64 * interval_s + unit_hash(seed, i as u64) * room;
+            let x = (t_s - start) / width_s;
+            if (0.0..1.0).contains(&x) { (std::f64::consts::PI * x).sin() } else { 0.0 }
+        })
+        .sum()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -116,15 +267,109 @@ mod tests {
     #[test]
     fn profiles() {
         let s = LoadSpec::Steps { levels_nm: vec![1.0, 2.0], period_s: 1.0 };
-        assert_eq!(s.torque_nm(0.5), 1.0);
-        assert_eq!(s.torque_nm(1.5), 2.0);
-        assert_eq!(s.torque_nm(2.5), 1.0);
+        assert_eq!(s.torque_at(0.5, 0.0, 0.0), 1.0);
+        assert_eq!(s.torque_at(1.5, 0.0, 0.0), 2.0);
+        assert_eq!(s.torque_at(2.5, 0.0, 0.0), 1.0);
         let r = LoadSpec::Ramp { from_nm: 0.0, to_nm: 10.0, start_s: 1.0, duration_s: 2.0 };
-        assert_eq!(r.torque_nm(0.0), 0.0);
-        assert_eq!(r.torque_nm(2.0), 5.0);
-        assert_eq!(r.torque_nm(9.0), 10.0);
+        assert_eq!(r.torque_at(0.0, 0.0, 0.0), 0.0);
+        assert_eq!(r.torque_at(2.0, 0.0, 0.0), 5.0);
+        assert_eq!(r.torque_at(9.0, 0.0, 0.0), 10.0);
         let t = LoadSpec::Trend { start_nm: 1.0, rate_nm_per_s: 0.5, max_nm: 3.0 };
-        assert_eq!(t.torque_nm(2.0), 2.0);
-        assert_eq!(t.torque_nm(100.0), 3.0);
+        assert_eq!(t.torque_at(2.0, 0.0, 0.0), 2.0);
+        assert_eq!(t.torque_at(100.0, 0.0, 0.0), 3.0);
+    }
+
+    fn parse(body: &str) -> LoadSpec {
+        toml::from_str(body).unwrap_or_else(|e| panic!("{body}: {e}"))
+    }
+
+    #[test]
+    fn the_state_dependent_kinds_parse_and_follow_speed_and_angle() {
+        let s = parse("kind = \"speed\"\nconstant_nm = 1.0\nlinear_nm_s_rad = 0.1\nquadratic_nm_s2_rad2 = 0.01\n");
+        assert_eq!(s.torque_at(3.0, 10.0, 0.0), 1.0 + 1.0 + 1.0);
+        assert_eq!(s.torque_at(3.0, -10.0, 0.0), 1.0 - 1.0 - 1.0, "the load opposes the motion both ways");
+        let c = parse("kind = \"centrifugal\"\ntorque_nm = 12.0\nat_rad_s = 60.0\n");
+        assert_eq!(c.torque_at(0.0, 60.0, 0.0), 12.0);
+        assert_eq!(c.torque_at(0.0, 30.0, 0.0), 3.0);
+        assert_eq!(c.torque_at(0.0, -60.0, 0.0), -12.0);
+        let g = parse("kind = \"shaft_angle\"\nmean_nm = 10.0\namplitude_nm = 4.0\ncycles_per_rev = 0.25\n");
+        let quarter_cycle = std::f64::consts::TAU; // a whole turn of the motor is a quarter cycle
+        assert!((g.torque_at(99.0, 5.0, quarter_cycle) - 14.0).abs() < 1e-12);
+        assert!((g.torque_at(0.0, 0.0, 0.0) - 10.0).abs() < 1e-12);
+        for spec in [&s, &c, &g] {
+            assert_eq!(spec.validate(), Ok(()));
+        }
+        let text = "kind = \"centrifugal\"\ntorque_nm = 12.0\nat_rad_s = 60.0\nat_rpm = 3.0\n";
+        assert!(toml::from_str::<LoadSpec>(text).is_err(), "unknown keys are refused");
+    }
+
+    #[test]
+    fn the_time_kinds_parse_and_are_pure_functions_of_time() {
+        let r = parse("kind = \"random\"\nmean_nm = 10.0\nsd_nm = 3.0\ncorrelation_s = 0.5\nseed = 7\n");
+        let i = parse(
+            "kind = \"impacts\"\nbase_nm = 2.0\npeak_nm = 20.0\nwidth_s = 0.1\nmean_interval_s = 1.0\nseed = 3\n",
+        );
+        let w = parse("kind = \"sines\"\nmean_nm = 5.0\namplitudes_nm = [1.0, 2.0]\nperiods_s = [2.0, 7.3]\n");
+        for spec in [&r, &i, &w] {
+            assert_eq!(spec.validate(), Ok(()));
+            let a: Vec<f64> = (0..5000).map(|k| spec.torque_at(k as f64 * 0.01, 0.0, 0.0)).collect();
+            let b: Vec<f64> = (0..5000).map(|k| spec.torque_at(k as f64 * 0.01, 50.0, 9.0)).collect();
+            assert_eq!(a, b, "{spec:?} ignores the state and holds no state of its own");
+            assert!(a.iter().all(|v| v.is_finite()), "{spec:?}");
+        }
+        // the random load: about its mean and sd over many correlation times, and another seed another load
+        let v: Vec<f64> = (0..200_000).map(|k| r.torque_at(k as f64 * 0.01, 0.0, 0.0)).collect();
+        let mean = v.iter().sum::<f64>() / v.len() as f64;
+        let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / v.len() as f64).sqrt();
+        assert!((mean - 10.0).abs() < 0.3 && (sd - 3.0).abs() < 0.3, "mean {mean}, sd {sd}");
+        let other = LoadSpec::Random { mean_nm: 10.0, sd_nm: 3.0, correlation_s: 0.5, seed: 8 };
+        assert_ne!(r.torque_at(1.3, 0.0, 0.0), other.torque_at(1.3, 0.0, 0.0));
+        // impacts: one pulse of 20 N·m a second on top of the base, 0.1 s wide
+        let p: Vec<f64> = (0..10_000).map(|k| i.torque_at(k as f64 * 1e-3, 0.0, 0.0)).collect();
+        let peak = p.iter().cloned().fold(f64::MIN, f64::max);
+        assert!(peak > 21.9 && peak <= 22.0 + 1e-9, "{peak}");
+        assert!(p.iter().all(|v| *v >= 2.0), "half-sines only add");
+        let above = p.iter().filter(|v| **v > 2.0).count();
+        assert!((990..=1010).contains(&above), "10 pulses of 100 ms: {above} ms above the base");
+        // sines: the sum of both
+        let t: f64 = 1.1;
+        let tau = std::f64::consts::TAU;
+        assert!((w.torque_at(t, 0.0, 0.0) - (5.0 + (tau * t / 2.0).sin() + 2.0 * (tau * t / 7.3).sin())).abs() < 1e-12);
+    }
+
+    #[test]
+    fn bad_parameters_name_their_key() {
+        let key = |spec: LoadSpec| spec.validate().expect_err("invalid").key;
+        let at = LoadSpec::Centrifugal { torque_nm: 12.0, at_rad_s: 0.0 };
+        assert_eq!(key(at), "load.at_rad_s");
+        assert_eq!(
+            key(LoadSpec::Speed { constant_nm: 0.0, linear_nm_s_rad: f64::NAN, quadratic_nm_s2_rad2: 0.0 }),
+            "load.linear_nm_s_rad"
+        );
+        assert_eq!(
+            key(LoadSpec::ShaftAngle { mean_nm: 1.0, amplitude_nm: 1.0, cycles_per_rev: -0.5 }),
+            "load.cycles_per_rev"
+        );
+        assert_eq!(
+            key(LoadSpec::Random { mean_nm: 1.0, sd_nm: 1.0, correlation_s: 0.0, seed: 1 }),
+            "load.correlation_s"
+        );
+        assert_eq!(key(LoadSpec::Random { mean_nm: 1.0, sd_nm: -1.0, correlation_s: 1.0, seed: 1 }), "load.sd_nm");
+        assert_eq!(
+            key(LoadSpec::Impacts { base_nm: 1.0, peak_nm: 9.0, width_s: 0.0, mean_interval_s: 1.0, seed: 1 }),
+            "load.width_s"
+        );
+        assert_eq!(
+            key(LoadSpec::Impacts { base_nm: 1.0, peak_nm: 9.0, width_s: 0.1, mean_interval_s: -1.0, seed: 1 }),
+            "load.mean_interval_s"
+        );
+        assert_eq!(
+            key(LoadSpec::Sines { mean_nm: 1.0, amplitudes_nm: vec![1.0, 2.0], periods_s: vec![3.0] }),
+            "load.periods_s"
+        );
+        assert_eq!(
+            key(LoadSpec::Sines { mean_nm: 1.0, amplitudes_nm: vec![], periods_s: vec![] }),
+            "load.amplitudes_nm"
+        );
     }
 }

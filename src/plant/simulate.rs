@@ -25,10 +25,11 @@ pub const COLUMNS: [&str; 11] = [
     "true_f_drive_hz",
 ];
 
-/// What drives a run: the setpoint program and the load over time.
+/// What drives a run: the setpoint program over time, and the load as a function of (t_s, ω rad/s, shaft angle
+/// rad). The load is evaluated once a sample, from the plant's state at the sample's start, and held over it.
 pub struct Inputs<'a> {
     pub setpoint_hz: &'a dyn Fn(f64) -> f64,
-    pub load_nm: &'a dyn Fn(f64) -> f64,
+    pub load_nm: &'a dyn Fn(f64, f64, f64) -> f64,
 }
 
 /// Why a streamed run stopped.
@@ -57,11 +58,13 @@ pub fn run_into(
     let mut noise = SensorNoise::new(model, seed);
     let back_pressure_bar = pa_to_bar(coefficients.back_pressure_pa);
     let report_every = (n / 100).max(1);
+    // the motor's shaft angle since the start: ω integrated by the trapezoid over each sample
+    let mut angle_rad = 0.0;
     for k in 0..n {
         let t = k as f64 * dt;
         let f_set = (inputs.setpoint_hz)(t);
-        let load = (inputs.load_nm)(t);
         let s = plant.state();
+        let load = (inputs.load_nm)(t, s.omega_rad_s, angle_rad);
         let p_in_bar = pa_to_bar(s.p_in_pa);
         let row = [
             t,
@@ -79,6 +82,7 @@ pub fn run_into(
         sink(&row).map_err(RunError::Sink)?;
         plant.wear(model);
         plant.advance(dt, f_set, load);
+        angle_rad += 0.5 * (s.omega_rad_s + plant.state().omega_rad_s) * dt;
         if k % report_every == 0 {
             progress(k as f64 / n as f64);
         }
@@ -136,7 +140,7 @@ mod tests {
         );
         let mut worn = PlantModel::parse(&text, "worn.toml").expect("parses");
         worn.sensors.sample_ms = 1.0;
-        let inputs = Inputs { setpoint_hz: &|_| 40.0, load_nm: &|_| 10.0 };
+        let inputs = Inputs { setpoint_hz: &|_| 40.0, load_nm: &|_, _, _| 10.0 };
         let final_speed = |m: &PlantModel| -> f64 {
             let truth = COLUMNS.iter().position(|c| *c == "true_omega_rad_s").expect("truth column");
             let mut w = Vec::new();
@@ -155,5 +159,38 @@ mod tests {
         let (w_worn, w_end, w_clean) = (final_speed(&worn), final_speed(&at_end), final_speed(&clean));
         assert!(w_clean - w_end > 2.0, "the leak must show: clean {w_clean:.2}, worn model {w_end:.2}");
         assert!((w_worn - w_end).abs() < 0.05 * (w_clean - w_end), "worn {w_worn:.2} vs {w_end:.2}");
+    }
+
+    #[test]
+    fn the_load_sees_the_state_at_the_sample_start_and_true_load_is_what_was_applied() {
+        use crate::plant::load::LoadSpec;
+        let model = PlantModel::reference();
+        let fan = LoadSpec::Centrifugal { torque_nm: 12.0, at_rad_s: 60.0 };
+        let gear = LoadSpec::ShaftAngle { mean_nm: 0.0, amplitude_nm: 1.0, cycles_per_rev: 1.0 };
+        let col = |name: &str| COLUMNS.iter().position(|c| *c == name).expect("column");
+        let (w_col, load_col) = (col("true_omega_rad_s"), col("true_load_nm"));
+        for spec in [fan, gear] {
+            let load = spec.clone();
+            let inputs = Inputs {
+                setpoint_hz: &|t| if t > 0.2 { 40.0 } else { 0.0 },
+                load_nm: &move |t, w, a| load.torque_at(t, w, a),
+            };
+            let mut rows = Vec::new();
+            let mut sink = |row: &[f64; COLUMNS.len()]| {
+                rows.push(*row);
+                Ok(())
+            };
+            run_into(&model, 5.0, 1, &inputs, &mut |_| {}, &mut sink).expect("runs");
+            let dt = model.sample_s();
+            let mut angle = 0.0;
+            for (k, row) in rows.iter().enumerate() {
+                if k > 0 {
+                    angle += 0.5 * (rows[k - 1][w_col] + row[w_col]) * dt;
+                }
+                let expected = spec.torque_at(row[0], row[w_col], angle);
+                assert!((row[load_col] - expected).abs() < 1e-9, "{spec:?} row {k}: {} vs {expected}", row[load_col]);
+            }
+            assert!(angle > 20.0 && rows[rows.len() - 1][w_col] > 40.0, "{spec:?}: the shaft turned, {angle} rad");
+        }
     }
 }

@@ -17,7 +17,7 @@ pub fn test_stand(
     progress: &mut dyn FnMut(f64),
 ) -> Result<Recording, KeyError> {
     let load = model.load.clone();
-    let inputs = Inputs { setpoint_hz: &excitation::setpoint_hz, load_nm: &move |t| load.torque_nm(t) };
+    let inputs = Inputs { setpoint_hz: &excitation::setpoint_hz, load_nm: &move |t, w, a| load.torque_at(t, w, a) };
     run(model, duration_s, seed, &inputs, progress)
 }
 

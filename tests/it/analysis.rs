@@ -175,7 +175,8 @@ fn slow_at_times(seed: u64, slow_until_s: f64) -> impl Fn(f64) -> f64 {
 fn concealed_on_slow_program(truth: &PlantModel, seed: u64, run_s: f64, slow_until_s: f64) -> Analysis {
     let setpoint = slow_at_times(seed, slow_until_s);
     let load = truth.load.clone();
-    let inputs = hydrolens::plant::simulate::Inputs { setpoint_hz: &setpoint, load_nm: &move |t| load.torque_nm(t) };
+    let inputs =
+        hydrolens::plant::simulate::Inputs { setpoint_hz: &setpoint, load_nm: &move |t, w, a| load.torque_at(t, w, a) };
     let rec = hydrolens::recording::simulated::run(truth, run_s, seed, &inputs, &mut |_| {}).expect("simulable");
     analysis::analyze(&rec, &PlantModel::reference(), &Options::default(), &mut |_| {}).expect("analysable")
 }
@@ -218,7 +219,8 @@ fn unexplained_locates_what_the_model_still_misses() {
     let truth = issue_18_truth(1.0);
     let setpoint = slow_at_times(41, 50.0);
     let load = truth.load.clone();
-    let inputs = hydrolens::plant::simulate::Inputs { setpoint_hz: &setpoint, load_nm: &move |t| load.torque_nm(t) };
+    let inputs =
+        hydrolens::plant::simulate::Inputs { setpoint_hz: &setpoint, load_nm: &move |t, w, a| load.torque_at(t, w, a) };
     let rec = hydrolens::recording::simulated::run(&truth, 80.0, 41, &inputs, &mut |_| {}).expect("simulable");
     let opts = Options { min_relative_drop: f64::INFINITY, ..Options::default() };
     let a = analysis::analyze(&rec, &PlantModel::reference(), &opts, &mut |_| {}).expect("analysable");

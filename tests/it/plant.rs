@@ -156,8 +156,8 @@ fn integrator_agrees_with_a_much_finer_step() {
     for k in 0..20_000 {
         let t = k as f64 * 1e-3;
         let f = hydrolens::plant::excitation::setpoint_hz(t);
-        coarse.advance(1e-3, f, load.torque_nm(t));
-        fine.advance(1e-3, f, load.torque_nm(t));
+        coarse.advance(1e-3, f, load.torque_at(t, coarse.state().omega_rad_s, 0.0));
+        fine.advance(1e-3, f, load.torque_at(t, fine.state().omega_rad_s, 0.0));
         wc.push(coarse.state().omega_rad_s);
         wf.push(fine.state().omega_rad_s);
         pc.push(coarse.state().p_in_pa);
@@ -271,7 +271,7 @@ fn an_independent_implementation_agrees_with_simulate() {
 #[test]
 fn simulate_inputs_drive_the_run() {
     let m = reference();
-    let inputs = Inputs { setpoint_hz: &|t| if t > 0.5 { 25.0 } else { 0.0 }, load_nm: &|_| 3.0 };
+    let inputs = Inputs { setpoint_hz: &|t| if t > 0.5 { 25.0 } else { 0.0 }, load_nm: &|_, _, _| 3.0 };
     let rec = simulated::run(&m, 4.0, 1, &inputs, &mut |_| {}).expect("run");
     let f = rec.column("true_f_drive_hz").expect("f");
     assert_eq!(f[400], 0.0);

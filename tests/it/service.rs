@@ -109,7 +109,7 @@ async fn at_a_10_ms_poll_rls_sgd_identifies_inertia_under_a_random_brake_program
     let run = async {
         let mut plant = support::test_plant(0.0);
         let brake = hydrolens::plant::scenario::Scenario::generate(hydrolens::plant::scenario::Family::Brake, 77, 30.0);
-        let levels: Vec<f64> = (0..8).map(|k| brake.load.torque_nm(1.0 + 2.5 * k as f64)).collect();
+        let levels: Vec<f64> = (0..8).map(|k| brake.load.torque_at(1.0 + 2.5 * k as f64, 0.0, 0.0)).collect();
         plant.load = hydrolens::plant::LoadSpec::Steps { levels_nm: levels.clone(), period_s: 2.5 };
         let stack = Stack::start_on(plant, 10, SPEED).await;
         for target in [30.0, 45.0, 20.0, 40.0, 25.0, 50.0, 35.0] {

@@ -142,6 +142,39 @@ fn simulate_writes_the_contract_columns_fast_and_deterministically() {
     assert_eq!(a.lines().count(), 10_002);
 }
 
+/// A fan behind the motor (`[load] kind = "centrifugal"`): `simulate` applies it at the shaft's speed, and
+/// `true_load_nm` is the torque applied in each row.
+#[test]
+fn simulate_applies_a_load_that_follows_the_shaft_speed() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let plant = std::fs::read_to_string(root().join("config/plant.toml")).expect("plant.toml");
+    let model = dir.path().join("fan.toml");
+    let fan = plant.replace("kind = \"recorded\"", "kind = \"centrifugal\"\ntorque_nm = 12.0\nat_rad_s = 60.0");
+    std::fs::write(&model, fan).expect("write");
+    let out = dir.path().join("fan.csv");
+    let status = Command::new(bin())
+        .args(["simulate", "--model"])
+        .arg(&model)
+        .args(["--duration", "20", "--seed", "1", "--out"])
+        .arg(&out)
+        .status()
+        .expect("runs");
+    assert!(status.success());
+    let text = std::fs::read_to_string(&out).expect("written");
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().expect("header").split(',').collect();
+    let col = |name: &str| header.iter().position(|c| *c == name).expect("column");
+    let (w, load) = (col("true_omega_rad_s"), col("true_load_nm"));
+    let mut fastest = 0.0f64;
+    for line in lines {
+        let v: Vec<f64> = line.split(',').map(|x| x.parse().expect("number")).collect();
+        let x = v[w] / 60.0;
+        assert!((v[load] - 12.0 * x * x.abs()).abs() < 1e-6 * (1.0 + v[load].abs()), "{line}");
+        fastest = fastest.max(v[w]);
+    }
+    assert!(fastest > 30.0, "the program turns the shaft: {fastest} rad/s at most");
+}
+
 #[test]
 fn bad_input_exits_2_naming_what_and_where() {
     let dir = tempfile::tempdir().expect("tmp");
@@ -151,6 +184,11 @@ fn bad_input_exits_2_naming_what_and_where() {
         ("type.toml", plant.replace("pole_pairs = 2", "pole_pairs = \"two\""), "pole_pairs"),
         ("negative.toml", plant.replace("time_constant_s = 0.02", "time_constant_s = -1.0"), "drive.time_constant_s"),
         ("effect.toml", format!("{plant}\n[effects.dead_time]\nmilliseconds = 3\n"), "milliseconds"),
+        (
+            "fan.toml",
+            plant.replace("kind = \"recorded\"", "kind = \"centrifugal\"\ntorque_nm = 12.0\nat_rad_s = 0.0"),
+            "load.at_rad_s",
+        ),
     ];
     for (name, text, needle) in cases {
         let path = dir.path().join(name);
