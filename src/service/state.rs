@@ -336,6 +336,9 @@ mod tests {
             viscous_hat_nm_s_rad: 4.0,
             inertia_sd_kg_m2: 5.0,
             viscous_sd_nm_s_rad: 6.0,
+            inertia_identified: 1.0,
+            viscous_identified: -2.0,
+            load_character: 5.0,
         };
         let sample =
             Measured { t_s: t, f_set_hz: f64::NAN, f_drive_hz: 7.0, p_in_bar: 8.0, p_out_bar: 9.0, omega_rad_s: 10.0 };
