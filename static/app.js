@@ -136,10 +136,13 @@ function redraw(entry) {
 const J_IDENTIFIED_REL_SD = 0.1;
 const B_IDENTIFIED_REL_SD = 0.3;
 
-function withConfidence(value, sd, unit, identifiedRelSd) {
+// `verdict` is the estimator's own word (`identification` in /api/status): its reason is shown whenever the value is
+// not identified, so a user sees why (the load follows the speed, the nominal predicts as well, …).
+function withConfidence(value, sd, unit, identifiedRelSd, verdict) {
   if (value === undefined || value === null || !Number.isFinite(value)) return "–";
   if (sd === 0) return `${fmt(value, 4)} ${unit} (from the model)`;
   const text = `${fmt(value, 4)} ± ${fmt(sd, 4)} ${unit}`;
+  if (verdict && verdict.state !== "identified") return `${text} (${verdict.reason})`;
   return Math.abs(sd) <= identifiedRelSd * Math.abs(value) ? text : `${text} (not identified yet)`;
 }
 
@@ -160,11 +163,13 @@ function updateCard(entry, d) {
   q(".omega").textContent = `${fmt(s && s.omega_rad_s, 2)} rad/s`;
   q(".omega-hat").textContent = `${fmt(e && e.omega_hat_rad_s, 2)} rad/s`;
   q(".target").textContent = d.mode === "speed" ? `${fmt(d.target_omega_rad_s, 2)} rad/s` : "–";
-  q(".load").textContent = `${fmt(e && e.load_hat_nm, 2)} N·m`;
+  const id = d.identification;
+  const character = id && id.load_character !== "unknown" ? ` · ${id.load_character.replaceAll("_", " ")}` : "";
+  q(".load").textContent = `${fmt(e && e.load_hat_nm, 2)} N·m${character}`;
   q(".inertia").textContent = withConfidence(e && e.inertia_hat_kg_m2, e && e.inertia_sd_kg_m2, "kg·m²",
-    J_IDENTIFIED_REL_SD);
+    J_IDENTIFIED_REL_SD, id && id.inertia);
   q(".viscous").textContent = withConfidence(e && e.viscous_hat_nm_s_rad, e && e.viscous_sd_nm_s_rad, "N·m·s/rad",
-    B_IDENTIFIED_REL_SD);
+    B_IDENTIFIED_REL_SD, id && id.viscous);
   q(".setpoint").textContent = `${fmt(d.setpoint_hz, 2)} Hz`;
   q(".pressures").textContent = `${fmt(s && s.p_in_bar, 1)} / ${fmt(s && s.p_out_bar, 1)} bar`;
   const st = d.status;

@@ -114,6 +114,35 @@ impl Identification {
     }
 }
 
+/// One parameter's identification as `/api/status` shows it: the state's name and a plant engineer's reason.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Verdict {
+    pub state: &'static str,
+    pub reason: &'static str,
+}
+
+/// What an estimate's codes say, in words: J's and B's identification and the load's character.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Identified {
+    pub inertia: Verdict,
+    pub viscous: Verdict,
+    pub load_character: &'static str,
+}
+
+impl Identified {
+    pub fn of(e: &super::Estimate) -> Identified {
+        let verdict = |code: f64| {
+            let i = Identification::from_code(code);
+            Verdict { state: i.name(), reason: i.reason() }
+        };
+        Identified {
+            inertia: verdict(e.inertia_identified),
+            viscous: verdict(e.viscous_identified),
+            load_character: LoadCharacter::from_code(e.load_character).name(),
+        }
+    }
+}
+
 /// What the load looks like over the last 20 s.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]

@@ -16,7 +16,7 @@ mod periodic;
 mod rls_sgd;
 pub mod settings;
 
-pub use guard::{Identification, LoadCharacter};
+pub use guard::{Identification, Identified, LoadCharacter, Verdict};
 pub use kalman::Kalman;
 pub use paper::PaperLiteral;
 pub use rls_sgd::RlsSgd;

@@ -262,6 +262,9 @@ impl DriveLoop {
         self.metrics.inertia_sd.get_or_create(l).set(est.inertia_sd_kg_m2);
         self.metrics.viscous_hat.get_or_create(l).set(est.viscous_hat_nm_s_rad);
         self.metrics.viscous_sd.get_or_create(l).set(est.viscous_sd_nm_s_rad);
+        self.metrics.inertia_identified.get_or_create(l).set(est.inertia_identified);
+        self.metrics.viscous_identified.get_or_create(l).set(est.viscous_identified);
+        self.metrics.load_character.get_or_create(l).set(est.load_character);
     }
 
     fn publish(&mut self) {
@@ -306,6 +309,7 @@ impl DriveLoop {
             link: self.link.clone(),
             sample: self.cycle.measured(),
             estimate: self.cycle.estimate(),
+            identification: self.cycle.estimate().map(|e| crate::estimator::Identified::of(&e)),
             timing: stats,
             recording: recording_health,
         });

@@ -64,6 +64,10 @@ pub struct Metrics {
     pub inertia_sd: Family<DriveLabel, GaugeF>,
     pub viscous_hat: Family<DriveLabel, GaugeF>,
     pub viscous_sd: Family<DriveLabel, GaugeF>,
+    /// What the data say of J and B and what the load looks like: the estimate's codes (docs/estimator.md).
+    pub inertia_identified: Family<DriveLabel, GaugeF>,
+    pub viscous_identified: Family<DriveLabel, GaugeF>,
+    pub load_character: Family<DriveLabel, GaugeF>,
     pub setpoint: Family<DriveLabel, GaugeF>,
     pub target: Family<DriveLabel, GaugeF>,
     /// The recorder's: 1 while rows reach the disk; failures; rows lost to them.
@@ -104,6 +108,9 @@ impl Metrics {
             inertia_sd: Family::default(),
             viscous_hat: Family::default(),
             viscous_sd: Family::default(),
+            inertia_identified: Family::default(),
+            viscous_identified: Family::default(),
+            load_character: Family::default(),
             setpoint: Family::default(),
             target: Family::default(),
             recording_ok: Family::default(),
@@ -168,6 +175,21 @@ impl Metrics {
             "Standard deviation of the estimated B (0: taken from the model)",
             unit(NM_S_RAD),
             m.viscous_sd.clone(),
+        );
+        r.register(
+            "inertia_identified",
+            "J: 1 identified, 0 too little excitation, -1 nominal predicts as well, -2 not separable from the load, -3 the model's",
+            m.inertia_identified.clone(),
+        );
+        r.register(
+            "viscous_identified",
+            "B: 1 identified, 0 too little excitation, -1 nominal predicts as well, -2 not separable from the load, -3 the model's",
+            m.viscous_identified.clone(),
+        );
+        r.register(
+            "load_character",
+            "Load: 0 unknown, 1 steady, 2 stepping, 3 periodic in time, 4 periodic in shaft angle, 5 following the speed, 6 random",
+            m.load_character.clone(),
         );
         r.register_with_unit("setpoint", "Last frequency setpoint written", unit("hertz"), m.setpoint.clone());
         r.register_with_unit("target_omega", "Speed target", unit(RAD_S), m.target.clone());

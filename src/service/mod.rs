@@ -76,6 +76,7 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
             link: Link::default(),
             sample: None,
             estimate: None,
+            identification: None,
             timing: TimingStats::default(),
             recording: None,
         };

@@ -134,6 +134,8 @@ pub struct DriveSnapshot {
     /// The last fresh sample's measured columns; its estimates are `estimate`, its status word `status.word`.
     pub sample: Option<Measured>,
     pub estimate: Option<Estimate>,
+    /// The estimate's identification codes in words: J's and B's state with its reason, the load's character.
+    pub identification: Option<crate::estimator::Identified>,
     pub timing: TimingStats,
     /// The recorder's health; None while recording is off.
     pub recording: Option<RecordingHealth>,
@@ -383,6 +385,7 @@ mod tests {
             link: Link::default(),
             sample: None,
             estimate: None,
+            identification: None,
             timing: TimingStats::default(),
             recording: None,
         };
