@@ -150,6 +150,45 @@ fn main() {
             rs.len(),
         );
     }
+    println!("\nthe guard's gates, per family (docs/estimator.md)");
+    println!(
+        "| family | runs | T̂_L ≤ 1.05× nominal Kalman | J, B identified: T̂_L ≤ 1.3× Kalman told the truth \
+         | truth within 2 sd or flagged (checkpoints) | J within ±15 % where identified | final J / B identified |"
+    );
+    println!("|---|---|---|---|---|---|---|");
+    let mut names: Vec<String> = Vec::new();
+    for r in &results {
+        let f = r.describe.split(' ').next().unwrap_or("").to_string();
+        if !names.contains(&f) {
+            names.push(f);
+        }
+    }
+    for name in names.iter().map(String::as_str).chain(["all"]) {
+        let rs: Vec<&Run> =
+            results.iter().filter(|r| name == "all" || r.describe.split(' ').next() == Some(name)).collect();
+        let g: Vec<_> = rs.iter().map(|r| r.guard()).collect();
+        let no_harm = g.iter().filter(|v| v.no_harm).count();
+        let ident: Vec<bool> = g.iter().filter_map(|v| v.near_truth_reference).collect();
+        let sum = |f: &dyn Fn(&battery::GuardVerdict) -> (usize, usize)| {
+            g.iter().map(f).fold((0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+        };
+        let covered = sum(&|v| v.covered);
+        let sound = sum(&|v| v.inertia_sound);
+        let code = |c: f64| c == hydrolens::estimator::Identification::Identified.code();
+        let j_id = rs.iter().filter(|r| code(r.rls.last.inertia_identified)).count();
+        let b_id = rs.iter().filter(|r| code(r.rls.last.viscous_identified)).count();
+        println!(
+            "| {name} | {} | {no_harm} | {}/{} | {}/{} ({:.0} %) | {}/{} | {j_id} / {b_id} |",
+            rs.len(),
+            ident.iter().filter(|x| **x).count(),
+            ident.len(),
+            covered.0,
+            covered.1,
+            100.0 * covered.0 as f64 / covered.1.max(1) as f64,
+            sound.1,
+            sound.0,
+        );
+    }
     let holding = results.iter().filter(|r| r.holds()).count();
     println!("all: {holding}/{} hold ({:.0} %)", results.len(), 100.0 * holding as f64 / results.len().max(1) as f64);
     let honest = results.iter().filter(|r| r.viscous_honest()).count();

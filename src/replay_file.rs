@@ -182,8 +182,8 @@ fn open_planned(recording: &Path) -> Result<(StreamReader<crate::recording::Reco
 /// half of the estimating thread's work.
 #[derive(Default)]
 struct RowText {
-    tail_bits: Option<[u64; 4]>,
-    /// `,J,B,σ_J,σ_B\n` of the row before.
+    tail_bits: Option<[u64; 7]>,
+    /// `,J,B,σ_J,σ_B,J's and B's identification,load character\n` of the row before.
     tail: Vec<u8>,
 }
 
@@ -194,7 +194,15 @@ impl RowText {
             text.push(b',');
             push_value(text, v);
         }
-        let tail = [e.inertia_hat_kg_m2, e.viscous_hat_nm_s_rad, e.inertia_sd_kg_m2, e.viscous_sd_nm_s_rad];
+        let tail = [
+            e.inertia_hat_kg_m2,
+            e.viscous_hat_nm_s_rad,
+            e.inertia_sd_kg_m2,
+            e.viscous_sd_nm_s_rad,
+            e.inertia_identified,
+            e.viscous_identified,
+            e.load_character,
+        ];
         let bits = tail.map(f64::to_bits);
         if self.tail_bits != Some(bits) {
             self.tail.clear();

@@ -56,6 +56,30 @@ pub struct Run {
     pub kalman: Score,
     /// The Kalman filter on the scenario's wrong J and B: what a user gets with no adaptation.
     pub nominal: Score,
+    /// The plant's true J and B, for the checkpoints' coverage.
+    pub truth: (f64, f64),
+}
+
+/// The guard's gates (docs/estimator.md): rls-sgd's T̂_L RMSE at most this factor of the nominal-model Kalman
+/// filter's in every run…
+pub const NOMINAL_RMSE_FACTOR: f64 = 1.05;
+/// …and the truth within this many of its standard deviations at the checkpoints, unless flagged not identified.
+pub const COVERAGE_SIGMAS: f64 = 2.0;
+
+/// A run judged by the guard's gates.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GuardVerdict {
+    /// T̂_L no worse than the nominal-model Kalman filter's (within [`NOMINAL_RMSE_FACTOR`]).
+    pub no_harm: bool,
+    /// Where the final J and B are both identified: T̂_L within [`LOAD_RMSE_FACTOR`] of the Kalman filter told the
+    /// truth. None where they are not.
+    pub near_truth_reference: Option<bool>,
+    /// Checkpoint values (J and B at each) whose truth lies within [`COVERAGE_SIGMAS`] or that are flagged not
+    /// identified, and all checkpoint values.
+    pub covered: (usize, usize),
+    /// Checkpoints (and the end) where J is reported identified, and of those, how many have it within
+    /// [`INERTIA_TOLERANCE`].
+    pub inertia_sound: (usize, usize),
 }
 
 impl Run {
@@ -89,6 +113,38 @@ impl Run {
 
     pub fn holds(&self) -> bool {
         self.failures().is_empty()
+    }
+
+    /// The guard's gates on this run.
+    pub fn guard(&self) -> GuardVerdict {
+        let identified = |code: f64| code == super::Identification::Identified.code();
+        let last = &self.rls.last;
+        let (j, b) = self.truth;
+        let points: Vec<&Estimate> = self.rls.checkpoints.iter().map(|(_, e)| e).collect();
+        let mut covered = (0, 0);
+        for e in &points {
+            for (x, sd, code, truth) in [
+                (e.inertia_hat_kg_m2, e.inertia_sd_kg_m2, e.inertia_identified, j),
+                (e.viscous_hat_nm_s_rad, e.viscous_sd_nm_s_rad, e.viscous_identified, b),
+            ] {
+                covered.1 += 1;
+                covered.0 += usize::from(!identified(code) || (x - truth).abs() <= COVERAGE_SIGMAS * sd);
+            }
+        }
+        let mut inertia_sound = (0, 0);
+        for e in points.iter().copied().chain(std::iter::once(last)) {
+            if identified(e.inertia_identified) {
+                inertia_sound.0 += 1;
+                inertia_sound.1 += usize::from((e.inertia_hat_kg_m2 / j - 1.0).abs() <= INERTIA_TOLERANCE);
+            }
+        }
+        GuardVerdict {
+            no_harm: self.nominal_ratio() <= NOMINAL_RMSE_FACTOR,
+            near_truth_reference: (identified(last.inertia_identified) && identified(last.viscous_identified))
+                .then(|| self.load_ratio() <= LOAD_RMSE_FACTOR),
+            covered,
+            inertia_sound,
+        }
     }
 
     /// B's confidence is honest in this run: the true B lies within two of rls-sgd's final standard deviations.
@@ -230,6 +286,7 @@ pub fn run(
         rls: score(&polled, &rls_settings, &wrong, &truth),
         kalman: score(&polled, &kalman_settings, &truth, &truth),
         nominal: score(&polled, &kalman_settings, &wrong, &truth),
+        truth: (truth.motor.inertia_kg_m2, truth.motor.viscous_nm_s_rad),
     }
 }
 

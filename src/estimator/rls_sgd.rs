@@ -166,6 +166,8 @@ const POOL: usize = 40;
 struct ViscousPool {
     prior: (f64, f64),
     windows: [(f64, f64); POOL],
+    /// Each window's mean speed: a B that grows with the speed it was measured at is a load that follows the speed.
+    speeds: [f64; POOL],
     len: usize,
     next: usize,
     bounds: [f64; 2],
@@ -175,17 +177,63 @@ struct ViscousPool {
 
 impl ViscousPool {
     fn new(b: f64, var: f64, bounds: [f64; 2]) -> ViscousPool {
-        ViscousPool { prior: (b, var), windows: [(0.0, 0.0); POOL], len: 0, next: 0, bounds, estimate: (b, var) }
+        ViscousPool {
+            prior: (b, var),
+            windows: [(0.0, 0.0); POOL],
+            speeds: [0.0; POOL],
+            len: 0,
+            next: 0,
+            bounds,
+            estimate: (b, var),
+        }
     }
 
-    fn add(&mut self, b: f64, var: f64) {
+    fn add(&mut self, b: f64, var: f64, speed: f64) {
         if !(b.is_finite() && var.is_finite() && var > 0.0) {
             return;
         }
         self.windows[self.next] = (b, var);
+        self.speeds[self.next] = speed;
         self.next = (self.next + 1) % POOL;
         self.len = (self.len + 1).min(POOL);
         self.estimate = self.pool();
+    }
+
+    /// Whether the windows' B grows (or falls) with the speed they were measured at: the slope of B on the window's
+    /// mean speed (weighted by each window's variance plus the between-window scatter) is `SPEED_SLOPE_Z` standard
+    /// errors from zero and moves B by more than half its mean over the speeds seen. Viscous friction is one number
+    /// at every speed; a fan's torque has a slope that doubles with the speed.
+    fn depends_on_speed(&self) -> bool {
+        let n = self.len;
+        if n < 8 {
+            return false;
+        }
+        let tau2 = {
+            let m = self.windows[..n].iter().map(|w| w.0).sum::<f64>() / n as f64;
+            self.windows[..n].iter().map(|w| (w.0 - m).powi(2)).sum::<f64>() / (n - 1) as f64
+        };
+        let (mut sw, mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for (&(b, v), &x) in self.windows[..n].iter().zip(&self.speeds[..n]) {
+            let w = 1.0 / (v + 0.25 * tau2).max(1e-300);
+            (sw, sx, sy, sxx, sxy) = (sw + w, sx + w * x, sy + w * b, sxx + w * x * x, sxy + w * x * b);
+        }
+        let var_x = sxx / sw - (sx / sw).powi(2);
+        if !(var_x > 0.0) {
+            return false;
+        }
+        let slope = (sxy / sw - sx / sw * sy / sw) / var_x;
+        let mean_b = sy / sw;
+        // residual scatter about the line, for the slope's standard error
+        let resid: f64 = self.windows[..n]
+            .iter()
+            .zip(&self.speeds[..n])
+            .map(|(&(b, v), &x)| (b - mean_b - slope * (x - sx / sw)).powi(2) / (v + 0.25 * tau2).max(1e-300))
+            .sum::<f64>()
+            / (n - 2) as f64;
+        let se = (resid.max(1.0) / (sw * var_x)).sqrt();
+        let (lo, hi) =
+            self.speeds[..n].iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+        (slope / se).abs() > SPEED_SLOPE_Z && (slope * (hi - lo)).abs() > 0.5 * mean_b.abs()
     }
 
     fn pool(&self) -> (f64, f64) {
@@ -489,7 +537,8 @@ impl WindowRls {
                 let [blo, bhi] = self.s.viscous_bounds_nm_s_rad;
                 let sd_w = var_w.max(0.0).sqrt();
                 if (blo - 3.0 * sd_w..=bhi + 3.0 * sd_w).contains(&b_w) {
-                    self.viscous.add(b_w, var_w);
+                    let speed = w.rows.iter().map(|r| r.omega).sum::<f64>() / n as f64;
+                    self.viscous.add(b_w, var_w, speed);
                 }
             }
         }
@@ -676,6 +725,11 @@ pub struct RlsSgd {
     character: Character,
 }
 
+/// How far from the nominal B a B can plausibly be friction (the battery starts its models up to ×3 off).
+const PLAUSIBLE_VISCOUS_FACTOR: f64 = 4.0;
+const FOLLOWS_FROM_CHARACTER: bool = false;
+/// The windows' B depends on their speed when its slope is this many standard errors from zero.
+const SPEED_SLOPE_Z: f64 = 4.0;
 /// J known to this relative standard deviation is identified (the battery asks ±15 % at 2.5 sd).
 const INERTIA_IDENTIFIED_SD: f64 = 0.06;
 /// B known to this relative standard deviation is identified.
@@ -789,6 +843,16 @@ impl RlsSgd {
         (self.s.initial_inertia_kg_m2, self.s.initial_viscous_nm_s_rad)
     }
 
+    /// The load follows the speed: the adapted B (all the torque proportional to speed) lies beyond what friction
+    /// plausibly is (more than `PLAUSIBLE_VISCOUS_FACTOR` from the nominal either way), or the adapted tracker's
+    /// load still follows the speed.
+    fn load_follows_speed(&self) -> bool {
+        let ((b, _), _) = self.combined;
+        let reference = self.rls.b0;
+        let implausible = b > PLAUSIBLE_VISCOUS_FACTOR * reference || b < reference / PLAUSIBLE_VISCOUS_FACTOR;
+        implausible || self.rls.viscous.depends_on_speed() || (FOLLOWS_FROM_CHARACTER && self.character.follows_speed)
+    }
+
     /// The adapted J and B the tracker predicts with: B stays nominal where the load follows the speed.
     fn adapted_parameters(&self) -> (f64, f64) {
         let ((b, _), (j, _)) = self.combined;
@@ -804,9 +868,9 @@ impl Estimator for RlsSgd {
         let (j0, b0) = self.nominal_parameters();
         let scale = self.s.eta / PAPER_ETA;
         let adapted = self.tracker.step_with(m, j, b, scale);
-        let nominal = self.nominal.step_with(m, j0, b0, scale);
+        let nominal = self.nominal.step_with(m, if self.validation.in_force { j } else { j0 }, b0, scale);
         if let Some(dt) = c.dt_s {
-            let used = if self.validation.in_force { adapted } else { nominal };
+            let used = if self.validation.in_force && !self.load_follows_speed() { adapted } else { nominal };
             self.character.push(dt, adapted.load_hat_nm, used.load_hat_nm, used.omega_hat_rad_s);
         }
         if !self.rls.theta.iter().all(|v| v.is_finite()) {
@@ -825,7 +889,7 @@ impl Estimator for RlsSgd {
         let (j, b) = self.adapted_parameters();
         let (j0, b0) = self.nominal_parameters();
         let (j_sd, b_sd) = (inertia_var.sqrt(), viscous_var.sqrt());
-        let follows = self.character.follows_speed;
+        let follows = self.load_follows_speed();
         let in_force = self.validation.in_force;
         let known = |sd: f64, x: f64, limit: f64| sd <= limit * x.abs();
         let inertia = match (in_force, known(j_sd, j, INERTIA_IDENTIFIED_SD)) {
@@ -839,7 +903,12 @@ impl Estimator for RlsSgd {
             (false, false, true) => Identification::NominalPredictsAsWell,
             (false, _, false) => Identification::TooLittleExcitation,
         };
-        let (fast, j, b) = if in_force { (self.tracker.estimate(), j, b) } else { (self.nominal.estimate(), j0, b0) };
+        // the nominal B (and J, where the adapted does not predict better) stands on the fallback tracker
+        let (fast, j, b) = match (in_force, follows) {
+            (true, false) => (self.tracker.estimate(), j, b),
+            (true, true) => (self.nominal.estimate(), j, b0),
+            (false, _) => (self.nominal.estimate(), j0, b0),
+        };
         // a value that stands without the data's backing carries the prior's uncertainty
         let prior_j_sd = self.s.inertia_prior_sd * j0;
         let prior_b_sd = self.s.viscous_prior_sd * b0.max(self.s.viscous_bounds_nm_s_rad[1] / 5.0);
@@ -849,7 +918,7 @@ impl Estimator for RlsSgd {
             inertia_hat_kg_m2: j,
             viscous_hat_nm_s_rad: b,
             inertia_sd_kg_m2: if in_force { j_sd } else { prior_j_sd },
-            viscous_sd_nm_s_rad: if in_force { b_sd } else { prior_b_sd },
+            viscous_sd_nm_s_rad: if in_force && !follows { b_sd } else { prior_b_sd },
             inertia_identified: inertia.code(),
             viscous_identified: viscous.code(),
             load_character: self.character.character.code(),

@@ -42,16 +42,7 @@ fn whole_file_estimate(rec: &Path, method: Method) -> Vec<u8> {
     let estimates = hydrolens::replay::replay(&r, &model, &origin, est.as_mut()).expect("replays");
     let mut w = RowWriter::new(Vec::new(), &hydrolens::replay_file::COLUMNS).expect("header");
     for (t, e) in r.t_s().iter().zip(&estimates) {
-        w.write_row([
-            *t,
-            e.omega_hat_rad_s,
-            e.load_hat_nm,
-            e.inertia_hat_kg_m2,
-            e.viscous_hat_nm_s_rad,
-            e.inertia_sd_kg_m2,
-            e.viscous_sd_nm_s_rad,
-        ])
-        .expect("row");
+        w.write_row(std::iter::once(*t).chain(e.values())).expect("row");
     }
     w.into_inner()
 }

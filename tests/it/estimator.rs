@@ -252,7 +252,10 @@ fn estimate_command_writes_one_row_per_input_row_and_ignores_the_truth() {
                 "inertia_hat_kg_m2",
                 "viscous_hat_nm_s_rad",
                 "inertia_sd_kg_m2",
-                "viscous_sd_nm_s_rad"
+                "viscous_sd_nm_s_rad",
+                "inertia_identified",
+                "viscous_identified",
+                "load_character"
             ]
         );
         for n in est.names() {

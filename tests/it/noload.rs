@@ -49,6 +49,9 @@ pub fn as_the_service_records(rec: &Recording, poll_ms: usize, seed: u64) -> Rec
             f64::NAN,
             -2.0,
             f64::NAN,
+            1.0,
+            -2.0,
+            5.0,
             3.0,
         ];
         for (c, v) in cols.iter_mut().zip(row) {
