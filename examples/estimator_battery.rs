@@ -101,6 +101,20 @@ fn main() {
         chunks.into_iter().flat_map(|h| h.join().unwrap_or_default()).collect()
     });
     for r in &results {
+        if std::env::var("CHECKPOINTS").is_ok() {
+            for (t, e) in &r.rls.checkpoints {
+                println!(
+                    "    {t:>4} s: J {:.4} ± {:.4} ({}) B {:.4} ± {:.4} ({}) load {}",
+                    e.inertia_hat_kg_m2,
+                    e.inertia_sd_kg_m2,
+                    e.inertia_identified,
+                    e.viscous_hat_nm_s_rad,
+                    e.viscous_sd_nm_s_rad,
+                    e.viscous_identified,
+                    hydrolens::estimator::LoadCharacter::from_code(e.load_character).name()
+                );
+            }
+        }
         println!(
             "{:>2} ms {:<70} rls ω {:.3} L {:.2} J {:+5.1}% (±{:.1}%) B {:+6.1}% (±{:.1}%) | kalman ω {:.3} L {:.2} | \
              nominal L {:.2} (rls/nominal {:.2}) | {}",

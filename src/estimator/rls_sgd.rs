@@ -205,7 +205,7 @@ impl ViscousPool {
     /// at every speed; a fan's torque has a slope that doubles with the speed.
     fn depends_on_speed(&self) -> bool {
         let n = self.len;
-        if n < 8 {
+        if n < SPEED_SLOPE_WINDOWS {
             return false;
         }
         let tau2 = {
@@ -218,7 +218,7 @@ impl ViscousPool {
             (sw, sx, sy, sxx, sxy) = (sw + w, sx + w * x, sy + w * b, sxx + w * x * x, sxy + w * x * b);
         }
         let var_x = sxx / sw - (sx / sw).powi(2);
-        if !(var_x > 0.0) {
+        if var_x.is_nan() || var_x <= 0.0 {
             return false;
         }
         let slope = (sxy / sw - sx / sw * sy / sw) / var_x;
@@ -727,9 +727,14 @@ pub struct RlsSgd {
 
 /// How far from the nominal B a B can plausibly be friction (the battery starts its models up to ×3 off).
 const PLAUSIBLE_VISCOUS_FACTOR: f64 = 4.0;
-const FOLLOWS_FROM_CHARACTER: bool = false;
 /// The windows' B depends on their speed when its slope is this many standard errors from zero.
-const SPEED_SLOPE_Z: f64 = 4.0;
+const SPEED_SLOPE_Z: f64 = 3.0;
+/// …among at least this many windows.
+const SPEED_SLOPE_WINDOWS: usize = 5;
+/// Before the evidence is in, an adapted B stands only this near the nominal (either way).
+const UNEARNED_VISCOUS_FACTOR: f64 = 2.5;
+/// The window sign test's z from which adapted values that differ from the nominal count as earned.
+const IDENTIFIED_Z: f64 = 1.0;
 /// J known to this relative standard deviation is identified (the battery asks ±15 % at 2.5 sd).
 const INERTIA_IDENTIFIED_SD: f64 = 0.06;
 /// B known to this relative standard deviation is identified.
@@ -844,19 +849,68 @@ impl RlsSgd {
     }
 
     /// The load follows the speed: the adapted B (all the torque proportional to speed) lies beyond what friction
-    /// plausibly is (more than `PLAUSIBLE_VISCOUS_FACTOR` from the nominal either way), or the adapted tracker's
-    /// load still follows the speed.
+    /// plausibly is (more than `PLAUSIBLE_VISCOUS_FACTOR` from the nominal either way), or the windows' B depends on
+    /// the speed they saw (a fan's slope grows with the speed; friction's does not).
     fn load_follows_speed(&self) -> bool {
         let ((b, _), _) = self.combined;
         let reference = self.rls.b0;
         let implausible = b > PLAUSIBLE_VISCOUS_FACTOR * reference || b < reference / PLAUSIBLE_VISCOUS_FACTOR;
-        implausible || self.rls.viscous.depends_on_speed() || (FOLLOWS_FROM_CHARACTER && self.character.follows_speed)
+        implausible || self.rls.viscous.depends_on_speed()
     }
 
     /// The adapted J and B the tracker predicts with: B stays nominal where the load follows the speed.
     fn adapted_parameters(&self) -> (f64, f64) {
         let ((b, _), (j, _)) = self.combined;
         (j, b)
+    }
+}
+
+impl RlsSgd {
+    /// What the data say of J and B now (module doc of `guard.rs`).
+    fn verdicts(&self) -> (Identification, Identification) {
+        let ((b, viscous_var), (j, inertia_var)) = self.combined;
+        let (j0, b0) = self.nominal_parameters();
+        let (j_sd, b_sd) = (inertia_var.sqrt(), viscous_var.sqrt());
+        let in_force = self.validation.in_force;
+        let known = |sd: f64, x: f64, limit: f64| sd <= limit * x.abs();
+        // identified needs evidence: the windows said the adapted values predict better, or they agree with the
+        // nominal ones (then neither can beat the other)
+        let earned = |x: f64, x0: f64, sd: f64| self.validation.z() >= IDENTIFIED_Z || (x - x0).abs() <= 2.0 * sd;
+        let inertia = match (in_force, known(j_sd, j, INERTIA_IDENTIFIED_SD), earned(j, j0, j_sd)) {
+            (true, true, true) => Identification::Identified,
+            (false, true, _) => Identification::NominalPredictsAsWell,
+            _ => Identification::TooLittleExcitation,
+        };
+        let viscous =
+            match (self.load_follows_speed(), in_force, known(b_sd, b, VISCOUS_IDENTIFIED_SD), earned(b, b0, b_sd)) {
+                (true, _, _, _) => Identification::LoadFollowsSpeed,
+                (false, true, true, true) => Identification::Identified,
+                (false, false, true, _) => Identification::NominalPredictsAsWell,
+                _ => Identification::TooLittleExcitation,
+            };
+        (inertia, viscous)
+    }
+
+    /// Which adapted values stand (the others are the nominal ones): J where identified or known to its limit while
+    /// the windows keep the adapted values in force; B where identified, or known to its limit and near the nominal
+    /// before the evidence is in; B only where J stands.
+    fn standing(&self) -> (bool, bool) {
+        let (inertia, viscous) = self.verdicts();
+        // J as the windows keep it in force once it is known to its limit (the windows test J directly); B only
+        // where it is identified
+        let ((_, _), (j, inertia_var)) = self.combined;
+        let j = inertia == Identification::Identified
+            || (self.validation.in_force && inertia_var.sqrt() <= INERTIA_IDENTIFIED_SD * j);
+        // B where identified, or, before the evidence is in, where it is known to its limit and near enough the
+        // nominal (`UNEARNED_VISCOUS_FACTOR`) that friction is the likely reading
+        let ((b, viscous_var), _) = self.combined;
+        let b0 = self.rls.b0;
+        let near = b <= UNEARNED_VISCOUS_FACTOR * b0 && b >= b0 / UNEARNED_VISCOUS_FACTOR;
+        let unearned = viscous == Identification::TooLittleExcitation
+            && self.validation.in_force
+            && near
+            && viscous_var.sqrt() <= VISCOUS_IDENTIFIED_SD * b;
+        (j, j && (viscous == Identification::Identified || unearned))
     }
 }
 
@@ -867,10 +921,11 @@ impl Estimator for RlsSgd {
         let (j, b) = self.adapted_parameters();
         let (j0, b0) = self.nominal_parameters();
         let scale = self.s.eta / PAPER_ETA;
+        let (j_stands, b_stands) = self.standing();
         let adapted = self.tracker.step_with(m, j, b, scale);
-        let nominal = self.nominal.step_with(m, if self.validation.in_force { j } else { j0 }, b0, scale);
+        let fallback = self.nominal.step_with(m, if j_stands { j } else { j0 }, b0, scale);
         if let Some(dt) = c.dt_s {
-            let used = if self.validation.in_force && !self.load_follows_speed() { adapted } else { nominal };
+            let used = if b_stands { adapted } else { fallback };
             self.character.push(dt, adapted.load_hat_nm, used.load_hat_nm, used.omega_hat_rad_s);
         }
         if !self.rls.theta.iter().all(|v| v.is_finite()) {
@@ -885,40 +940,25 @@ impl Estimator for RlsSgd {
     }
 
     fn estimate(&self) -> Estimate {
-        let ((_, viscous_var), (_, inertia_var)) = self.combined;
-        let (j, b) = self.adapted_parameters();
+        let ((b, viscous_var), (j, inertia_var)) = self.combined;
         let (j0, b0) = self.nominal_parameters();
-        let (j_sd, b_sd) = (inertia_var.sqrt(), viscous_var.sqrt());
-        let follows = self.load_follows_speed();
-        let in_force = self.validation.in_force;
-        let known = |sd: f64, x: f64, limit: f64| sd <= limit * x.abs();
-        let inertia = match (in_force, known(j_sd, j, INERTIA_IDENTIFIED_SD)) {
-            (true, true) => Identification::Identified,
-            (false, true) => Identification::NominalPredictsAsWell,
-            (_, false) => Identification::TooLittleExcitation,
-        };
-        let viscous = match (follows, in_force, known(b_sd, b, VISCOUS_IDENTIFIED_SD)) {
-            (true, _, _) => Identification::LoadFollowsSpeed,
-            (false, true, true) => Identification::Identified,
-            (false, false, true) => Identification::NominalPredictsAsWell,
-            (false, _, false) => Identification::TooLittleExcitation,
-        };
-        // the nominal B (and J, where the adapted does not predict better) stands on the fallback tracker
-        let (fast, j, b) = match (in_force, follows) {
-            (true, false) => (self.tracker.estimate(), j, b),
-            (true, true) => (self.nominal.estimate(), j, b0),
-            (false, _) => (self.nominal.estimate(), j0, b0),
-        };
-        // a value that stands without the data's backing carries the prior's uncertainty
+        let (inertia, viscous) = self.verdicts();
+        let (j_stands, b_stands) = self.standing();
+        // the load as tracked on the values that stand: the adapted tracker where both do, else the fallback one
+        // (the nominal B, and J where it is not earned)
+        let fast = if b_stands { self.tracker.estimate() } else { self.nominal.estimate() };
+        // a value that stands without the data's backing is the nominal with the prior's uncertainty
         let prior_j_sd = self.s.inertia_prior_sd * j0;
         let prior_b_sd = self.s.viscous_prior_sd * b0.max(self.s.viscous_bounds_nm_s_rad[1] / 5.0);
+        let (j, j_sd) = if j_stands { (j, inertia_var.sqrt()) } else { (j0, prior_j_sd) };
+        let (b, b_sd) = if b_stands { (b, viscous_var.sqrt()) } else { (b0, prior_b_sd) };
         Estimate {
             omega_hat_rad_s: fast.omega_hat_rad_s,
             load_hat_nm: fast.load_hat_nm,
             inertia_hat_kg_m2: j,
             viscous_hat_nm_s_rad: b,
-            inertia_sd_kg_m2: if in_force { j_sd } else { prior_j_sd },
-            viscous_sd_nm_s_rad: if in_force && !follows { b_sd } else { prior_b_sd },
+            inertia_sd_kg_m2: j_sd,
+            viscous_sd_nm_s_rad: b_sd,
             inertia_identified: inertia.code(),
             viscous_identified: viscous.code(),
             load_character: self.character.character.code(),
@@ -953,14 +993,14 @@ mod tests {
         let mut agree = ViscousPool::new(0.12, 0.01, [0.0, 0.5]);
         assert_eq!(agree.estimate, (0.12, 0.01));
         for i in 0..20 {
-            agree.add(0.04 + 0.002 * if i % 2 == 0 { 1.0 } else { -1.0 }, 0.002f64.powi(2));
+            agree.add(0.04 + 0.002 * if i % 2 == 0 { 1.0 } else { -1.0 }, 0.002f64.powi(2), 10.0 + i as f64);
         }
         let (b, var) = agree.estimate;
         assert!((b - 0.04).abs() < 1e-3 && var.sqrt() < 1e-3, "{b} ± {}", var.sqrt());
         let mut scatter = ViscousPool::new(0.12, 0.01, [0.0, 0.5]);
         let biases = [0.05, -0.04, 0.03, -0.06, 0.02, -0.03, 0.06, -0.05, 0.04, -0.02];
         for bias in biases.iter().chain(biases.iter()) {
-            scatter.add(0.04 + bias, 0.002f64.powi(2));
+            scatter.add(0.04 + bias, 0.002f64.powi(2), 30.0);
         }
         let (b, var) = scatter.estimate;
         let sd = var.sqrt();
