@@ -881,10 +881,12 @@ impl RlsSgd {
             (false, true, _) => Identification::NominalPredictsAsWell,
             _ => Identification::TooLittleExcitation,
         };
+        // B comes with J from the same windows: never identified where J is not
+        let j_known = inertia == Identification::Identified;
         let viscous =
             match (self.load_follows_speed(), in_force, known(b_sd, b, VISCOUS_IDENTIFIED_SD), earned(b, b0, b_sd)) {
                 (true, _, _, _) => Identification::LoadFollowsSpeed,
-                (false, true, true, true) => Identification::Identified,
+                (false, true, true, true) if j_known => Identification::Identified,
                 (false, false, true, _) => Identification::NominalPredictsAsWell,
                 _ => Identification::TooLittleExcitation,
             };

@@ -315,3 +315,51 @@ async fn each_drive_polls_on_its_own_thread_with_the_priority_asked_for() {
     };
     tokio::time::timeout(Duration::from_secs(20), run).await.expect("bounded");
 }
+
+/// The regulator's tracking error (RMS of the true speed against the target, rad/s) while the demo's target
+/// program runs for `seconds`, sampled every 20 ms after the first 2 s.
+async fn tracking_rms(stack: &Stack, seconds: u64) -> f64 {
+    let drive = stack.state.drives[0].clone();
+    let sample = async {
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        let (mut se, mut n) = (0.0, 0usize);
+        let start = Instant::now();
+        while start.elapsed() < Duration::from_secs(seconds - 2) {
+            let omega = stack.sim.lock().truth().omega_rad_s;
+            let target = drive.snapshot().target_omega_rad_s;
+            se += (omega - target).powi(2);
+            n += 1;
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        (se / n.max(1) as f64).sqrt()
+    };
+    let (_, rms) = tokio::join!(support::follow_demo_program(&drive, seconds), sample);
+    rms
+}
+
+/// Speed mode on loads the estimator is not told and cannot tell from friction (a centrifugal fan) or that never
+/// repeat (a smooth random load), both estimators started from the same wrong J and B: with rls-sgd adapting, the
+/// speed follows the target at least as well as with adaptation off (the Kalman filter on the wrong values).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn speed_mode_with_adaptation_follows_a_fan_and_a_random_load_as_well_as_without() {
+    let run = async {
+        let wrong = "initial_inertia_kg_m2 = 0.13\ninitial_viscous_nm_s_rad = 0.09\n";
+        for load in [
+            hydrolens::plant::LoadSpec::Centrifugal { torque_nm: 12.0, at_rad_s: 60.0 },
+            hydrolens::plant::LoadSpec::Random { mean_nm: 8.0, sd_nm: 4.0, correlation_s: 1.0, seed: 5 },
+        ] {
+            let mut plant = support::test_plant(0.0);
+            plant.load = load.clone();
+            let adapt = format!("{SPEED}[drives.estimator]\nmethod = \"rls-sgd\"\n{wrong}");
+            let fixed = format!("{SPEED}[drives.estimator]\nmethod = \"kalman\"\n{wrong}");
+            let (a, k) = tokio::join!(Stack::start_on(plant.clone(), 10, &adapt), Stack::start_on(plant, 10, &fixed));
+            let (rms_adapt, rms_fixed) = tokio::join!(tracking_rms(&a, 12), tracking_rms(&k, 12));
+            let id = a.status().await["identification"].clone();
+            eprintln!("{load:?}: speed error RMS {rms_adapt:.2} rad/s adapting, {rms_fixed:.2} without; {id}");
+            assert!(rms_adapt <= 1.1 * rms_fixed + 0.2, "{load:?}: {rms_adapt} against {rms_fixed}");
+            a.stop().await;
+            k.stop().await;
+        }
+    };
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
+}
