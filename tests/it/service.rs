@@ -343,7 +343,16 @@ async fn tracking_rms(stack: &Stack, seconds: u64) -> f64 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn speed_mode_with_adaptation_follows_a_fan_and_a_random_load_as_well_as_without() {
     let run = async {
-        let wrong = "initial_inertia_kg_m2 = 0.13\ninitial_viscous_nm_s_rad = 0.09\n";
+        // the service's nominal model: the reference plant with J and B wrong (×1.6, ×2.2)
+        let dir = tempfile::tempdir().expect("tmp");
+        let reference = std::fs::read_to_string(support::root().join("config/plant.toml")).expect("plant.toml");
+        let text = reference
+            .replace("inertia_kg_m2 = 0.08", "inertia_kg_m2 = 0.13")
+            .replace("viscous_nm_s_rad = 0.04", "viscous_nm_s_rad = 0.09");
+        assert_ne!(text, reference);
+        let model = dir.path().join("wrong.toml");
+        std::fs::write(&model, text).expect("write model");
+        let wrong = format!("model = {:?}\n", model.display().to_string());
         for load in [
             hydrolens::plant::LoadSpec::Centrifugal { torque_nm: 12.0, at_rad_s: 60.0 },
             hydrolens::plant::LoadSpec::Random { mean_nm: 8.0, sd_nm: 4.0, correlation_s: 1.0, seed: 5 },
