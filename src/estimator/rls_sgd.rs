@@ -723,6 +723,9 @@ pub struct RlsSgd {
     nominal: Kalman,
     validation: Validation,
     character: Character,
+    /// J's and B's identification and which adapted values stand: judged when `combined` is refreshed (a window
+    /// learnt, a block of the periodic fit), not every sample.
+    judged: ((Identification, Identification), (bool, bool)),
 }
 
 /// How far from the nominal B a B can plausibly be friction (the battery starts its models up to ×3 off).
@@ -753,8 +756,10 @@ impl RlsSgd {
             nominal: Kalman::new(s),
             validation: Validation::default(),
             character: Character::default(),
+            judged: ((Identification::TooLittleExcitation, Identification::TooLittleExcitation), (false, false)),
         };
         est.combined = est.parameters();
+        est.judged = est.judge();
         est
     }
 
@@ -838,6 +843,7 @@ impl RlsSgd {
         }
         if changed {
             self.combined = self.parameters();
+            self.judged = self.judge();
         }
     }
 }
@@ -866,6 +872,12 @@ impl RlsSgd {
 }
 
 impl RlsSgd {
+    /// The verdicts and what stands, for [`RlsSgd::judged`].
+    fn judge(&self) -> ((Identification, Identification), (bool, bool)) {
+        let v = self.verdicts();
+        (v, self.standing(v))
+    }
+
     /// What the data say of J and B now (module doc of `guard.rs`).
     fn verdicts(&self) -> (Identification, Identification) {
         let ((b, viscous_var), (j, inertia_var)) = self.combined;
@@ -896,8 +908,7 @@ impl RlsSgd {
     /// Which adapted values stand (the others are the nominal ones): J where identified or known to its limit while
     /// the windows keep the adapted values in force; B where identified, or known to its limit and near the nominal
     /// before the evidence is in; B only where J stands.
-    fn standing(&self) -> (bool, bool) {
-        let (inertia, viscous) = self.verdicts();
+    fn standing(&self, (inertia, viscous): (Identification, Identification)) -> (bool, bool) {
         // J as the windows keep it in force once it is known to its limit (the windows test J directly); B only
         // where it is identified
         let ((_, _), (j, inertia_var)) = self.combined;
@@ -923,7 +934,7 @@ impl Estimator for RlsSgd {
         let (j, b) = self.adapted_parameters();
         let (j0, b0) = self.nominal_parameters();
         let scale = self.s.eta / PAPER_ETA;
-        let (j_stands, b_stands) = self.standing();
+        let (_, (j_stands, b_stands)) = self.judged;
         let adapted = self.tracker.step_with(m, j, b, scale);
         let fallback = self.nominal.step_with(m, if j_stands { j } else { j0 }, b0, scale);
         if let Some(dt) = c.dt_s {
@@ -944,8 +955,7 @@ impl Estimator for RlsSgd {
     fn estimate(&self) -> Estimate {
         let ((b, viscous_var), (j, inertia_var)) = self.combined;
         let (j0, b0) = self.nominal_parameters();
-        let (inertia, viscous) = self.verdicts();
-        let (j_stands, b_stands) = self.standing();
+        let ((inertia, viscous), (j_stands, b_stands)) = self.judged;
         // the load as tracked on the values that stand: the adapted tracker where both do, else the fallback one
         // (the nominal B, and J where it is not earned)
         let fast = if b_stands { self.tracker.estimate() } else { self.nominal.estimate() };
