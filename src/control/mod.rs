@@ -87,7 +87,22 @@ pub struct Inputs {
     pub tripped: bool,
     pub omega_hat_rad_s: f64,
     pub load_hat_nm: f64,
+    /// The frequency the drive reports it runs at (NaN: unknown).
+    pub drive_hz: f64,
+    /// The drive reports ready and running.
+    pub drive_running: bool,
+    /// The first fresh cycle after a stale stretch, a gap or the start: the ramp starts again from `drive_hz`.
+    pub resumed: bool,
 }
+
+/// A read-back this far (Hz) from the setpoint, for longer than [`FOLLOW_GRACE_S`], is a drive not following.
+pub const FOLLOW_TOLERANCE_HZ: f64 = 1.5;
+/// How long the drive may lag (its own ramp, a write in flight) before it counts as not following (s).
+pub const FOLLOW_GRACE_S: f64 = 0.3;
+/// A drive found not following: the setpoint holds its read-back this long before the regulator tries again (s).
+pub const HOLD_S: f64 = 2.0;
+/// A drive that follows again for this long (s) ends the alarm.
+pub const FOLLOWED_AGAIN_S: f64 = 1.0;
 
 /// The law's state between cycles.
 #[derive(Debug, Clone, PartialEq)]
@@ -101,6 +116,14 @@ pub struct SpeedLaw {
     integral_hz: f64,
     /// The last setpoint sent; None before the first.
     last_hz: Option<f64>,
+    /// How long the drive has been away from the setpoint, or not ready and running (s).
+    away_s: f64,
+    /// Since when (s) the setpoint holds the read-back of a drive found not following; None while regulating.
+    held_s: Option<f64>,
+    /// How long the drive has followed since it was last found not following (s).
+    followed_s: f64,
+    /// The drive does not follow: raised when found so, cleared once it has followed for [`FOLLOWED_AGAIN_S`].
+    alarm: bool,
 }
 
 impl SpeedLaw {
@@ -114,6 +137,10 @@ impl SpeedLaw {
             fixed_hz: 0.0,
             integral_hz: 0.0,
             last_hz: None,
+            away_s: 0.0,
+            held_s: None,
+            followed_s: 0.0,
+            alarm: false,
         }
     }
 
@@ -129,12 +156,73 @@ impl SpeedLaw {
         }
     }
 
+    /// True while the drive does not follow the setpoints: its read-back away from the last setpoint by more than
+    /// [`FOLLOW_TOLERANCE_HZ`], or it not ready and running, for longer than [`FOLLOW_GRACE_S`] (local mode, a
+    /// drive that answers writes but ignores them), until it has followed again for [`FOLLOWED_AGAIN_S`].
+    pub fn not_following(&self) -> bool {
+        self.alarm
+    }
+
+    /// The drive-follows test of one cycle: `Some(read-back)` while the setpoint must hold the drive's read-back
+    /// (for [`HOLD_S`] after the drive was found not following; then the regulator tries again, from there).
+    fn follow_test(&mut self, x: &Inputs, dt: f64) -> Option<f64> {
+        let last = self.last_hz?;
+        let known = x.drive_hz.is_finite();
+        let within = known && (x.drive_hz - last).abs() <= FOLLOW_TOLERANCE_HZ && x.drive_running;
+        let held = known.then(|| x.drive_hz.clamp(self.limits.min_hz, self.limits.max_hz));
+        if let Some(t) = self.held_s {
+            self.followed_s = 0.0;
+            self.held_s = (t + dt < HOLD_S).then_some(t + dt);
+            self.away_s = 0.0;
+            return held;
+        }
+        self.away_s = if within { 0.0 } else { self.away_s + dt };
+        self.followed_s = if within { self.followed_s + dt } else { 0.0 };
+        if self.followed_s >= FOLLOWED_AGAIN_S {
+            self.alarm = false;
+        }
+        if self.away_s > FOLLOW_GRACE_S && held.is_some() {
+            self.alarm = true;
+            self.held_s = Some(0.0);
+            return held;
+        }
+        None
+    }
+
+    /// Sets the integral so that the speed law's output is `hz` now (back-calculation anti-windup).
+    fn back_calculate(&mut self, x: &Inputs, hz: f64) {
+        let (omega, load) = (x.omega_hat_rad_s, if x.load_hat_nm.is_finite() { x.load_hat_nm } else { 0.0 });
+        if !omega.is_finite() {
+            return;
+        }
+        let target = self.target_omega_rad_s;
+        let proportional = self.feed_forward.hz(target, load) + self.gains.kp_hz_per_rad_s * (target - omega);
+        let span = self.limits.max_hz - self.limits.min_hz;
+        self.integral_hz = (hz - proportional).clamp(-span, span);
+    }
+
     /// The setpoint for this cycle, or None when nothing may be written (monitor mode or stale data).
+    ///
+    /// The regulator follows the drive, not its own wish: after a gap or a stale stretch (`resumed`) the ramp starts
+    /// again from the drive's read-back, and while the drive does not follow, the integral holds and the ramp's
+    /// reference is the read-back, so that the first setpoint it follows again is a ramp step from where it runs.
     pub fn step(&mut self, x: &Inputs) -> Option<f64> {
         if !self.mode.writes() || !x.fresh {
             return None;
         }
         let dt = if x.dt_s.is_finite() && x.dt_s > 0.0 { x.dt_s.min(1.0) } else { 0.0 };
+        if x.resumed {
+            self.start_from(x.drive_hz);
+        }
+        if let Some(held) = self.follow_test(x, dt) {
+            // not following: the setpoint holds what the drive runs at, and the integral is back-calculated so
+            // that the regulator's output is that frequency (it resumes from there, wound up by nothing)
+            if self.mode == Mode::Speed && !x.tripped {
+                self.back_calculate(x, held);
+            }
+            self.last_hz = Some(held);
+            return Some(held);
+        }
         let Limits { min_hz, max_hz, ramp_hz_per_s } = self.limits;
         let wanted = if x.tripped {
             self.integral_hz = 0.0;
@@ -205,8 +293,67 @@ mod tests {
         )
     }
 
+    fn fresh_inputs() -> Inputs {
+        fresh(0.0, 0.0)
+    }
+
     fn fresh(omega: f64, load: f64) -> Inputs {
-        Inputs { dt_s: 0.01, fresh: true, tripped: false, omega_hat_rad_s: omega, load_hat_nm: load }
+        Inputs {
+            dt_s: 0.01,
+            fresh: true,
+            tripped: false,
+            omega_hat_rad_s: omega,
+            load_hat_nm: load,
+            drive_hz: f64::NAN,
+            drive_running: true,
+            resumed: false,
+        }
+    }
+
+    /// A drive in local mode (answers the writes, runs 10 Hz) for 6 s under a target it cannot reach there: the
+    /// integral holds, the setpoint stays a ramp step from the read-back, and when the drive follows again the
+    /// setpoints climb from 10 Hz at the ramp rate instead of starting at the top of the range.
+    #[test]
+    fn a_drive_that_does_not_follow_winds_nothing_up() {
+        let mut s = law(Mode::Speed);
+        s.target_omega_rad_s = 40.0;
+        s.start_from(10.0);
+        let mut highest: f64 = 0.0;
+        let mut last = 10.0;
+        for _ in 0..600 {
+            let x = Inputs { drive_hz: 10.0, ..fresh(12.0, 5.0) };
+            last = s.step(&x).expect("writes");
+            highest = highest.max(last);
+        }
+        assert!(s.not_following(), "6 s away from the setpoint is not following");
+        // between holds the regulator tries again, a grace period's ramp at most above the read-back
+        let bound = 10.0 + FOLLOW_TOLERANCE_HZ + 20.0 * (FOLLOW_GRACE_S + 0.02);
+        assert!(highest <= bound, "the setpoint stayed near the read-back: {highest} > {bound}");
+        // the drive follows again: each setpoint is at most a ramp step from the last
+        let mut prev = last;
+        for _ in 0..400 {
+            let hz = s.step(&Inputs { drive_hz: prev, ..fresh(12.0, 5.0) }).expect("writes");
+            assert!(hz - prev <= 20.0 * 0.01 + 1e-9, "{prev} → {hz}");
+            prev = hz;
+        }
+        assert!(!s.not_following());
+    }
+
+    /// After a gap the first setpoint is a ramp step from what the drive runs at, not from the last wish.
+    #[test]
+    fn after_a_gap_the_ramp_starts_from_the_read_back() {
+        let mut s = law(Mode::Speed);
+        s.target_omega_rad_s = 60.0;
+        s.start_from(26.7);
+        let hz = s.step(&Inputs { dt_s: 0.01, drive_hz: 26.7, resumed: true, ..fresh(30.0, 5.0) }).expect("writes");
+        assert!(hz <= 26.7 + 20.0 * 0.01 + 1e-9, "{hz}");
+        // a drive that is not ready and running does not follow either
+        let mut idle = law(Mode::Speed);
+        idle.target_omega_rad_s = 40.0;
+        for _ in 0..100 {
+            idle.step(&Inputs { drive_hz: 0.0, drive_running: false, ..fresh(0.0, 0.0) });
+        }
+        assert!(idle.not_following());
     }
 
     #[test]
@@ -283,7 +430,7 @@ mod tests {
             s.target_omega_rad_s = target;
             let mut last: Option<f64> = None;
             for (dt, omega, load, fresh, tripped) in steps {
-                let x = Inputs { dt_s: dt, fresh, tripped, omega_hat_rad_s: omega, load_hat_nm: load };
+                let x = Inputs { dt_s: dt, fresh, tripped, omega_hat_rad_s: omega, load_hat_nm: load, ..fresh_inputs() };
                 match s.step(&x) {
                     None => prop_assert!(!fresh),
                     Some(hz) => {

@@ -509,7 +509,11 @@ async fn readyz(State(s): State<AppState>) -> Response {
     } else {
         (
             StatusCode::SERVICE_UNAVAILABLE,
-            Json(serde_json::json!({ "status": "not ready", "stale_or_down": not_ready })),
+            Json(serde_json::json!({
+                "status": "not ready",
+                "stale_or_down": not_ready,
+                "not_following": s.service.drives.iter().filter(|d| d.not_following()).map(|d| d.name.clone()).collect::<Vec<_>>(),
+            })),
         )
             .into_response()
     }

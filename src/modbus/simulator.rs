@@ -39,6 +39,8 @@ pub struct Faults {
     pub freeze_counter: bool,
     /// Report this inlet pressure (bar) instead of the measured one, e.g. out of range.
     pub inlet_pressure_override_bar: Option<f64>,
+    /// The drive in local mode: it answers setpoint writes OK but runs at this frequency (Hz), ready and running.
+    pub local_hz: Option<f64>,
 }
 
 /// The ground truth at the current sample, for tests and the demo.
@@ -177,7 +179,11 @@ impl DriveSim {
             tracing::warn!(t_s = self.plant.t_s(), "simulator: watchdog unchanged, comm-loss trip");
         }
         let run = self.control_word & control::RUN != 0;
-        let f_cmd = if run && self.ready() { self.setpoint_hz } else { 0.0 };
+        let f_cmd = match self.faults.local_hz {
+            Some(hz) => hz,
+            None if run && self.ready() => self.setpoint_hz,
+            None => 0.0,
+        };
         let t = self.plant.t_s();
         let omega_rad_s = self.plant.state().omega_rad_s;
         self.load_nm = self.model.load.torque_at(t, omega_rad_s, self.shaft_angle_rad);

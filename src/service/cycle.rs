@@ -100,6 +100,7 @@ pub fn drive_status(word: u16) -> DriveStatus {
         running: word & status::RUNNING != 0,
         fault: word & status::FAULT != 0,
         comm_loss_trip: word & status::COMM_LOSS_TRIP != 0,
+        not_following: false,
     }
 }
 
@@ -174,6 +175,8 @@ pub struct DriveCycle {
     reset_phase: u8,
     pending: Option<Pending>,
     status: DriveStatus,
+    /// The drive does not follow its setpoints (the law's verdict), for the alarm.
+    not_following: bool,
     estimate: Option<Estimate>,
     measured: Option<Measured>,
 }
@@ -204,6 +207,7 @@ impl DriveCycle {
             reset_phase: 0,
             pending: None,
             status: DriveStatus::default(),
+            not_following: false,
             estimate: None,
             measured: None,
         }
@@ -247,6 +251,8 @@ impl DriveCycle {
         }
         let first = self.last_fresh_at.is_none();
         let dt = self.last_fresh_at.map_or(self.poll, |t| now.saturating_duration_since(t));
+        // the first fresh cycle after a gap: the setpoint ramps again from what the drive runs at, one poll's step
+        let resumed = first || dt > 2 * self.poll;
         self.last_fresh_at = Some(now);
         let torque = self.motor_m3_rad * (sample.p_in_bar - sample.p_out_bar) * crate::units::PA_PER_BAR;
         let est = self.estimator.update(&Measurement {
@@ -259,12 +265,16 @@ impl DriveCycle {
             self.law.start_from(sample.f_drive_hz);
         }
         let setpoint = self.law.step(&Inputs {
-            dt_s: dt.as_secs_f64(),
+            dt_s: if resumed { self.poll } else { dt }.as_secs_f64(),
             fresh: true,
             tripped: self.tripped(),
             omega_hat_rad_s: est.omega_hat_rad_s,
             load_hat_nm: est.load_hat_nm,
+            drive_hz: sample.f_drive_hz,
+            drive_running: self.status.ready && self.status.running,
+            resumed: resumed && !first,
         });
+        self.note_following();
         let (mut f_set_hz, mut writes, mut encode_error) = (f64::NAN, Vec::new(), None);
         if let Some(hz) = setpoint {
             match self.plan(now, hz) {
@@ -318,6 +328,28 @@ impl DriveCycle {
         let reset_sent = self.reset_phase == 1;
         self.reset_phase = if reset_sent { 2 } else { 0 };
         Some(Confirmed { setpoint_hz: p.setpoint_hz, reset_sent })
+    }
+
+    /// Logs a drive that stops (or starts again) following its setpoints, once per episode.
+    fn note_following(&mut self) {
+        let now = self.law.not_following();
+        if now != self.not_following {
+            self.not_following = now;
+            if now {
+                tracing::warn!(
+                    setpoint_hz = self.law.last_hz(),
+                    "the drive does not follow its setpoints (local mode, not ready or not running): the speed \
+                     regulator holds its integral and ramps from the drive's read-back"
+                );
+            } else {
+                tracing::info!("the drive follows its setpoints again");
+            }
+        }
+    }
+
+    /// True while the drive does not follow its setpoints (read-back away from them, or not ready and running).
+    pub fn not_following(&self) -> bool {
+        self.not_following
     }
 
     /// The status word's bits, as of the last decoded sample.
@@ -415,8 +447,20 @@ mod tests {
     fn the_setpoint_is_clamped_and_ramp_limited() {
         // the speed law wants more than 30 Hz for 46 rad/s while the shaft turns at 30
         let (mut c, t0) = cycle("mode = \"speed\"\ntarget_omega_rad_s = 46.0\nmax_hz = 30.0\nramp_hz_per_s = 100.0");
-        let steps = run(&mut c, t0, 0, 40, 30.0, 3);
-        let hz: Vec<f64> = steps.iter().filter_map(|s| s.point.map(|p| p.sample.f_set_hz)).collect();
+        // a drive that follows: it runs at the setpoint written the cycle before (20 Hz at the start)
+        let mut drive_hz = 20.0;
+        let mut hz = Vec::new();
+        for k in 0..40u64 {
+            let at = t0 + MS * (10 * k as u32);
+            let step = c.step(&sample(k, 30.0, drive_hz, 3), at, at + MS);
+            c.confirm(true);
+            if let Some(p) = step.point {
+                hz.push(p.sample.f_set_hz);
+                if p.sample.f_set_hz.is_finite() {
+                    drive_hz = p.sample.f_set_hz;
+                }
+            }
+        }
         // starts from the drive's 20 Hz and climbs at most 100 Hz/s · 10 ms = 1 Hz a cycle
         assert!((hz[0] - 21.0).abs() < 1e-9, "{hz:?}");
         for w in hz.windows(2) {

@@ -265,6 +265,7 @@ impl DriveLoop {
         self.metrics.inertia_identified.get_or_create(l).set(est.inertia_identified);
         self.metrics.viscous_identified.get_or_create(l).set(est.viscous_identified);
         self.metrics.load_character.get_or_create(l).set(est.load_character);
+        self.metrics.not_following.get_or_create(l).set(if self.cycle.not_following() { 1.0 } else { 0.0 });
     }
 
     fn publish(&mut self) {
@@ -305,7 +306,7 @@ impl DriveLoop {
             target_omega_rad_s: self.cycle.target_omega_rad_s(),
             setpoint_hz: self.cycle.setpoint_hz(),
             tripped: self.cycle.tripped(),
-            status: self.cycle.status(),
+            status: super::state::DriveStatus { not_following: self.cycle.not_following(), ..self.cycle.status() },
             link: self.link.clone(),
             sample: self.cycle.measured(),
             estimate: self.cycle.estimate(),

@@ -68,6 +68,8 @@ pub struct Metrics {
     pub inertia_identified: Family<DriveLabel, GaugeF>,
     pub viscous_identified: Family<DriveLabel, GaugeF>,
     pub load_character: Family<DriveLabel, GaugeF>,
+    /// 1 while a writing drive does not follow its setpoints (the regulator's alarm).
+    pub not_following: Family<DriveLabel, GaugeF>,
     pub setpoint: Family<DriveLabel, GaugeF>,
     pub target: Family<DriveLabel, GaugeF>,
     /// The recorder's: 1 while rows reach the disk; failures; rows lost to them.
@@ -111,6 +113,7 @@ impl Metrics {
             inertia_identified: Family::default(),
             viscous_identified: Family::default(),
             load_character: Family::default(),
+            not_following: Family::default(),
             setpoint: Family::default(),
             target: Family::default(),
             recording_ok: Family::default(),
@@ -190,6 +193,11 @@ impl Metrics {
             "load_character",
             "Load: 0 unknown, 1 steady, 2 stepping, 3 periodic in time, 4 periodic in shaft angle, 5 following the speed, 6 random",
             m.load_character.clone(),
+        );
+        r.register(
+            "drive_not_following",
+            "1 while the drive does not follow its setpoints (local mode, not ready or not running)",
+            m.not_following.clone(),
         );
         r.register_with_unit("setpoint", "Last frequency setpoint written", unit("hertz"), m.setpoint.clone());
         r.register_with_unit("target_omega", "Speed target", unit(RAD_S), m.target.clone());

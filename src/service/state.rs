@@ -100,6 +100,9 @@ pub struct DriveStatus {
     pub running: bool,
     pub fault: bool,
     pub comm_loss_trip: bool,
+    /// A writing drive that does not follow its setpoints (read-back away from them, or not ready and running, for
+    /// longer than its ramp explains): an alarm; the regulator holds its integral meanwhile.
+    pub not_following: bool,
 }
 
 /// Link health of one drive.
@@ -225,7 +228,12 @@ impl DriveState {
             let s = lock(&self.snapshot);
             (s.link.connected, s.recording.as_ref().is_none_or(|r| r.ok))
         };
-        connected && recording_ok && !self.freshness().0
+        connected && recording_ok && !self.freshness().0 && !self.not_following()
+    }
+
+    /// The drive does not follow its setpoints (the snapshot's `status.not_following`).
+    pub fn not_following(&self) -> bool {
+        lock(&self.snapshot).status.not_following
     }
 
     // The poll thread never waits for a lock the HTTP side may hold: an HTTP worker runs at a lower priority and

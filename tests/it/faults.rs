@@ -130,3 +130,44 @@ async fn a_restarted_server_is_reconnected_within_a_second() {
     };
     tokio::time::timeout(Duration::from_secs(25), run).await.expect("bounded");
 }
+
+/// A drive in local mode (it answers every setpoint write OK but runs 10 Hz) for 6 s under a 40 rad/s target it
+/// cannot reach there: the service raises the alarm (`status.not_following`, `/readyz` 503, the gauge), the regulator
+/// does not wind up, and when the drive follows again the speed rises to the target without overshooting it by more
+/// than 10 % (before this, the first write after such a stretch was 50 Hz, and the speed peaked at 63–65 rad/s).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_drive_in_local_mode_raises_an_alarm_and_no_overspeed_follows() {
+    let run = async {
+        let speed =
+            "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 40.0\nmax_hz = 50.0\nramp_hz_per_s = 20.0\n";
+        let stack = Stack::start(5.0, 10, speed).await;
+        wait_for(Duration::from_secs(10), || async { (stack.sim.lock().truth().omega_rad_s - 40.0).abs() < 2.0 })
+            .await
+            .expect("settles at the target");
+        set(&stack, |f| f.local_hz = Some(10.0));
+        wait_for(Duration::from_secs(3), || async { stack.status().await["status"]["not_following"] == true })
+            .await
+            .expect("the alarm is raised");
+        assert_eq!(stack.readyz().await, 503, "not ready while the drive does not follow");
+        let m = stack.metrics().await;
+        assert_eq!(metric(&m, "hydrolens_drive_not_following{drive=\"pump1\"}"), Some(1.0), "{m}");
+        tokio::time::sleep(Duration::from_secs(5)).await;
+        let highest_setpoint = stack.status().await["setpoint_hz"].as_f64().expect("setpoint");
+        set(&stack, |f| f.local_hz = None);
+        let mut peak: f64 = 0.0;
+        let start = std::time::Instant::now();
+        while start.elapsed() < Duration::from_secs(5) {
+            peak = peak.max(stack.sim.lock().truth().omega_rad_s);
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+        eprintln!(
+            "local mode 10 Hz for 6 s: setpoint {highest_setpoint:.1} Hz at the end of it; peak speed after {peak:.1} rad/s (target 40)"
+        );
+        assert!(peak <= 44.0, "overspeed after the drive followed again: {peak} rad/s");
+        wait_for(Duration::from_secs(5), || async { stack.status().await["status"]["not_following"] == false })
+            .await
+            .expect("the alarm ends once the drive follows");
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+}
