@@ -171,3 +171,48 @@ async fn a_drive_in_local_mode_raises_an_alarm_and_no_overspeed_follows() {
     };
     tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
 }
+
+/// A 0.8 s link gap with a higher target posted meanwhile: when the link comes back, the setpoints climb from what
+/// the drive runs at, one ramp step a poll (20 Hz/s · 10 ms), instead of spending the gap's ramp allowance in one
+/// write (before this, one write went from 26.7 to 42.2 Hz).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn after_a_link_gap_the_ramp_is_not_spent_in_one_write() {
+    let run = async {
+        let speed =
+            "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 25.0\nmax_hz = 50.0\nramp_hz_per_s = 20.0\n";
+        // a drive whose own watchdog waits 5 s, so that the gap does not trip it
+        let mut plant = support::test_plant(5.0);
+        if let Some(d) = plant.drive.as_mut() {
+            d.comm_timeout_ms = 5000;
+        }
+        let stack = Stack::start_on(plant, 10, speed).await;
+        wait_for(Duration::from_secs(10), || async { (stack.sim.lock().truth().omega_rad_s - 25.0).abs() < 1.5 })
+            .await
+            .expect("settles at the target");
+        set(&stack, |f| f.no_reply = true);
+        let posted = reqwest::Client::new()
+            .post(format!("{}/api/drives/pump1/target", stack.url))
+            .bearer_auth(support::TOKEN)
+            .json(&serde_json::json!({ "target_omega_rad_s": 45.0 }))
+            .send()
+            .await
+            .expect("POST target");
+        assert_eq!(posted.status(), 200);
+        tokio::time::sleep(Duration::from_millis(800)).await;
+        set(&stack, |f| f.no_reply = false);
+        let mut last = stack.sim.lock().truth().f_set_hz;
+        let mut largest: f64 = 0.0;
+        let start = std::time::Instant::now();
+        while start.elapsed() < Duration::from_secs(3) {
+            let now = stack.sim.lock().truth().f_set_hz;
+            largest = largest.max(now - last);
+            last = now;
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+        eprintln!("after a 0.8 s gap: largest setpoint step {largest:.2} Hz (the ramp allows 0.2 Hz a 10 ms poll)");
+        assert!(largest <= 1.0, "a setpoint step of {largest} Hz after the gap");
+        assert!(last > 26.0, "the setpoint climbed towards the new target: {last}");
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(30), run).await.expect("bounded");
+}
