@@ -56,6 +56,12 @@ pub fn is_bad_input(err: &(dyn std::error::Error + 'static)) -> bool {
         if e.is::<BadInput>() {
             return true;
         }
+        // a bad-input error carried by an I/O error (the service's start, say)
+        if let Some(io) = e.downcast_ref::<std::io::Error>()
+            && io.get_ref().is_some_and(|inner| inner.is::<BadInput>())
+        {
+            return true;
+        }
         if let Some(m) = e.downcast_ref::<plant::ModelError>() {
             return m.is_bad_input();
         }

@@ -46,6 +46,8 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
     let mut loops = Vec::with_capacity(settings.drives.len());
     let mut conditions = Vec::with_capacity(settings.drives.len());
     let mut condition_jobs = Vec::new();
+    // one writer per recordings directory, taken before anything in it is touched (leftovers, retention)
+    let recording_lock = settings.recording.dir.as_deref().map(recorder::lock_dir).transpose()?;
     // one bus per RTU line (serial port or gateway), shared by the drives on it
     let mut buses: Vec<Bus> = Vec::new();
     for d in &settings.drives {
@@ -134,6 +136,7 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
         registry,
         mqtt,
         recording_dir: settings.recording.dir.clone(),
+        recording_lock,
         started,
     });
     for bus in buses {

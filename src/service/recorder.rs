@@ -203,6 +203,40 @@ impl Spell<'_> {
     }
 }
 
+/// The lock file of a recordings directory.
+pub const LOCK_FILE: &str = ".hydrolens.lock";
+
+/// One writer per recordings directory: an exclusive lock on `<dir>/.hydrolens.lock`, held as long as the returned
+/// file is open (the service keeps it for its lifetime; the OS drops it if the process dies), with the holder's pid
+/// in it. A second instance gets a bad-input error naming the directory and that pid, before it touches any file.
+pub fn lock_dir(dir: &Path) -> std::io::Result<std::fs::File> {
+    use std::io::{Read, Seek, Write};
+    std::fs::create_dir_all(dir)?;
+    let path = dir.join(LOCK_FILE);
+    let mut f = std::fs::OpenOptions::new().read(true).write(true).create(true).truncate(false).open(&path)?;
+    match f.try_lock() {
+        Ok(()) => {
+            f.set_len(0)?;
+            f.rewind()?;
+            writeln!(f, "{}", std::process::id())?;
+            f.sync_all()?;
+            Ok(f)
+        }
+        Err(std::fs::TryLockError::WouldBlock) => {
+            let mut holder = String::new();
+            let _ = f.read_to_string(&mut holder);
+            let holder = holder.trim();
+            let holder = if holder.is_empty() { "unknown".to_string() } else { holder.to_string() };
+            Err(std::io::Error::other(crate::error::BadInput(format!(
+                "recording.dir {}: another hydrolens (pid {holder}) records there ({}); one writer per directory",
+                dir.display(),
+                path.display()
+            ))))
+        }
+        Err(std::fs::TryLockError::Error(e)) => Err(e),
+    }
+}
+
 impl Recorder {
     /// Starts writing `<dir>/<drive>-<unix ms>.csv` files, rotated after `rotate_after` or `max_bytes`; closed
     /// files are compressed to `.csv.gz` when `compress` (those of earlier runs too).

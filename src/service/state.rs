@@ -307,6 +307,8 @@ pub struct ServiceState {
     pub mqtt: Option<Arc<super::mqtt::MqttHealth>>,
     /// Where recordings are written; None when recording is off.
     pub recording_dir: Option<PathBuf>,
+    /// The exclusive lock on the recordings directory (`recorder::lock_dir`), held while the service lives.
+    pub recording_lock: Option<std::fs::File>,
     pub started: Instant,
 }
 

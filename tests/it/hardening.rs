@@ -670,3 +670,41 @@ async fn retention_keeps_the_recordings_within_max_total_mb_and_never_deletes_th
     };
     tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
 }
+
+/// One writer per recordings directory: a second service on the same `recording.dir` does not start (a bad-input
+/// error naming the directory and the first one's pid), and the first one's open recording is untouched; once the
+/// first has stopped, the directory can be taken again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_second_instance_on_the_same_recordings_directory_is_refused() {
+    let run = async {
+        use crate::support;
+        let (_sim, modbus, sim_stop, _task) = support::start_sim(support::test_plant(5.0), 0).await;
+        let dir = tempfile::tempdir().expect("tmp");
+        let text = support::config_text(modbus, dir.path(), 10, "");
+        let first = support::start_service(&text).await;
+        let csv_files = || -> Vec<std::path::PathBuf> {
+            std::fs::read_dir(dir.path())
+                .expect("dir")
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|x| x == "csv"))
+                .collect()
+        };
+        support::wait_for(Duration::from_secs(5), || async { !csv_files().is_empty() }).await.expect("recording");
+        let open = csv_files();
+        assert_eq!(open.len(), 1, "{open:?}");
+        let settings = service::config::parse(&text, "test config", Some(&support::root())).expect("config");
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let second = hydrolens::server::start(listener, &settings, tokio_util::sync::CancellationToken::new());
+        let Err(e) = second else { panic!("a second instance started on the same directory") };
+        let message = e.to_string();
+        assert!(hydrolens::is_bad_input(&e), "exit 2: {message}");
+        assert!(message.contains(&dir.path().display().to_string()), "names the directory: {message}");
+        assert!(message.contains(&format!("pid {}", std::process::id())), "names the holder: {message}");
+        assert!(open[0].exists(), "the first instance's open recording is untouched");
+        support::stop_service(first).await;
+        let again = support::start_service(&text).await;
+        support::stop_service(again).await;
+        sim_stop.cancel();
+    };
+    tokio::time::timeout(Duration::from_secs(30), run).await.expect("bounded");
+}
