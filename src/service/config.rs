@@ -297,6 +297,30 @@ pub enum Transport {
     RtuOverTcp { line: SerialLine },
 }
 
+/// What identifies the device a drive talks to, whatever its spelling: the socket addresses its `host:port`
+/// resolves to (an IPv4-mapped IPv6 address as IPv4, so `localhost`, `127.1` and `[::ffff:127.0.0.1]` are
+/// 127.0.0.1's port), or a serial port's canonical path. Where neither resolves, the address as written.
+fn device_ids(d: &DriveSettings) -> Vec<String> {
+    use std::net::{SocketAddr, ToSocketAddrs};
+    match &d.transport {
+        Transport::Rtu { serial_port, .. } => {
+            vec![std::fs::canonicalize(serial_port).map_or_else(|_| serial_port.clone(), |p| p.display().to_string())]
+        }
+        Transport::Tcp | Transport::RtuOverTcp { .. } => match d.address.to_socket_addrs() {
+            Ok(addrs) => addrs
+                .map(|a| match a {
+                    SocketAddr::V6(v6) => match v6.ip().to_ipv4_mapped() {
+                        Some(v4) => SocketAddr::from((v4, v6.port())).to_string(),
+                        None => a.to_string(),
+                    },
+                    v4 => v4.to_string(),
+                })
+                .collect(),
+            Err(_) => vec![d.address.clone()],
+        },
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct DriveSettings {
     pub name: String,
@@ -540,8 +564,12 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
                 format!("{:?} is used by another drive", drive.name),
             ));
         }
+        let ids = device_ids(&drive);
         if let Some(o) = drives.iter().find(|o: &&DriveSettings| {
-            drive.mode.writes() && o.mode.writes() && o.address == drive.address && o.unit_id == drive.unit_id
+            drive.mode.writes()
+                && o.mode.writes()
+                && o.unit_id == drive.unit_id
+                && (o.address == drive.address || device_ids(o).iter().any(|id| ids.contains(id)))
         }) {
             let key = if matches!(drive.transport, Transport::Rtu { .. }) { "serial_port" } else { "address" };
             return Err(KeyError::new(
@@ -1073,6 +1101,27 @@ address = "127.0.0.1:5020"
         assert!(e.contains("drives[0].address") && e.contains("required"), "{e}");
         let e = err(&format!("{MINIMAL}transport = \"udp\"\n"));
         assert!(e.contains("drives[0].transport") && e.contains("udp"), "{e}");
+    }
+
+    /// One drive under two spellings is one device: two writing loops at `127.0.0.1:P` and `localhost:P` (or
+    /// `127.1:P`, `[::ffff:127.0.0.1]:P`) are refused as they would be at one spelling; a monitoring one may watch.
+    #[test]
+    fn two_writers_on_one_device_are_refused_whatever_its_spelling() {
+        let drive = |name: &str, address: &str, mode: &str| {
+            format!(
+                "[[drives]]\nname = \"{name}\"\naddress = \"{address}\"\n[drives.control]\nmode = \"{mode}\"\n\
+                 fixed_hz = 10.0\n"
+            )
+        };
+        for other in ["localhost:5020", "127.1:5020", "[::ffff:127.0.0.1]:5020", "127.0.0.1:5020"] {
+            let text = format!("{}{}", drive("a", "127.0.0.1:5020", "manual"), drive("b", other, "manual"));
+            let e = err(&text);
+            assert!(e.contains("drives[1].address") && e.contains("already written"), "{other}: {e}");
+            let watch = format!("{}{}", drive("a", "127.0.0.1:5020", "manual"), drive("b", other, "monitor"));
+            parse(&watch, "t", None).expect("one may watch");
+        }
+        let text = format!("{}{}", drive("a", "127.0.0.1:5020", "manual"), drive("b", "127.0.0.1:5021", "manual"));
+        parse(&text, "t", None).expect("another port is another device");
     }
 
     #[test]
