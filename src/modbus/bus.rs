@@ -230,7 +230,7 @@ impl Bus {
     /// the others at once; the port's (cannot open, I/O error) keeps the client's back-off for the whole line.
     fn failed(&mut self, unit: u8, e: &ClientError) {
         match e {
-            ClientError::Timeout(_) | ClientError::Protocol(_) | ClientError::ShortReply { .. } => {
+            ClientError::Timeout(_) | ClientError::Protocol(_) | ClientError::WrongLength { .. } => {
                 let backoff = self.held.get(&unit).map_or(BACKOFF_START, |h| (h.backoff * 2).min(BACKOFF_CAP));
                 self.held.insert(unit, Held { until: Instant::now() + backoff, backoff });
                 self.client.forgive();

@@ -66,8 +66,9 @@ pub enum ClientError {
     Protocol(String),
     #[error("modbus exception: {0}")]
     Exception(ExceptionCode),
+    /// A reply with another number of registers than the request asked for (fewer or more).
     #[error("reply has {got} registers, expected {expected}")]
-    ShortReply { expected: usize, got: usize },
+    WrongLength { expected: usize, got: usize },
 }
 
 impl ClientError {
@@ -80,7 +81,7 @@ impl ClientError {
             ClientError::Transport(_) => "transport",
             ClientError::Protocol(_) => "protocol",
             ClientError::Exception(_) => "exception",
-            ClientError::ShortReply { .. } => "protocol",
+            ClientError::WrongLength { .. } => "protocol",
         }
     }
 }
@@ -256,8 +257,9 @@ impl DriveClient {
             Response::ReadInputRegisters(w) | Response::ReadHoldingRegisters(w) => w,
             other => return Err(self.failed(ClientError::Protocol(format!("unexpected reply {other:?}")))),
         };
-        if words.len() < usize::from(count) {
-            let err = ClientError::ShortReply { expected: usize::from(count), got: words.len() };
+        // a reply with fewer or more registers than asked is a protocol error, not data
+        if words.len() != usize::from(count) {
+            let err = ClientError::WrongLength { expected: usize::from(count), got: words.len() };
             return Err(self.failed(err));
         }
         Ok(words)

@@ -27,6 +27,8 @@ pub enum Fault {
     WrongTransactionId,
     /// Answer with a byte count that does not match the data.
     WrongByteCount,
+    /// Answer a register read with one register more than asked (a well-formed frame).
+    ExtraRegister,
     /// Pass frames through after a delay.
     Slow(Duration),
 }
@@ -164,6 +166,13 @@ async fn relay(mut client: TcpStream, upstream: SocketAddr, fault: Arc<Mutex<Fau
             Fault::WrongByteCount if reply.len() > 8 => {
                 reply[8] = reply[8].wrapping_add(2);
             }
+            // function 3 or 4: MBAP length and byte count grow by one register, its value appended
+            Fault::ExtraRegister if reply.len() > 8 && matches!(reply[7], 3 | 4) => {
+                let length = u16::from_be_bytes([reply[4], reply[5]]) + 2;
+                reply[4..6].copy_from_slice(&length.to_be_bytes());
+                reply[8] = reply[8].wrapping_add(2);
+                reply.extend_from_slice(&[0x12, 0x34]);
+            }
             _ => {}
         }
         client.write_all(&reply).await?;
@@ -183,6 +192,40 @@ mod tests {
             ctx.read_input_registers(0, 6).await.map_err(|e| format!("transport: {e}"))?.map_err(|e| format!("{e:?}"))
         };
         tokio::time::timeout(Duration::from_millis(500), fut).await.map_err(|_| "timeout".to_string())?
+    }
+
+    /// A reply with one register more than asked is a well-formed frame; hydrolens's client refuses it as a protocol
+    /// error (the wrong length) instead of decoding whatever the device sent.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_reply_with_more_registers_than_asked_is_a_protocol_error() {
+        let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let addr = listener.local_addr().expect("addr");
+        let sim = Simulator::new(PlantModel::reference(), 1).expect("model");
+        let stop = CancellationToken::new();
+        let s = stop.clone();
+        let task = tokio::spawn(async move {
+            let _ = sim.run(listener, s).await;
+        });
+        let proxy = FaultProxy::start(addr).await;
+        proxy.set(Fault::ExtraRegister);
+        let mut client =
+            hydrolens::modbus::client::DriveClient::new(&proxy.addr.to_string(), 1, Duration::from_millis(300));
+        let e = client.read(hydrolens::modbus::Table::Input, 0, 6).await.expect_err("refused");
+        assert!(matches!(e, hydrolens::modbus::client::ClientError::WrongLength { expected: 6, got: 7 }), "{e:?}");
+        assert_eq!(e.kind(), "protocol");
+        proxy.set(Fault::Pass);
+        // the client backs off after the error, then reads again
+        let mut words = Vec::new();
+        for _ in 0..100 {
+            if let Ok(w) = client.read(hydrolens::modbus::Table::Input, 0, 6).await {
+                words = w;
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        assert_eq!(words.len(), 6, "reads again");
+        stop.cancel();
+        let _ = task.await;
     }
 
     /// Each fault is seen by a plain client as the failure it stands for, and passing through works again after.
