@@ -151,7 +151,7 @@ fn main() {
         };
         let holding = rs.iter().filter(|r| r.holds()).count();
         let jerr: Vec<f64> = rs.iter().map(|r| r.rls.inertia_error.abs()).collect();
-        let beats_nominal = rs.iter().filter(|r| r.nominal_ratio() <= 1.05).count();
+        let beats_nominal = rs.iter().filter(|r| r.guard().no_harm).count();
         println!(
             "| {p} ms | {holding}/{} | {:.2} | {:.2} | {:.1} % | {:.1} % | {:.2} N·m | {:.2} | {beats_nominal}/{} |",
             rs.len(),
@@ -170,16 +170,14 @@ fn main() {
          | truth within 2 sd or flagged (checkpoints) | J within ±15 % where identified | final J / B identified |"
     );
     println!("|---|---|---|---|---|---|---|");
-    let mut names: Vec<String> = Vec::new();
+    let mut names: Vec<&str> = Vec::new();
     for r in &results {
-        let f = r.describe.split(' ').next().unwrap_or("").to_string();
-        if !names.contains(&f) {
-            names.push(f);
+        if !names.contains(&r.family.name()) {
+            names.push(r.family.name());
         }
     }
-    for name in names.iter().map(String::as_str).chain(["all"]) {
-        let rs: Vec<&Run> =
-            results.iter().filter(|r| name == "all" || r.describe.split(' ').next() == Some(name)).collect();
+    for name in names.into_iter().chain(["all"]) {
+        let rs: Vec<&Run> = results.iter().filter(|r| name == "all" || r.family.name() == name).collect();
         let g: Vec<_> = rs.iter().map(|r| r.guard()).collect();
         let no_harm = g.iter().filter(|v| v.no_harm).count();
         let ident: Vec<bool> = g.iter().filter_map(|v| v.near_truth_reference).collect();

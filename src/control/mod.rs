@@ -204,8 +204,8 @@ impl SpeedLaw {
     /// The setpoint for this cycle, or None when nothing may be written (monitor mode or stale data).
     ///
     /// The regulator follows the drive, not its own wish: after a gap or a stale stretch (`resumed`) the ramp starts
-    /// again from the drive's read-back, and while the drive does not follow, the integral holds and the ramp's
-    /// reference is the read-back, so that the first setpoint it follows again is a ramp step from where it runs.
+    /// again from the drive's read-back, and a drive found not following is held at its read-back with the integral
+    /// back-calculated to it, so that the first setpoint it follows again is a ramp step from where it runs.
     pub fn step(&mut self, x: &Inputs) -> Option<f64> {
         if !self.mode.writes() || !x.fresh {
             return None;

@@ -48,6 +48,7 @@ pub struct Score {
 /// One scenario at one poll period.
 #[derive(Debug, Clone)]
 pub struct Run {
+    pub family: crate::plant::scenario::Family,
     pub describe: String,
     pub poll_ms: u32,
     /// The fraction of polls lost.
@@ -280,6 +281,7 @@ pub fn run(
     let rls_settings = EstimatorSettings { method: Method::RlsSgd, ..settings.clone() };
     let kalman_settings = EstimatorSettings { method: Method::Kalman, ..reference.clone() };
     Run {
+        family: scenario.family,
         describe: scenario.describe(),
         poll_ms,
         lost_fraction,

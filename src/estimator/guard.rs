@@ -1,22 +1,23 @@
-//! The guard of rls-sgd: adapted J and B stand only where they predict the speed better than the nominal model's,
-//! on data they were not fitted to; and what the load looks like, which says why B is or is not known.
+//! The guard of rls-sgd: adapted J and B stand only as far as the data earn them, judged on data they were not
+//! fitted to; what the data say of each (identified, or why not); and what the load looks like.
 //!
-//! **Validation (prequential).** Beside the adapted load tracker runs one on the nominal J and B. Every
-//! [`BLOCK_S`], both trackers' ω̂ and T̂_L and the parameters in force are frozen, and each hypothesis predicts the
-//! speed over the next block from the measured drive torque alone, the load held at its frozen T̂_L:
-//! `J·dω/dt = τ − B·ω − T̂_L`. The block's score is `d = ln(SSE_nominal / SSE_adapted)` (each SSE at least the
-//! noise's), clipped to ±[`MAX_BLOCK_SCORE`] so that a load step, which both miss alike, decides nothing. The
-//! adapted parameters were fitted only on data before the block, so this is a test on held-out data; it measures
-//! T̂_L's error at the block start (integrated twice), and J's and B's on the speed changes inside the block.
-//! Exponentially forgotten sums of d give its mean and standard error; the adapted parameters come into force when
-//! the mean is positive by [`ENTER_Z`] standard errors and leave it below [`LEAVE_Z`].
+//! **Validation (prequential), [`Validation`].** Before the RLS learns from a window, `rls_sgd.rs` scores the window
+//! under two hypotheses fixed before it (the nominal J and B, and the adapted ones), each with its own best load
+//! nuisance, and hands the two residual sums of squares here. A sign test over about [`REMEMBERED_WINDOWS`]
+//! windows (a log ratio within [`TIE`] of 0 is a tie) gives a z: the adapted parameters stand from the start, leave
+//! force below [`LEAVE_Z`] (the nominal predicts better) and come back above [`ENTER_Z`]. A sign test, because a
+//! window whose load the nuisance did not follow can be far off either way, and favours the larger J.
 //!
-//! **The load's character.** 0.1 s block means of the nominal tracker's T̂_L, the reported T̂_L, ω and the shaft
-//! angle (integrated from ω) over the last [`HORIZON_S`]. A nominal T̂_L that a function of the speed explains
-//! (R² of `1, ω, ω·|ω|` at least [`FOLLOWS_SPEED_R2`]) is a load that follows the speed, and no method can tell
-//! its speed-dependent part from B: B is then reported as not identified and the nominal B stands. Otherwise the
-//! reported T̂_L is steady, periodic in time or in shaft angle (an autocorrelation peak after the first zero
-//! crossing, on a time or on an angle grid), stepping (a few increments carry most of its movement), or random.
+//! **Identification, [`Identification`].** Each of J and B is identified, or not with its reason; `rls_sgd.rs`
+//! decides which (from the validation, the parameter's standard deviation, and whether the load follows the speed)
+//! and which adapted values stand.
+//!
+//! **The load's character, [`Character`].** 0.1 s block means of the adapted tracker's T̂_L, the reported T̂_L,
+//! ω and the shaft angle (integrated from ω) over the last [`HORIZON_S`]. An adapted T̂_L that a function of the
+//! speed explains (R² of `1, ω, ω·|ω|` at least [`FOLLOWS_SPEED_R2`]) is a load following the speed (what the
+//! adapted B did not take). Otherwise the reported T̂_L is steady, periodic in time or in shaft angle (an
+//! autocorrelation peak after the first zero crossing that recurs at twice its lag, on a time or on an angle grid),
+//! stepping (a few increments carry most of its movement), or random. It describes; it decides nothing.
 
 use serde::Serialize;
 
@@ -34,8 +35,8 @@ const CHAR_BLOCK_S: f64 = 0.1;
 const HORIZON_S: f64 = 20.0;
 const CLASSIFY_EVERY: usize = 25;
 const MIN_CHAR_BLOCKS: usize = 80;
-/// The nominal T̂_L follows the speed when a function of ω explains this share of its variance, and moves by at least
-/// `FOLLOWS_SPEED_NM` (sd) with it.
+/// The adapted tracker's T̂_L follows the speed when a function of ω explains this share of its variance, and moves by
+/// at least `FOLLOWS_SPEED_NM` (sd) with it.
 const FOLLOWS_SPEED_R2: f64 = 0.6;
 const FOLLOWS_SPEED_NM: f64 = 1.0;
 /// Below this sd (N·m) the load is steady.
@@ -252,7 +253,8 @@ impl Validation {
 /// One 0.1 s block of the character's horizon.
 #[derive(Debug, Clone, Copy, Default)]
 struct CharBlock {
-    nominal_load: f64,
+    /// The adapted tracker's T̂_L: what of the load follows the speed beyond the adapted B.
+    tracked_load: f64,
     load: f64,
     omega: f64,
     angle: f64,
@@ -267,7 +269,7 @@ pub(crate) struct Character {
     span: f64,
     angle: f64,
     since: usize,
-    pub follows_speed: bool,
+    follows_speed: bool,
     pub character: LoadCharacter,
 }
 
@@ -291,21 +293,22 @@ fn blocks_kept() -> usize {
 }
 
 impl Character {
-    /// One sample: Δt, the nominal and the reported T̂_L, and ω̂. True when it re-classified.
-    pub fn push(&mut self, dt: f64, nominal_load: f64, load: f64, omega: f64) -> bool {
+    /// One sample: Δt, the adapted tracker's and the reported T̂_L, and ω̂; re-classifies every
+    /// [`CLASSIFY_EVERY`] blocks.
+    pub fn push(&mut self, dt: f64, tracked_load: f64, load: f64, omega: f64) {
         self.angle += omega * dt;
-        self.sum.nominal_load += nominal_load;
+        self.sum.tracked_load += tracked_load;
         self.sum.load += load;
         self.sum.omega += omega;
         self.count += 1;
         self.span += dt;
         if self.span < CHAR_BLOCK_S - 1e-9 {
-            return false;
+            return;
         }
         let n = f64::from(self.count);
         let s = self.sum;
         self.blocks.push_back(CharBlock {
-            nominal_load: s.nominal_load / n,
+            tracked_load: s.tracked_load / n,
             load: s.load / n,
             omega: s.omega / n,
             angle: self.angle,
@@ -316,18 +319,17 @@ impl Character {
         (self.sum, self.count, self.span) = (CharBlock::default(), 0, 0.0);
         self.since += 1;
         if self.since < CLASSIFY_EVERY || self.blocks.len() < MIN_CHAR_BLOCKS {
-            return false;
+            return;
         }
         self.since = 0;
         self.classify();
-        true
     }
 
     fn classify(&mut self) {
         let b: Vec<CharBlock> = self.blocks.iter().copied().collect();
-        let nominal: Vec<f64> = b.iter().map(|x| x.nominal_load).collect();
+        let tracked: Vec<f64> = b.iter().map(|x| x.tracked_load).collect();
         let speed: Vec<[f64; 3]> = b.iter().map(|x| [1.0, x.omega, x.omega * x.omega.abs()]).collect();
-        let (r2, explained_sd) = explained(&nominal, &speed);
+        let (r2, explained_sd) = explained(&tracked, &speed);
         self.follows_speed = r2 >= FOLLOWS_SPEED_R2 && explained_sd >= FOLLOWS_SPEED_NM;
         let load: Vec<f64> = b.iter().map(|x| x.load).collect();
         let mean = load.iter().sum::<f64>() / load.len() as f64;

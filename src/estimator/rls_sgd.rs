@@ -309,8 +309,6 @@ pub(crate) struct WindowRls {
     /// Windows learnt from, rejected, and with a step found: for diagnostics.
     pub counts: [u64; 4],
     viscous: ViscousPool,
-    /// The last window's residual sums of squares under the [nominal, adapted] hypotheses and what noise leaves.
-    score: Option<(f64, f64, f64)>,
     s: Resolved,
 }
 
@@ -335,7 +333,6 @@ impl WindowRls {
             last_window: [None, None],
             overdispersion: Vector2::new(1.0, 1.0),
             counts: [0; 4],
-            score: None,
             viscous: ViscousPool::new(
                 s.initial_viscous_nm_s_rad,
                 (s.viscous_prior_sd * s.initial_viscous_nm_s_rad.max(b0)).powi(2),
@@ -361,14 +358,21 @@ impl WindowRls {
         gj.dot(&(self.p * gj)).max(0.0).sqrt()
     }
 
-    /// Fits one window (rows in `w`) and learns from it.
-    fn learn(&mut self, w: &mut Window, sequence: usize, speed_sd: f64, hypotheses: [Vector2<f64>; 2]) -> Verdict {
-        self.score = None;
+    /// Fits one window (rows in `w`) and learns from it; first scores it under the [nominal, adapted] `hypotheses`
+    /// (θ held, the load nuisance fitted): their residual sums of squares and what noise alone leaves, where the
+    /// window fitted and the speed moved (the guard's held-out test).
+    fn learn(
+        &mut self,
+        w: &mut Window,
+        sequence: usize,
+        speed_sd: f64,
+        hypotheses: [Vector2<f64>; 2],
+    ) -> (Verdict, Option<(f64, f64, f64)>) {
         let n = w.rows.len();
-        let Some(last) = w.rows.last() else { return Verdict::Uninformative };
+        let Some(last) = w.rows.last() else { return (Verdict::Uninformative, None) };
         let length = last.s;
         if n < 16 || length <= 0.0 {
-            return Verdict::Uninformative;
+            return (Verdict::Uninformative, None);
         }
         let (j0, b0) = (self.j0, self.b0);
         let mut a = Normal::zeros();
@@ -483,8 +487,8 @@ impl WindowRls {
                 }
             }
         }
-        let Some((model, a_m, b_m, x_m, rss, _)) = chosen else { return Verdict::Uninformative };
-        let Some((x_theta, info)) = model.theta(&a_m, &x_m) else { return Verdict::Uninformative };
+        let Some((model, a_m, b_m, x_m, rss, _)) = chosen else { return (Verdict::Uninformative, None) };
+        let Some((x_theta, info)) = model.theta(&a_m, &x_m) else { return (Verdict::Uninformative, None) };
         if model.step {
             self.counts[3] += 1;
         }
@@ -513,12 +517,10 @@ impl WindowRls {
         // The window's own residual variance, where it is above the sensor's: what the nuisance left unexplained
         // counts as noise, so such a window teaches (and contradicts) less.
         let variance = sigma2.max(rss / dof);
-        if !misfit
-            && moved > SPEED_MOVED_GLR
-            && let (Some(n), Some(a)) = (rss_at(hypotheses[0]), rss_at(hypotheses[1]))
-        {
-            self.score = Some((n, a, sigma2 * dof));
-        }
+        let score = (!misfit && moved > SPEED_MOVED_GLR)
+            .then(|| rss_at(hypotheses[0]).zip(rss_at(hypotheses[1])))
+            .flatten()
+            .map(|(n, a)| (n, a, sigma2 * dof));
         let verdict = if misfit || (informative && impossible) {
             Verdict::Misfit
         } else if moved <= SPEED_MOVED_GLR {
@@ -551,7 +553,7 @@ impl WindowRls {
         if informative && verdict != Verdict::Misfit {
             self.remember(verdict == Verdict::Rejected);
         }
-        verdict
+        (verdict, score)
     }
 
     /// Adds a window's estimate `x` of θ with information `info` (inverse covariance), robustly.
@@ -718,9 +720,10 @@ pub struct RlsSgd {
     /// B and J with their variances, as [`RlsSgd::parameters`] combines them: refreshed when a window is learnt or a
     /// block of the periodic fit closes (every 0.1 s of data), not every sample.
     combined: ((f64, f64), (f64, f64)),
-    /// The do-no-harm guard (`guard.rs`): the load tracked on the nominal J and B, the prequential test of the
-    /// adapted parameters against them, and the load's character.
-    nominal: Kalman,
+    /// The do-no-harm guard (`guard.rs`): the load tracked on the nominal B and the J that stands (the fallback
+    /// where the adapted B does not stand), the held-out test of the adapted parameters against the nominal ones,
+    /// and the load's character.
+    fallback: Kalman,
     validation: Validation,
     character: Character,
     /// J's and B's identification and which adapted values stand: judged when `combined` is refreshed (a window
@@ -753,7 +756,7 @@ impl RlsSgd {
             rls: WindowRls::new(s),
             periodic: PeriodicLoad::default(),
             combined: ((0.0, 0.0), (0.0, 0.0)),
-            nominal: Kalman::new(s),
+            fallback: Kalman::new(s),
             validation: Validation::default(),
             character: Character::default(),
             judged: ((Identification::TooLittleExcitation, Identification::TooLittleExcitation), (false, false)),
@@ -832,8 +835,8 @@ impl RlsSgd {
                 let (j, b) = self.adapted_parameters();
                 let (j0, b0) = self.nominal_parameters();
                 let hypotheses = [self.rls.theta_of(j0, b0), self.rls.theta_of(j, b)];
-                self.rls.learn(&mut self.windows[i], i, self.s.speed_noise_rad_s, hypotheses);
-                if let Some((n, a, noise)) = self.rls.score {
+                let (_, score) = self.rls.learn(&mut self.windows[i], i, self.s.speed_noise_rad_s, hypotheses);
+                if let Some((n, a, noise)) = score {
                     self.validation.score(n, a, noise);
                 }
                 changed = true;
@@ -846,9 +849,7 @@ impl RlsSgd {
             self.judged = self.judge();
         }
     }
-}
 
-impl RlsSgd {
     /// The nominal J and B (the model's), which stand until the adapted ones predict better.
     fn nominal_parameters(&self) -> (f64, f64) {
         (self.s.initial_inertia_kg_m2, self.s.initial_viscous_nm_s_rad)
@@ -864,14 +865,12 @@ impl RlsSgd {
         implausible || self.rls.viscous.depends_on_speed()
     }
 
-    /// The adapted J and B the tracker predicts with: B stays nominal where the load follows the speed.
+    /// The adapted J and B (the windows' and the periodic fit's, combined): what the adapted tracker predicts with.
     fn adapted_parameters(&self) -> (f64, f64) {
         let ((b, _), (j, _)) = self.combined;
         (j, b)
     }
-}
 
-impl RlsSgd {
     /// The verdicts and what stands, for [`RlsSgd::judged`].
     fn judge(&self) -> ((Identification, Identification), (bool, bool)) {
         let v = self.verdicts();
@@ -909,21 +908,19 @@ impl RlsSgd {
     /// the windows keep the adapted values in force; B where identified, or known to its limit and near the nominal
     /// before the evidence is in; B only where J stands.
     fn standing(&self, (inertia, viscous): (Identification, Identification)) -> (bool, bool) {
-        // J as the windows keep it in force once it is known to its limit (the windows test J directly); B only
-        // where it is identified
-        let ((_, _), (j, inertia_var)) = self.combined;
-        let j = inertia == Identification::Identified
+        let ((b, viscous_var), (j, inertia_var)) = self.combined;
+        // J also while the windows keep it in force once it is known to its limit (they test J directly)
+        let j_stands = inertia == Identification::Identified
             || (self.validation.in_force && inertia_var.sqrt() <= INERTIA_IDENTIFIED_SD * j);
-        // B where identified, or, before the evidence is in, where it is known to its limit and near enough the
-        // nominal (`UNEARNED_VISCOUS_FACTOR`) that friction is the likely reading
-        let ((b, viscous_var), _) = self.combined;
+        // B, before the evidence is in, where it is known to its limit and near enough the nominal
+        // (`UNEARNED_VISCOUS_FACTOR`) that friction is the likely reading
         let b0 = self.rls.b0;
         let near = b <= UNEARNED_VISCOUS_FACTOR * b0 && b >= b0 / UNEARNED_VISCOUS_FACTOR;
         let unearned = viscous == Identification::TooLittleExcitation
             && self.validation.in_force
             && near
             && viscous_var.sqrt() <= VISCOUS_IDENTIFIED_SD * b;
-        (j, j && (viscous == Identification::Identified || unearned))
+        (j_stands, j_stands && (viscous == Identification::Identified || unearned))
     }
 }
 
@@ -936,7 +933,7 @@ impl Estimator for RlsSgd {
         let scale = self.s.eta / PAPER_ETA;
         let (_, (j_stands, b_stands)) = self.judged;
         let adapted = self.tracker.step_with(m, j, b, scale);
-        let fallback = self.nominal.step_with(m, if j_stands { j } else { j0 }, b0, scale);
+        let fallback = self.fallback.step_with(m, if j_stands { j } else { j0 }, b0, scale);
         if let Some(dt) = c.dt_s {
             let used = if b_stands { adapted } else { fallback };
             self.character.push(dt, adapted.load_hat_nm, used.load_hat_nm, used.omega_hat_rad_s);
@@ -958,7 +955,7 @@ impl Estimator for RlsSgd {
         let ((inertia, viscous), (j_stands, b_stands)) = self.judged;
         // the load as tracked on the values that stand: the adapted tracker where both do, else the fallback one
         // (the nominal B, and J where it is not earned)
-        let fast = if b_stands { self.tracker.estimate() } else { self.nominal.estimate() };
+        let fast = if b_stands { self.tracker.estimate() } else { self.fallback.estimate() };
         // a value that stands without the data's backing is the nominal with the prior's uncertainty
         let prior_j_sd = self.s.inertia_prior_sd * j0;
         let prior_b_sd = self.s.viscous_prior_sd * b0.max(self.s.viscous_bounds_nm_s_rad[1] / 5.0);

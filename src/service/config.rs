@@ -556,6 +556,8 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
         return Err(KeyError::new("drives".into(), "needs at least one [[drives]] entry".into()));
     }
     let mut drives = Vec::with_capacity(raw.drives.len());
+    // each drive's device identity, resolved once
+    let mut devices: Vec<Vec<String>> = Vec::with_capacity(raw.drives.len());
     for (i, d) in raw.drives.into_iter().enumerate() {
         let drive = validate_drive(d, i, base)?;
         if drives.iter().any(|o: &DriveSettings| o.name == drive.name) {
@@ -565,11 +567,11 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
             ));
         }
         let ids = device_ids(&drive);
-        if let Some(o) = drives.iter().find(|o: &&DriveSettings| {
+        if let Some((o, _)) = drives.iter().zip(&devices).find(|(o, o_ids): &(&DriveSettings, &Vec<String>)| {
             drive.mode.writes()
                 && o.mode.writes()
                 && o.unit_id == drive.unit_id
-                && (o.address == drive.address || device_ids(o).iter().any(|id| ids.contains(id)))
+                && (o.address == drive.address || o_ids.iter().any(|id| ids.contains(id)))
         }) {
             let key = if matches!(drive.transport, Transport::Rtu { .. }) { "serial_port" } else { "address" };
             return Err(KeyError::new(
@@ -582,6 +584,7 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
             ));
         }
         drives.push(drive);
+        devices.push(ids);
     }
     check_lines(&drives)?;
     let mqtt = raw.mqtt.map(|m| super::mqtt::validate(m, |p| resolve(p, base))).transpose()?;

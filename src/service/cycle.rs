@@ -251,7 +251,8 @@ impl DriveCycle {
         }
         let first = self.last_fresh_at.is_none();
         let dt = self.last_fresh_at.map_or(self.poll, |t| now.saturating_duration_since(t));
-        // the first fresh cycle after a gap: the setpoint ramps again from what the drive runs at, one poll's step
+        // the first fresh cycle, or the first after a gap: the setpoint ramps from what the drive runs at, one
+        // poll's step
         let resumed = first || dt > 2 * self.poll;
         self.last_fresh_at = Some(now);
         let torque = self.motor_m3_rad * (sample.p_in_bar - sample.p_out_bar) * crate::units::PA_PER_BAR;
@@ -261,9 +262,6 @@ impl DriveCycle {
             drive_torque_nm: torque,
         });
         self.estimate = Some(est);
-        if first && self.mode.writes() {
-            self.law.start_from(sample.f_drive_hz);
-        }
         let setpoint = self.law.step(&Inputs {
             dt_s: if resumed { self.poll } else { dt }.as_secs_f64(),
             fresh: true,
@@ -272,7 +270,7 @@ impl DriveCycle {
             load_hat_nm: est.load_hat_nm,
             drive_hz: sample.f_drive_hz,
             drive_running: self.status.ready && self.status.running,
-            resumed: resumed && !first,
+            resumed,
         });
         self.note_following();
         let (mut f_set_hz, mut writes, mut encode_error) = (f64::NAN, Vec::new(), None);
