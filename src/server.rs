@@ -23,9 +23,21 @@ pub struct Server {
     http: JoinHandle<std::io::Result<()>>,
 }
 
+/// A token shorter than this is warned of at start (16 random characters of 62 are 95 bits).
+pub const MIN_TOKEN_CHARS: usize = 16;
+
 /// Starts the poll loops of `settings` and serves HTTP on `listener` until `shutdown` is cancelled.
 pub fn start(listener: TcpListener, settings: &Settings, shutdown: CancellationToken) -> std::io::Result<Server> {
     let url = format!("http://{}", listener.local_addr()?);
+    if let Some(t) = &settings.http.token
+        && t.chars().count() < MIN_TOKEN_CHARS
+    {
+        tracing::warn!(
+            chars = t.chars().count(),
+            "http.token is short: a right token is never refused, so its \
+            length is what keeps a guesser out; use {MIN_TOKEN_CHARS} random characters or more"
+        );
+    }
     let service = service::start(settings, shutdown.clone())?;
     let state = AppState::new(service.state.clone(), &settings.http, shutdown.clone());
     let limits = ConnLimits::from(&settings.http);

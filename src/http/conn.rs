@@ -1,19 +1,32 @@
-//! The HTTP accept loop, with bounds a hostile client cannot stretch: at most `max_connections` connections at
-//! once (the rest wait in the kernel's backlog, holding none of our file descriptors), request headers within
-//! `header_timeout` (hyper's timer also runs while a kept-alive connection waits for its next request, so an idle
-//! connection is closed as soon), and a whole request, body included, answered within `request_timeout`.
+//! The HTTP accept loop, with bounds a hostile client cannot stretch:
+//! - at most `max_connections` connections at once (the rest wait in the kernel's backlog, holding none of our file
+//!   descriptors), and at most `max_connections_per_client` of them from one address;
+//! - [`RESERVED_CONNECTIONS`] more, kept for the operator: taken when the others are all held (or one address holds
+//!   its share), and serving only the control routes, `/healthz` and `/readyz`, one request each;
+//! - request headers within `header_timeout` (hyper's timer also runs while a kept-alive connection waits for its
+//!   next request, so an idle connection is closed as soon), and a whole request answered within `request_timeout`;
+//! - a connection whose writes make no progress for `header_timeout` (a client that stopped reading an event stream
+//!   or a download) is closed.
 
-use std::net::SocketAddr;
-use std::sync::Arc;
-use std::time::Duration;
+use std::collections::HashMap;
+use std::net::{IpAddr, SocketAddr};
+use std::pin::Pin;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll};
+use std::time::{Duration, Instant};
 
-use axum::extract::ConnectInfo;
-use axum::http::StatusCode;
+use axum::extract::{ConnectInfo, Request, State};
+use axum::http::{HeaderValue, Method, StatusCode, header};
+use axum::middleware::Next;
+use axum::response::{IntoResponse, Response};
 use hyper_util::rt::{TokioIo, TokioTimer};
-use tokio::sync::Semaphore;
+use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
+use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use tower::ServiceExt;
 
 use super::{AppState, router};
+use crate::service::metrics::ReasonLabel;
 
 /// The bounds of [`serve_with`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -21,6 +34,7 @@ pub struct ConnLimits {
     pub header_timeout: Duration,
     pub request_timeout: Duration,
     pub max_connections: usize,
+    pub max_connections_per_client: usize,
 }
 
 impl From<&crate::service::config::HttpSettings> for ConnLimits {
@@ -29,20 +43,164 @@ impl From<&crate::service::config::HttpSettings> for ConnLimits {
             header_timeout: h.header_timeout,
             request_timeout: h.request_timeout,
             max_connections: h.max_connections,
+            max_connections_per_client: h.max_connections_per_client,
         }
     }
 }
 
 impl Default for ConnLimits {
     /// 10 s for headers and for a whole request (well inside the 30 s an idle or half-sent request may live),
-    /// 512 connections (the dashboard's SSE streams each hold one).
+    /// 512 connections, 128 from one address.
     fn default() -> ConnLimits {
         ConnLimits {
             header_timeout: Duration::from_secs(10),
             request_timeout: Duration::from_secs(10),
             max_connections: 512,
+            max_connections_per_client: 128,
         }
     }
+}
+
+/// Connections beyond `max_connections` kept for the control routes, `/healthz` and `/readyz`.
+pub const RESERVED_CONNECTIONS: usize = 32;
+
+/// How long a reserved connection may take to send its request: one request, promptly, or it goes.
+const RESERVED_HEADER_TIMEOUT: Duration = Duration::from_secs(2);
+
+/// Marks a request that came on a reserved connection.
+#[derive(Debug, Clone, Copy)]
+struct Reserved;
+
+/// The routes a reserved connection serves: the control routes and the health checks.
+fn reserved_route(method: &Method, path: &str) -> bool {
+    match *method {
+        Method::GET => matches!(path, "/healthz" | "/readyz"),
+        Method::POST => {
+            path.strip_prefix("/api/drives/").is_some_and(|rest| rest.ends_with("/target") || rest.ends_with("/reset"))
+        }
+        _ => false,
+    }
+}
+
+/// A 503 that closes its connection, with a hint when to come back.
+pub(super) fn busy(message: &str, retry_after_s: u64) -> Response {
+    let mut resp =
+        (StatusCode::SERVICE_UNAVAILABLE, axum::Json(serde_json::json!({ "error": message }))).into_response();
+    resp.headers_mut().insert(header::RETRY_AFTER, HeaderValue::from(retry_after_s));
+    resp.headers_mut().insert(header::CONNECTION, HeaderValue::from_static("close"));
+    resp
+}
+
+/// On a reserved connection, everything but [`reserved_route`] gets 503 at once.
+async fn reserve_gate(State(metrics): State<crate::service::metrics::Metrics>, req: Request, next: Next) -> Response {
+    if req.extensions().get::<Reserved>().is_some() && !reserved_route(req.method(), req.uri().path()) {
+        metrics.http_refused.get_or_create(&ReasonLabel { reason: "reserved" }).inc();
+        return busy("the service is at its connection limit: only control and health routes answer", 1);
+    }
+    next.run(req).await
+}
+
+/// Open connections per client address (IPv6 by its /64, as the token throttle keys them).
+#[derive(Debug, Default)]
+struct PerClient(Mutex<HashMap<IpAddr, usize>>);
+
+impl PerClient {
+    /// Counts one more connection from `ip`; the count, this one included, and a guard that takes it back.
+    fn enter(self: &Arc<Self>, ip: IpAddr) -> (usize, ClientGuard) {
+        let ip = super::throttle::key(ip);
+        let mut m = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let n = m.entry(ip).or_insert(0);
+        *n += 1;
+        (*n, ClientGuard { clients: self.clone(), ip })
+    }
+}
+
+struct ClientGuard {
+    clients: Arc<PerClient>,
+    ip: IpAddr,
+}
+
+impl Drop for ClientGuard {
+    fn drop(&mut self) {
+        let mut m = self.clients.0.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(n) = m.get_mut(&self.ip) {
+            *n -= 1;
+            if *n == 0 {
+                m.remove(&self.ip);
+            }
+        }
+    }
+}
+
+/// A connection's socket, noting since when a write has been waiting on a client that does not read (milliseconds
+/// since `epoch`, plus one; 0 while none waits).
+struct Watched<T> {
+    inner: T,
+    epoch: Instant,
+    waiting_since: Arc<AtomicU64>,
+}
+
+impl<T> Watched<T> {
+    fn note<R>(&self, poll: &Poll<std::io::Result<R>>) {
+        match poll {
+            Poll::Pending => {
+                let now = u64::try_from(self.epoch.elapsed().as_millis()).unwrap_or(u64::MAX - 1) + 1;
+                let _ = self.waiting_since.compare_exchange(0, now, Ordering::Relaxed, Ordering::Relaxed);
+            }
+            Poll::Ready(_) => self.waiting_since.store(0, Ordering::Relaxed),
+        }
+    }
+}
+
+impl<T: AsyncRead + Unpin> AsyncRead for Watched<T> {
+    fn poll_read(mut self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_read(cx, buf)
+    }
+}
+
+impl<T: AsyncWrite + Unpin> AsyncWrite for Watched<T> {
+    fn poll_write(mut self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &[u8]) -> Poll<std::io::Result<usize>> {
+        let p = Pin::new(&mut self.inner).poll_write(cx, buf);
+        self.note(&p);
+        p
+    }
+    fn poll_write_vectored(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        bufs: &[std::io::IoSlice<'_>],
+    ) -> Poll<std::io::Result<usize>> {
+        let p = Pin::new(&mut self.inner).poll_write_vectored(cx, bufs);
+        self.note(&p);
+        p
+    }
+    fn is_write_vectored(&self) -> bool {
+        self.inner.is_write_vectored()
+    }
+    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_flush(cx)
+    }
+    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
+        Pin::new(&mut self.inner).poll_shutdown(cx)
+    }
+}
+
+/// Resolves once a write has waited `limit` on a client that does not read.
+async fn stalled(waiting_since: Arc<AtomicU64>, epoch: Instant, limit: Duration) {
+    let limit_ms = u64::try_from(limit.as_millis()).unwrap_or(u64::MAX);
+    loop {
+        tokio::time::sleep((limit / 4).max(Duration::from_millis(50))).await;
+        let since = waiting_since.load(Ordering::Relaxed);
+        let now = u64::try_from(epoch.elapsed().as_millis()).unwrap_or(u64::MAX - 1) + 1;
+        if since != 0 && now.saturating_sub(since) >= limit_ms {
+            return;
+        }
+    }
+}
+
+/// A connection slot: one of `max_connections`, or one of the reserve.
+struct Slot {
+    _permit: OwnedSemaphorePermit,
+    reserved: bool,
 }
 
 /// File descriptors kept free of HTTP for the poll loops (a Modbus connection each), recordings and the rest.
@@ -75,6 +233,7 @@ pub async fn serve_with(listener: tokio::net::TcpListener, state: AppState, limi
     let mut max = limits.max_connections.max(1);
     if let Some(fds) = raise_open_file_limit() {
         let room = usize::try_from(fds.saturating_sub(FD_RESERVE)).unwrap_or(usize::MAX).max(1);
+        let room = room.saturating_sub(RESERVED_CONNECTIONS).max(1);
         if room < max {
             tracing::warn!(
                 max_connections = max,
@@ -85,17 +244,28 @@ pub async fn serve_with(listener: tokio::net::TcpListener, state: AppState, limi
             max = room;
         }
     }
+    let per_client = limits.max_connections_per_client.clamp(1, max);
     let metrics = state.service.metrics.clone();
-    let app = router(state).layer(tower_http::timeout::TimeoutLayer::with_status_code(
-        StatusCode::REQUEST_TIMEOUT,
-        limits.request_timeout,
-    ));
-    let slots = Arc::new(Semaphore::new(max));
-    let mut last_accept_error: Option<std::time::Instant> = None;
+    let app = router(state).layer(axum::middleware::from_fn_with_state(metrics.clone(), reserve_gate)).layer(
+        tower_http::timeout::TimeoutLayer::with_status_code(StatusCode::REQUEST_TIMEOUT, limits.request_timeout),
+    );
+    let open_slots = Arc::new(Semaphore::new(max));
+    let reserve = Arc::new(Semaphore::new(RESERVED_CONNECTIONS));
+    let clients = Arc::new(PerClient::default());
+    let epoch = Instant::now();
+    let mut last_accept_error: Option<Instant> = None;
     loop {
-        let permit = tokio::select! {
-            p = slots.clone().acquire_owned() => match p { Ok(p) => p, Err(_) => break },
+        let slot = tokio::select! {
+            biased;
             () = shutdown.cancelled() => break,
+            p = open_slots.clone().acquire_owned() => match p {
+                Ok(p) => Slot { _permit: p, reserved: false },
+                Err(_) => break,
+            },
+            p = reserve.clone().acquire_owned() => match p {
+                Ok(p) => Slot { _permit: p, reserved: true },
+                Err(_) => break,
+            },
         };
         let (stream, peer) = tokio::select! {
             r = listener.accept() => match r {
@@ -104,7 +274,7 @@ pub async fn serve_with(listener: tokio::net::TcpListener, state: AppState, limi
                     // out of file descriptors, say: log once a minute, back off, never spin
                     if last_accept_error.is_none_or(|t| t.elapsed() >= Duration::from_secs(60)) {
                         tracing::error!(error = %e, "http accept failed");
-                        last_accept_error = Some(std::time::Instant::now());
+                        last_accept_error = Some(Instant::now());
                     }
                     tokio::time::sleep(Duration::from_millis(100)).await;
                     continue;
@@ -112,34 +282,67 @@ pub async fn serve_with(listener: tokio::net::TcpListener, state: AppState, limi
             },
             () = shutdown.cancelled() => break,
         };
+        // an address's share counts its ordinary connections; beyond it, the reserve or nothing
+        let (slot, client) = match slot.reserved {
+            true => (slot, None),
+            false => match clients.enter(peer.ip()) {
+                (count, client) if count <= per_client => (slot, Some(client)),
+                _ => {
+                    drop(slot);
+                    match reserve.clone().try_acquire_owned() {
+                        Ok(p) => (Slot { _permit: p, reserved: true }, None),
+                        Err(_) => {
+                            metrics.http_refused.get_or_create(&ReasonLabel { reason: "per_client" }).inc();
+                            continue; // the stream closes here
+                        }
+                    }
+                }
+            },
+        };
+        let reserved = slot.reserved;
         let _ = stream.set_nodelay(true);
         let app = app.clone();
         let stop = shutdown.clone();
-        let open = metrics.http_connections.clone();
+        let metrics = metrics.clone();
         tokio::spawn(async move {
-            open.inc();
+            metrics.http_connections.inc();
+            let waiting_since = Arc::new(AtomicU64::new(0));
+            let io = Watched { inner: stream, epoch, waiting_since: waiting_since.clone() };
             let service = hyper::service::service_fn(move |mut req: hyper::Request<hyper::body::Incoming>| {
                 req.extensions_mut().insert(ConnectInfo::<SocketAddr>(peer));
+                if reserved {
+                    req.extensions_mut().insert(Reserved);
+                }
                 app.clone().oneshot(req)
             });
             let mut builder = hyper::server::conn::http1::Builder::new();
-            builder.timer(TokioTimer::new()).header_read_timeout(limits.header_timeout);
-            let conn = builder.serve_connection(TokioIo::new(stream), service).with_upgrades();
+            let header_timeout =
+                if reserved { limits.header_timeout.min(RESERVED_HEADER_TIMEOUT) } else { limits.header_timeout };
+            builder.timer(TokioTimer::new()).header_read_timeout(header_timeout).keep_alive(!reserved);
+            let conn = builder.serve_connection(TokioIo::new(io), service).with_upgrades();
             tokio::pin!(conn);
             tokio::select! {
                 _ = conn.as_mut() => {}
+                () = stalled(waiting_since, epoch, limits.header_timeout) => {
+                    metrics.http_refused.get_or_create(&ReasonLabel { reason: "stalled" }).inc();
+                    tracing::debug!(client = %peer, "closed a connection whose client stopped reading");
+                }
                 () = stop.cancelled() => {
                     conn.as_mut().graceful_shutdown();
                     let _ = tokio::time::timeout(Duration::from_secs(5), conn).await;
                 }
             }
-            open.dec();
-            drop(permit);
+            metrics.http_connections.dec();
+            drop(client);
+            drop(slot);
         });
     }
     drop(listener);
     // the connections finish (event streams end on shutdown); bounded
-    let all = u32::try_from(max).unwrap_or(u32::MAX);
-    let _ = tokio::time::timeout(Duration::from_secs(6), slots.acquire_many(all)).await;
+    let wait = async {
+        let _ = open_slots.acquire_many(u32::try_from(max).unwrap_or(u32::MAX)).await;
+        let _ = reserve.acquire_many(RESERVED_CONNECTIONS as u32).await;
+    };
+    let _ = tokio::time::timeout(Duration::from_secs(6), wait).await;
     Ok(())
 }

@@ -1,12 +1,11 @@
-//! Reading a recording for download: only a regular file that really lies in the recordings directory. A symbolic
+//! Opening a recording for download: only a regular file that really lies in the recordings directory. A symbolic
 //! link (to a system file, say), a FIFO (which would hang the request) or a directory is "not there".
 
-use std::io::Read;
 use std::path::Path;
 
-/// The bytes of `dir/name` if it is a regular file there (not a link to one); None for anything else.
-/// Blocking: run it off the async workers.
-pub fn read_regular(dir: &Path, name: &str) -> std::io::Result<Option<Vec<u8>>> {
+/// `dir/name` opened for reading, with its length now, if it is a regular file there (not a link to one); None for
+/// anything else. Blocking: run it off the async workers.
+pub fn open_regular(dir: &Path, name: &str) -> std::io::Result<Option<(std::fs::File, u64)>> {
     let path = dir.join(name);
     match std::fs::symlink_metadata(&path) {
         Ok(m) if m.file_type().is_file() => {}
@@ -16,7 +15,7 @@ pub fn read_regular(dir: &Path, name: &str) -> std::io::Result<Option<Vec<u8>>> 
     }
     // what was checked may be swapped for a link or a FIFO before the open: open without following links and
     // without blocking, then check the file that was opened
-    let mut file = match open_no_follow(&path) {
+    let file = match open_no_follow(&path) {
         Ok(f) => f,
         Err(e) if matches!(e.kind(), std::io::ErrorKind::NotFound) => return Ok(None),
         Err(e) if e.raw_os_error() == Some(LINK_ERRNO) => return Ok(None),
@@ -26,9 +25,7 @@ pub fn read_regular(dir: &Path, name: &str) -> std::io::Result<Option<Vec<u8>>> 
     if !meta.is_file() {
         return Ok(None);
     }
-    let mut bytes = Vec::with_capacity(usize::try_from(meta.len()).unwrap_or(0));
-    file.read_to_end(&mut bytes)?;
-    Ok(Some(bytes))
+    Ok(Some((file, meta.len())))
 }
 
 /// ELOOP: what an open with O_NOFOLLOW says about a link.
@@ -59,9 +56,12 @@ mod tests {
         std::fs::write(dir.path().join("a.csv"), "t_s\n").expect("write");
         std::os::unix::fs::symlink(dir.path().join("a.csv"), dir.path().join("b.csv")).expect("link");
         std::fs::create_dir(dir.path().join("c.csv")).expect("dir");
-        assert_eq!(read_regular(dir.path(), "a.csv").expect("reads"), Some(b"t_s\n".to_vec()));
+        let (mut file, len) = open_regular(dir.path(), "a.csv").expect("opens").expect("there");
+        let mut text = String::new();
+        std::io::Read::read_to_string(&mut file, &mut text).expect("reads");
+        assert_eq!((text.as_str(), len), ("t_s\n", 4));
         for name in ["b.csv", "c.csv", "missing.csv"] {
-            assert_eq!(read_regular(dir.path(), name).expect("no error"), None, "{name}");
+            assert!(open_regular(dir.path(), name).expect("no error").is_none(), "{name}");
         }
     }
 }

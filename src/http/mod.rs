@@ -13,7 +13,7 @@ use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
-use futures::{Stream, StreamExt};
+use futures::StreamExt;
 use serde::{Deserialize, Serialize};
 use subtle::ConstantTimeEq;
 use tokio_util::sync::CancellationToken;
@@ -42,6 +42,8 @@ pub struct AppState {
     pub status_cache: Arc<StatusCache>,
     /// Wrong tokens per client (see [`throttle`]).
     pub auth: Arc<AuthThrottle>,
+    /// A permit per open `/api/events` stream (`http.max_event_streams`).
+    pub event_streams: Arc<tokio::sync::Semaphore>,
 }
 
 impl AppState {
@@ -58,6 +60,7 @@ impl AppState {
             shutdown,
             status_cache: Default::default(),
             auth: Default::default(),
+            event_streams: Arc::new(tokio::sync::Semaphore::new(http.max_event_streams)),
         }
     }
 }
@@ -309,28 +312,63 @@ async fn history(
 /// The SSE period: about 10 Hz.
 const EVENT_PERIOD: Duration = Duration::from_millis(100);
 
-async fn events(State(s): State<AppState>) -> Sse<impl Stream<Item = Result<Event, Infallible>>> {
+/// Holds an event stream's permit and counts it open while it lives.
+struct StreamSlot {
+    _permit: tokio::sync::OwnedSemaphorePermit,
+    open: prometheus_client::metrics::gauge::Gauge,
+}
+
+impl Drop for StreamSlot {
+    fn drop(&mut self) {
+        self.open.dec();
+    }
+}
+
+/// A snapshot every [`EVENT_PERIOD`], while fewer than `http.max_event_streams` are open; 503 at once beyond, so a
+/// crowd of tabs (or a flood) cannot hold every connection. A client that stops reading is closed by the accept
+/// loop (see [`conn`]).
+async fn events(State(s): State<AppState>) -> Response {
+    let Ok(permit) = s.event_streams.clone().try_acquire_owned() else {
+        s.service
+            .metrics
+            .http_refused
+            .get_or_create(&crate::service::metrics::ReasonLabel { reason: "event_streams" })
+            .inc();
+        return conn::busy("too many event streams open (http.max_event_streams): try again later", 5);
+    };
+    s.service.metrics.http_event_streams.inc();
+    let slot = StreamSlot { _permit: permit, open: s.service.metrics.http_event_streams.clone() };
     let stop = s.shutdown.clone();
     let mut tick = tokio::time::interval(EVENT_PERIOD);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-    let stream = futures::stream::unfold((s, tick), |(s, mut tick)| async move {
+    let stream = futures::stream::unfold((s, tick, slot), |(s, mut tick, slot)| async move {
         tick.tick().await;
         let event = match serde_json::to_string(&status_body(&s)) {
             Ok(json) => Event::default().event("snapshot").data(json),
             Err(e) => Event::default().event("error").data(e.to_string()),
         };
-        Some((Ok(event), (s, tick)))
+        Some((Ok::<_, Infallible>(event), (s, tick, slot)))
     })
     .take_until(async move { stop.cancelled().await });
-    Sse::new(stream).keep_alive(KeepAlive::default())
+    Sse::new(stream).keep_alive(KeepAlive::default()).into_response()
 }
 
-/// Checks `Authorization: Bearer <token>` in constant time; a client that sent a burst of wrong tokens gets 429
-/// for a while (see [`throttle`]). Failures are counted and logged with the client's address, never the token.
+/// Checks `Authorization: Bearer <token>` in constant time. The right token is always accepted, whoever else
+/// shares the client's address (behind a reverse proxy every user does); only wrong ones are slowed: after a burst
+/// of them an address gets 429 for its wrong tokens for a while (see [`throttle`]). Failures are counted and logged
+/// with the client's address, never the token.
 fn authorize(s: &AppState, headers: &HeaderMap, client: &ClientAddr) -> Result<(), ApiError> {
     let Some(token) = &s.token else {
         return Err(ApiError::new(StatusCode::FORBIDDEN, "write routes are disabled: no http.token in the config"));
     };
+    let given = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "))
+        .map(str::trim);
+    if given.is_some_and(|g| bool::from(g.as_bytes().ct_eq(token.as_bytes()))) {
+        return Ok(());
+    }
     // requests without an address (in-process tests) share one entry
     let ip = client.0.map_or(std::net::IpAddr::from([0, 0, 0, 0]), |a| a.ip());
     let now = std::time::Instant::now();
@@ -338,29 +376,18 @@ fn authorize(s: &AppState, headers: &HeaderMap, client: &ClientAddr) -> Result<(
         s.service.metrics.http_auth_throttled.inc();
         return Err(ApiError::throttled(wait));
     }
-    let given = headers
-        .get(header::AUTHORIZATION)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
-        .map(str::trim);
-    match given {
-        Some(g) if bool::from(g.as_bytes().ct_eq(token.as_bytes())) => {
-            s.auth.succeeded(ip);
-            Ok(())
-        }
-        Some(_) => {
-            s.service.metrics.http_auth_failures.inc();
-            let (failures, blocked) = s.auth.failed(ip, now);
-            if blocked {
-                tracing::warn!(client = %ip, block_s = throttle::BLOCK.as_secs(),
-                    "wrong token: too many from this client, write routes answer 429 for a while");
-            } else {
-                tracing::warn!(client = %ip, failures, "wrong token on a write route");
-            }
-            Err(ApiError::new(StatusCode::UNAUTHORIZED, "wrong token"))
-        }
-        None => Err(ApiError::new(StatusCode::UNAUTHORIZED, "needs Authorization: Bearer <token>")),
+    let Some(_) = given else {
+        return Err(ApiError::new(StatusCode::UNAUTHORIZED, "needs Authorization: Bearer <token>"));
+    };
+    s.service.metrics.http_auth_failures.inc();
+    let (failures, blocked) = s.auth.failed(ip, now);
+    if blocked {
+        tracing::warn!(client = %ip, block_s = throttle::BLOCK.as_secs(),
+            "wrong token: too many from this client, its wrong tokens answer 429 for a while");
+    } else {
+        tracing::warn!(client = %ip, failures, "wrong token on a write route");
     }
+    Err(ApiError::new(StatusCode::UNAUTHORIZED, "wrong token"))
 }
 
 #[derive(Debug, Deserialize)]
@@ -471,25 +498,36 @@ fn content_type(name: &str) -> &'static str {
     if name.ends_with(".gz") { "application/gzip" } else { "text/csv; charset=utf-8" }
 }
 
+/// The read buffer of a download: what a client's download holds in memory, however large the file and however
+/// slowly it reads (the rest waits in the file).
+const DOWNLOAD_CHUNK: usize = 64 * 1024;
+
 async fn recording_file(State(s): State<AppState>, Path(file): Path<String>) -> Result<Response, ApiError> {
     if !valid_file_name(&file) {
         return Err(ApiError::bad_request(format!("{file:?} is not a recording name such as pump1-1700000000000.csv")));
     }
     let Some(dir) = &s.service.recording_dir else { return Err(ApiError::not_found("recording is off")) };
     let (dir, name) = (dir.clone(), file.clone());
-    let read = tokio::task::spawn_blocking(move || files::read_regular(&dir, &name))
+    let opened = tokio::task::spawn_blocking(move || files::open_regular(&dir, &name))
         .await
         .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("reading {file}: {e}")))?;
-    match read {
-        Ok(Some(bytes)) => Ok((
-            [
-                // a compressed recording goes as the file it is (no Content-Encoding: saved, it stays .csv.gz)
-                (header::CONTENT_TYPE, content_type(&file).to_string()),
-                (header::CONTENT_DISPOSITION, format!("attachment; filename=\"{file}\"")),
-            ],
-            bytes,
-        )
-            .into_response()),
+    match opened {
+        Ok(Some((f, len))) => {
+            // streamed, as long as the file was when opened (the open recording grows meanwhile)
+            let reader = tokio::io::AsyncReadExt::take(tokio::fs::File::from_std(f), len);
+            let body =
+                axum::body::Body::from_stream(tokio_util::io::ReaderStream::with_capacity(reader, DOWNLOAD_CHUNK));
+            Ok((
+                [
+                    // a compressed recording goes as the file it is (no Content-Encoding: saved, it stays .csv.gz)
+                    (header::CONTENT_TYPE, content_type(&file).to_string()),
+                    (header::CONTENT_DISPOSITION, format!("attachment; filename=\"{file}\"")),
+                    (header::CONTENT_LENGTH, len.to_string()),
+                ],
+                body,
+            )
+                .into_response())
+        }
         Ok(None) => Err(ApiError::not_found(format!("no recording {file:?}"))),
         Err(e) => Err(ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("reading {file}: {e}"))),
     }

@@ -60,6 +60,10 @@ struct RawHttp {
     request_timeout_ms: u64,
     /// Open HTTP connections at most; further clients wait in the kernel's backlog.
     max_connections: usize,
+    /// Open connections from one client address at most; beyond, only the reserved routes are served.
+    max_connections_per_client: usize,
+    /// Open `/api/events` streams at most; beyond, 503 at once.
+    max_event_streams: usize,
 }
 
 impl Default for RawHttp {
@@ -72,6 +76,8 @@ impl Default for RawHttp {
             header_timeout_ms: 10_000,
             request_timeout_ms: 10_000,
             max_connections: 512,
+            max_connections_per_client: 128,
+            max_event_streams: 64,
         }
     }
 }
@@ -259,6 +265,8 @@ pub struct HttpSettings {
     pub header_timeout: Duration,
     pub request_timeout: Duration,
     pub max_connections: usize,
+    pub max_connections_per_client: usize,
+    pub max_event_streams: usize,
 }
 
 #[derive(Debug, Clone)]
@@ -486,6 +494,14 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
             format!("must be 1 ..= 65536, got {}", raw.http.max_connections),
         ));
     }
+    for (k, n) in [
+        ("http.max_connections_per_client", raw.http.max_connections_per_client),
+        ("http.max_event_streams", raw.http.max_event_streams),
+    ] {
+        if !(1..=65_536).contains(&n) {
+            return Err(KeyError::new(k.into(), format!("must be 1 ..= 65536, got {n}")));
+        }
+    }
     let http = HttpSettings {
         bind,
         token,
@@ -494,6 +510,8 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
         header_timeout: Duration::from_millis(raw.http.header_timeout_ms),
         request_timeout: Duration::from_millis(raw.http.request_timeout_ms),
         max_connections: raw.http.max_connections,
+        max_connections_per_client: raw.http.max_connections_per_client,
+        max_event_streams: raw.http.max_event_streams,
     };
 
     let r = raw.recording;

@@ -21,6 +21,11 @@ pub struct ErrorLabels {
     pub kind: String,
 }
 
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct ReasonLabel {
+    pub reason: &'static str,
+}
+
 type GaugeF = Gauge<f64, AtomicU64>;
 
 /// Unit suffixes spelt out, as the Prometheus naming conventions ask (docs/metrics.md lists the old names).
@@ -82,6 +87,11 @@ pub struct Metrics {
     pub http_connections: Gauge,
     pub http_auth_failures: Counter,
     pub http_auth_throttled: Counter,
+    /// Open `/api/events` streams, and connections or requests turned away, by reason (event_streams: the cap
+    /// was reached; per_client: one address held too many connections and the reserve was full; reserved: a
+    /// route other than control and health asked on a reserved connection; stalled: a client stopped reading).
+    pub http_event_streams: Gauge,
+    pub http_refused: Family<ReasonLabel, Counter>,
 }
 
 impl Metrics {
@@ -124,6 +134,8 @@ impl Metrics {
             http_connections: Gauge::default(),
             http_auth_failures: Counter::default(),
             http_auth_throttled: Counter::default(),
+            http_event_streams: Gauge::default(),
+            http_refused: Family::default(),
         };
         let mut r = Registry::with_prefix("hydrolens");
         r.register("polls", "Poll cycles run", m.polls.clone());
@@ -220,6 +232,12 @@ impl Metrics {
             "http_auth_throttled",
             "Write requests refused with 429 after a burst of wrong tokens",
             m.http_auth_throttled.clone(),
+        );
+        r.register("http_event_streams", "Open /api/events streams", m.http_event_streams.clone());
+        r.register(
+            "http_refused",
+            "HTTP connections or requests turned away to keep capacity, by reason",
+            m.http_refused.clone(),
         );
         (m, r)
     }

@@ -310,16 +310,19 @@ async fn concurrent_connections_are_bounded() {
         let http = "header_timeout_ms = 10000\nmax_connections = 2\n";
         let s = Svc::start("127.0.0.1:9".parse().expect("addr"), http, "").await;
         let addr = s.url.trim_start_matches("http://").to_string();
-        let held =
-            [TcpStream::connect(&addr).await.expect("connect"), TcpStream::connect(&addr).await.expect("connect")];
-        tokio::time::sleep(Duration::from_millis(200)).await; // both taken by the server
-        let mut third = TcpStream::connect(&addr).await.expect("the kernel queues it");
-        third.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").await.expect("write");
+        // two ordinary connections and the operator's reserve (issue 29, finding 4), all held idle
+        let mut held = Vec::new();
+        for _ in 0..2 + hydrolens::http::conn::RESERVED_CONNECTIONS {
+            held.push(TcpStream::connect(&addr).await.expect("connect"));
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await; // all taken by the server
+        let mut next = TcpStream::connect(&addr).await.expect("the kernel queues it");
+        next.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").await.expect("write");
         let mut buf = [0u8; 256];
-        let early = tokio::time::timeout(Duration::from_millis(500), third.read(&mut buf)).await;
-        assert!(early.is_err(), "a third connection is served while two are held: {early:?}");
+        let early = tokio::time::timeout(Duration::from_millis(500), next.read(&mut buf)).await;
+        assert!(early.is_err(), "a connection beyond the limit and the reserve is served: {early:?}");
         drop(held);
-        let n = tokio::time::timeout(Duration::from_secs(3), third.read(&mut buf))
+        let n = tokio::time::timeout(Duration::from_secs(3), next.read(&mut buf))
             .await
             .expect("served once a slot is free")
             .expect("read");
@@ -345,7 +348,7 @@ impl std::io::Write for Log {
 }
 
 #[tokio::test]
-async fn wrong_tokens_are_throttled_counted_and_logged_without_the_token() {
+async fn wrong_tokens_are_throttled_counted_and_logged_without_the_token_and_the_right_one_still_works() {
     let log = Log::default();
     let sink = log.clone();
     let subscriber = tracing_subscriber::fmt()
@@ -369,9 +372,13 @@ async fn wrong_tokens_are_throttled_counted_and_logged_without_the_token() {
     }
     assert!(codes[..5].iter().all(|&c| c == 401), "{codes:?}");
     assert_eq!(codes.last(), Some(&429), "a burst of failures is throttled: {codes:?}");
+    let wrong = post("guess-more".to_string()).await.expect("answered");
+    assert_eq!(wrong.status(), 429, "while throttled a wrong token waits");
+    assert!(wrong.headers().contains_key("retry-after"));
+    // issue 29, finding 6: behind a reverse proxy the operator shares the stranger's address
     let right = post(TOKEN.to_string()).await.expect("answered");
-    assert_eq!(right.status(), 429, "while throttled even the right token waits");
-    assert!(right.headers().contains_key("retry-after"));
+    assert_eq!(right.status(), 200, "the right token is never refused for others' failures");
+    assert_eq!(post("guess-again".to_string()).await.expect("answered").status(), 429, "nor does it lift the block");
     let m = s.metrics().await;
     let failures = metric(&m, "hydrolens_http_auth_failures_total").unwrap_or(0.0);
     assert!(failures >= 5.0, "failures counted: {failures}\n{m}");

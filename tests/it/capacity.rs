@@ -1,0 +1,278 @@
+//! Capacity the operator can always reach (issue 29, findings 4 and 5), against `hydrolens serve` run as the real
+//! binary (its memory is its own) over real sockets: a flood of event streams, a crowd of idle connections, slow and
+//! stalled downloads. Each prints what the closing note reports.
+
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+
+use crate::support::{TOKEN, bin, metric};
+
+/// `hydrolens serve` on a drive in speed mode at a closed Modbus port, recording into `dir`, killed on drop.
+struct Serve {
+    child: Child,
+    url: String,
+    addr: std::net::SocketAddr,
+}
+
+impl Serve {
+    fn start(dir: &std::path::Path, http_extra: &str) -> Serve {
+        let config = dir.join("serve.toml");
+        let text = format!(
+            "[http]\nbind = \"127.0.0.1:0\"\ntoken = \"{TOKEN}\"\n{http_extra}\n[recording]\ndir = {d:?}\n\n\
+             [[drives]]\nname = \"pump1\"\naddress = \"127.0.0.1:9\"\npoll_ms = 10\ntimeout_ms = 100\n\
+             [drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\n",
+            d = dir.join("rec").display().to_string()
+        );
+        std::fs::write(&config, text).expect("config");
+        let mut child = Command::new(bin())
+            .args(["serve", "--config"])
+            .arg(&config)
+            .env("RUST_LOG", "warn")
+            .env("NO_COLOR", "1")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("serve starts");
+        let mut lines = BufReader::new(child.stderr.take().expect("stderr")).lines();
+        let url = loop {
+            let line = lines.next().expect("serve announces its address").expect("utf-8");
+            if let Some(url) = line.split("dashboard on ").nth(1) {
+                break url.trim().trim_end_matches('/').to_string();
+            }
+        };
+        // keep reading the log so that the child never blocks on a full pipe
+        std::thread::spawn(move || for _ in lines {});
+        let addr = url.trim_start_matches("http://").parse().expect("an address");
+        Serve { child, url, addr }
+    }
+
+    /// The resident memory of the service, in MB.
+    fn rss_mb(&self) -> f64 {
+        let status = std::fs::read_to_string(format!("/proc/{}/status", self.child.id())).expect("proc status");
+        let kb: f64 = status
+            .lines()
+            .find_map(|l| l.strip_prefix("VmRSS:"))
+            .and_then(|v| v.split_whitespace().next())
+            .and_then(|v| v.parse().ok())
+            .expect("VmRSS");
+        kb / 1024.0
+    }
+
+    async fn metrics(&self) -> String {
+        reqwest::get(format!("{}/metrics", self.url)).await.expect("GET metrics").text().await.expect("text")
+    }
+}
+
+impl Drop for Serve {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Sends `request` on a new connection and reads up to the end of the response headers (5 s at most): the status
+/// code and the still-open connection.
+async fn open(addr: std::net::SocketAddr, request: &str) -> Option<(u16, TcpStream)> {
+    let go = async {
+        let mut s = TcpStream::connect(addr).await.ok()?;
+        s.write_all(request.as_bytes()).await.ok()?;
+        let mut head = Vec::new();
+        let mut byte = [0u8; 1];
+        while !head.ends_with(b"\r\n\r\n") {
+            if s.read(&mut byte).await.ok()? == 0 {
+                break;
+            }
+            head.push(byte[0]);
+        }
+        let code = String::from_utf8_lossy(&head).split_whitespace().nth(1)?.parse().ok()?;
+        Some((code, s))
+    };
+    tokio::time::timeout(Duration::from_secs(5), go).await.ok().flatten()
+}
+
+const EVENTS: &str = "GET /api/events HTTP/1.1\r\nHost: t\r\nAccept: text/event-stream\r\n\r\n";
+
+/// A `/healthz` and a target POST, each on a new connection, 5 s at most: their codes and times.
+async fn operator(url: &str) -> [(u16, Duration); 2] {
+    let client =
+        reqwest::Client::builder().timeout(Duration::from_secs(5)).pool_max_idle_per_host(0).build().expect("client");
+    let t = Instant::now();
+    let health = client.get(format!("{url}/healthz")).send().await.map_or(0, |r| r.status().as_u16());
+    let health_took = t.elapsed();
+    let t = Instant::now();
+    let target = client
+        .post(format!("{url}/api/drives/pump1/target"))
+        .bearer_auth(TOKEN)
+        .json(&serde_json::json!({ "target_omega_rad_s": 20.0 }))
+        .send()
+        .await
+        .map_or(0, |r| r.status().as_u16());
+    [(health, health_took), (target, t.elapsed())]
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_flood_of_event_streams_gets_503_beyond_the_cap_and_the_operator_still_gets_through() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let s = Serve::start(dir.path(), "");
+    let rss_before = s.rss_mb();
+    let mut held = Vec::new();
+    let (mut ok, mut busy, mut lost) = (0, 0, 0);
+    for _ in 0..520 {
+        match open(s.addr, EVENTS).await {
+            Some((200, c)) => {
+                ok += 1;
+                held.push(c);
+            }
+            Some((503, _)) => busy += 1,
+            _ => lost += 1,
+        }
+    }
+    let rss_during = s.rss_mb();
+    let [(health, health_took), (target, target_took)] = operator(&s.url).await;
+    eprintln!(
+        "520 event streams asked: {ok} open, {busy} refused with 503, {lost} unanswered; RSS {rss_before:.1} → \
+         {rss_during:.1} MB; meanwhile /healthz {health} in {health_took:?}, target POST {target} in {target_took:?}"
+    );
+    assert_eq!((ok, busy, lost), (64, 456, 0), "the cap (http.max_event_streams = 64) answers the rest at once");
+    assert_eq!((health, target), (200, 200), "the operator gets through");
+    let m = s.metrics().await;
+    assert_eq!(metric(&m, "hydrolens_http_event_streams"), Some(64.0), "{m}");
+    // a closed stream frees its place
+    held.truncate(60);
+    let mut reopened = None;
+    for _ in 0..100 {
+        if let Some((200, c)) = open(s.addr, EVENTS).await {
+            reopened = Some(c);
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert!(reopened.is_some(), "a place freed is taken again");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn with_every_connection_held_the_control_and_health_routes_keep_a_reserve() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let s = Serve::start(dir.path(), "max_connections = 16\nmax_event_streams = 16\n");
+    // sixteen streams hold every ordinary connection
+    let mut held = Vec::new();
+    for _ in 0..16 {
+        let (code, c) = open(s.addr, EVENTS).await.expect("a stream");
+        assert_eq!(code, 200);
+        held.push(c);
+    }
+    let [(health, health_took), (target, target_took)] = operator(&s.url).await;
+    let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: t\r\n\r\n").await.map(|(c, _)| c);
+    let ready = open(s.addr, "GET /readyz HTTP/1.1\r\nHost: t\r\n\r\n").await.map(|(c, _)| c);
+    eprintln!(
+        "16 of 16 connections held: /healthz {health} in {health_took:?}, target POST {target} in \
+         {target_took:?}, /readyz {ready:?}, /api/status {status:?}"
+    );
+    assert_eq!((health, target), (200, 200), "the reserve serves the control and health routes");
+    assert_eq!(ready, Some(503), "/readyz answers (not ready: the drive is down)");
+    assert_eq!(status, Some(503), "the read-only side waits for an ordinary connection");
+    drop(held);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn twelve_slow_downloads_of_a_64_mb_recording_hold_a_small_buffer_each() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let s = Serve::start(dir.path(), "");
+    const SIZE: usize = 64 << 20;
+    let row = "1.0,2.0,3.0,4.0,5.0,6.0,7.0,8.0,9.0,10.0,11.0,12.0,13.0,14.0,15.0,16.0\n";
+    let mut text = String::with_capacity(SIZE);
+    while text.len() + row.len() <= SIZE {
+        text.push_str(row);
+    }
+    std::fs::write(dir.path().join("rec").join("pump1-1.csv"), &text).expect("a large recording");
+    let rss_before = s.rss_mb();
+    let get = "GET /api/recordings/pump1-1.csv HTTP/1.1\r\nHost: t\r\n\r\n";
+    let mut readers = Vec::new();
+    for _ in 0..12 {
+        let (code, mut c) = open(s.addr, get).await.expect("a download starts");
+        assert_eq!(code, 200);
+        let mut first = vec![0u8; 64 * 1024];
+        c.read_exact(&mut first).await.expect("the first bytes");
+        readers.push(c);
+    }
+    // the twelve now read nothing for a while: what the service holds for them
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let rss_held = s.rss_mb();
+    let [(health, _), (target, _)] = operator(&s.url).await;
+    // then each reads its file to the end
+    let mut sizes = Vec::new();
+    for mut c in readers {
+        let mut n = 64 * 1024;
+        let mut buf = vec![0u8; 1 << 20];
+        while n < text.len() {
+            match c.read(&mut buf).await.expect("reads") {
+                0 => break,
+                k => n += k,
+            }
+        }
+        sizes.push(n);
+    }
+    eprintln!(
+        "12 slow downloads of {:.0} MB: RSS {rss_before:.1} → {rss_held:.1} MB; /healthz {health}, target {target}",
+        text.len() as f64 / 1048576.0
+    );
+    assert!(sizes.iter().all(|&n| n == text.len()), "every download whole: {sizes:?}");
+    assert!(rss_held - rss_before < 64.0, "bounded memory: {rss_before:.1} → {rss_held:.1} MB");
+    assert_eq!((health, target), (200, 200));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_client_that_stops_reading_is_closed() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let s = Serve::start(dir.path(), "header_timeout_ms = 1000\n");
+    let text = "t_s\n".to_string() + &"0.001\n".repeat(4 << 20);
+    std::fs::write(dir.path().join("rec").join("pump1-2.csv"), &text).expect("a large recording");
+    let (code, mut c) =
+        open(s.addr, "GET /api/recordings/pump1-2.csv HTTP/1.1\r\nHost: t\r\n\r\n").await.expect("a download");
+    assert_eq!(code, 200);
+    // reads nothing until the service has given up on it (bounded), then finds the connection closed early
+    let mut closed = false;
+    for _ in 0..100 {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        let m = s.metrics().await;
+        if metric(&m, "hydrolens_http_refused_total{reason=\"stalled\"}").unwrap_or(0.0) >= 1.0 {
+            closed = true;
+            break;
+        }
+    }
+    assert!(closed, "the stalled connection is counted closed");
+    let mut rest = Vec::new();
+    let _ = tokio::time::timeout(Duration::from_secs(5), c.read_to_end(&mut rest)).await.expect("EOF");
+    assert!(rest.len() < text.len(), "the download was cut: {} of {} bytes", rest.len(), text.len());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_address_holds_at_most_its_share_and_then_reaches_only_the_reserve() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let s = Serve::start(dir.path(), "max_connections_per_client = 4\n");
+    let mut held = Vec::new();
+    for _ in 0..4 {
+        held.push(TcpStream::connect(s.addr).await.expect("connect"));
+    }
+    tokio::time::sleep(Duration::from_millis(200)).await; // all four taken by the server
+    let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: t\r\n\r\n").await.map(|(c, _)| c);
+    let [(health, _), (target, _)] = operator(&s.url).await;
+    assert_eq!(status, Some(503), "a fifth connection from the address is a reserved one");
+    assert_eq!((health, target), (200, 200));
+    drop(held);
+    let mut fine = None;
+    for _ in 0..100 {
+        fine = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: t\r\n\r\n").await.map(|(c, _)| c);
+        if fine == Some(200) {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert_eq!(fine, Some(200), "its share comes back as its connections close");
+    let m = s.metrics().await;
+    assert!(metric(&m, "hydrolens_http_refused_total{reason=\"reserved\"}").unwrap_or(0.0) >= 1.0, "{m}");
+}
