@@ -227,6 +227,11 @@ function connect() {
     ready.className = "badge bad";
     ready.dataset.ready = "false";
     markLost();
+    // a refused stream (503: the service's stream cap) is closed for good by the browser: ask again later
+    if (es.readyState === EventSource.CLOSED) {
+      ready.textContent = "busy, retrying";
+      setTimeout(connect, 5000 + Math.random() * 5000);
+    }
   };
 }
 
