@@ -174,7 +174,8 @@ function updateCard(entry, d) {
   q(".pressures").textContent = `${fmt(s && s.p_in_bar, 1)} / ${fmt(s && s.p_out_bar, 1)} bar`;
   const st = d.status;
   q(".status").textContent = [st.ready && "ready", st.running && "running", st.fault && "FAULT",
-    st.comm_loss_trip && "COMM-LOSS TRIP", st.not_following && "NOT FOLLOWING SETPOINTS"].filter(Boolean).join(", ") || "–";
+    st.comm_loss_trip && "COMM-LOSS TRIP", st.not_following && "NOT FOLLOWING SETPOINTS",
+    d.link.writes_failing && "WRITES REFUSED"].filter(Boolean).join(", ") || "–";
   q(".counts").textContent = `${d.link.polls} / ${d.link.errors} / ${d.link.reconnects}`;
   q(".jitter").textContent = `${fmt(d.timing.jitter_p50_ms, 2)} / ${fmt(d.timing.jitter_p99_ms, 2)} ms`;
 }

@@ -551,6 +551,7 @@ async fn readyz(State(s): State<AppState>) -> Response {
                 "status": "not ready",
                 "stale_or_down": not_ready,
                 "not_following": s.service.drives.iter().filter(|d| d.not_following()).map(|d| d.name.clone()).collect::<Vec<_>>(),
+                "writes_refused": s.service.drives.iter().filter(|d| d.writes_failing()).map(|d| d.name.clone()).collect::<Vec<_>>(),
             })),
         )
             .into_response()

@@ -295,7 +295,10 @@ impl DriveCycle {
 
     /// The writes for setpoint `hz`: nothing when they would repeat the last ones and the watchdog is not due.
     fn plan(&mut self, now: Instant, hz: f64) -> Result<Vec<(u16, Vec<u16>)>, MapError> {
-        let mut control_word = control::RUN;
+        // RUN only to a drive that reports ready and no fault: a drive that is not ready, or tripped, is told to
+        // stop (its setpoint still ramps down); a requested reset goes out alone, and RUN follows once the drive
+        // reports ready again
+        let mut control_word = if self.status.ready && !self.tripped() { control::RUN } else { 0 };
         if self.reset_phase == 1 {
             control_word |= control::FAULT_RESET;
         }
@@ -541,6 +544,7 @@ mod tests {
         assert!(c.tripped());
         let hz: Vec<f64> = tripped.iter().filter_map(written).map(|w| w.0).collect();
         assert!(hz.windows(2).all(|w| w[1] < w[0]) && hz.len() == 5, "towards 0 Hz, ramp limited: {hz:?}");
+        assert!(tripped.iter().filter_map(written).all(|w| w.1 == 0), "no RUN to a tripped drive (issue 29)");
         c.command(Commands { target_omega_rad_s: 0.0, reset_requested: true });
         let at = t0 + MS * 80;
         let reset = c.step(&sample(8, 30.0, 20.0, 3), at, at + MS);
@@ -549,6 +553,20 @@ mod tests {
         let at = t0 + MS * 90;
         let after = c.step(&sample(9, 30.0, 20.0, 3), at, at + MS);
         assert_eq!(written(&after).map(|w| w.1), Some(control::RUN), "the reset bit is dropped the next write");
+        // a reset to a drive that still reports its fault goes out without RUN, and RUN follows once it is ready
+        run(&mut c, t0, 10, 3, 30.0, status::FAULT);
+        c.command(Commands { target_omega_rad_s: 0.0, reset_requested: true });
+        let at = t0 + MS * 130;
+        let reset = c.step(&sample(13, 30.0, 20.0, status::FAULT), at, at + MS);
+        assert_eq!(written(&reset).map(|w| w.1), Some(control::FAULT_RESET));
+        assert!(c.confirm(true).is_some());
+        let at = t0 + MS * 140;
+        let not_ready = c.step(&sample(14, 30.0, 20.0, 0), at, at + MS);
+        assert_eq!(written(&not_ready).map(|w| w.1), Some(0), "not ready: still no RUN");
+        assert!(c.confirm(true).is_some());
+        let at = t0 + MS * 150;
+        let ready = c.step(&sample(15, 30.0, 20.0, status::READY), at, at + MS);
+        assert_eq!(written(&ready).map(|w| w.1), Some(control::RUN));
         // monitor mode ignores a reset
         let (mut m, _) = cycle("mode = \"monitor\"");
         m.command(Commands { target_omega_rad_s: 1.0, reset_requested: true });

@@ -42,6 +42,43 @@ pub struct DriveLoop {
     pending_history: Vec<Point>,
     /// Where in its period this loop ticks, see [`DriveLoop::stagger`].
     phase: std::time::Duration,
+    /// Warnings said lately, per kind (see [`Loud`]).
+    loud: Loud,
+    /// Setpoint writes that failed one after the other.
+    writes_failed_in_row: u32,
+    /// The drive reported a trip at the last sample.
+    was_tripped: bool,
+}
+
+/// How often one kind of failure is logged at WARN at most; the ones between are counted and said with the next.
+const WARN_EVERY: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// Failed setpoint writes in a row after which the drive is not ready: every write is refused.
+const WRITES_FAILING_AFTER: u32 = 3;
+
+/// Rate-limited warnings: per kind, when it was last said and how many were held back since.
+#[derive(Debug, Default)]
+struct Loud(Vec<(&'static str, Instant, u64)>);
+
+impl Loud {
+    /// Some(the number held back since the last) when `kind` may be said now; None (and counted) otherwise.
+    fn allow(&mut self, kind: &'static str, now: Instant) -> Option<u64> {
+        match self.0.iter_mut().find(|e| e.0 == kind) {
+            Some(e) if now.saturating_duration_since(e.1) < WARN_EVERY => {
+                e.2 += 1;
+                None
+            }
+            Some(e) => {
+                let held = e.2;
+                (e.1, e.2) = (now, 0);
+                Some(held)
+            }
+            None => {
+                self.0.push((kind, now, 0));
+                Some(0)
+            }
+        }
+    }
 }
 
 /// The longest span the loops' first ticks are spread over (see [`DriveLoop::stagger`]): a cycle takes well under
@@ -68,8 +105,11 @@ impl DriveLoop {
         for family in [&metrics.polls, &metrics.reconnects, &metrics.rejected_samples, &metrics.stale_samples] {
             let _ = family.get_or_create(&label);
         }
-        let _ = metrics.writes.get_or_create(&label);
-        let _ = metrics.overruns.get_or_create(&label);
+        for family in
+            [&metrics.writes, &metrics.overruns, &metrics.writes_refused, &metrics.slow_writes, &metrics.trips]
+        {
+            let _ = family.get_or_create(&label);
+        }
         for kind in ["connect", "timeout", "transport", "protocol", "exception", "encode", "counter"] {
             let _ = metrics.errors.get_or_create(&ErrorLabels { drive: label.drive.clone(), kind: kind.into() });
         }
@@ -89,6 +129,9 @@ impl DriveLoop {
             stats_at: None,
             pending_history: Vec::with_capacity(16),
             phase: std::time::Duration::ZERO,
+            loud: Loud::default(),
+            writes_failed_in_row: 0,
+            was_tripped: false,
         }
     }
 
@@ -141,7 +184,16 @@ impl DriveLoop {
         self.link.last_error = Some(e.to_string());
         let labels = ErrorLabels { drive: self.label.drive.clone(), kind: e.kind().to_string() };
         self.metrics.errors.get_or_create(&labels).inc();
-        tracing::debug!(drive = %self.settings.name, error = %e, "modbus call failed");
+        // what a device says back (an exception, a reply of the wrong form) is loud; a lost link shows as stale
+        let kind = e.kind();
+        if matches!(kind, "exception" | "protocol")
+            && let Some(held) = self.loud.allow(kind, Instant::now())
+        {
+            tracing::warn!(drive = %self.settings.name, error = %e, more_since_last = held,
+                "the device's reply is an error (a Modbus exception, or a reply of the wrong form or length)");
+        } else {
+            tracing::debug!(drive = %self.settings.name, error = %e, "modbus call failed");
+        }
     }
 
     async fn read(&mut self) -> Result<Vec<(Table, u16, Vec<u16>)>, ClientError> {
@@ -228,14 +280,23 @@ impl DriveLoop {
         }
         let Some(mut point) = step.point else { return };
         let mut sent = true;
+        let writing = Instant::now();
         for (start, words) in &step.writes {
             self.link.writes += 1;
             self.metrics.writes.get_or_create(&self.label).inc();
             if let Err(e) = self.client.write(*start, words).await {
                 self.error(&e);
+                self.write_failed(&e);
                 sent = false;
                 break;
             }
+        }
+        if !step.writes.is_empty() {
+            if sent {
+                self.writes_failed_in_row = 0;
+            }
+            self.link.writes_failing = self.writes_failed_in_row >= WRITES_FAILING_AFTER;
+            self.note_slow_write(now, writing.elapsed());
         }
         if !sent {
             point.sample.f_set_hz = f64::NAN;
@@ -268,7 +329,53 @@ impl DriveLoop {
         self.metrics.not_following.get_or_create(l).set(if self.cycle.not_following() { 1.0 } else { 0.0 });
     }
 
+    /// A setpoint write refused (or unanswered): counted, said at WARN (rate-limited).
+    fn write_failed(&mut self, e: &ClientError) {
+        self.writes_failed_in_row = self.writes_failed_in_row.saturating_add(1);
+        self.link.writes_refused += 1;
+        self.metrics.writes_refused.get_or_create(&self.label).inc();
+        if let Some(held) = self.loud.allow("write", Instant::now()) {
+            tracing::warn!(drive = %self.settings.name, error = %e, more_since_last = held,
+                "a setpoint write failed: nothing is taken as written, the next cycle sends it all again");
+        }
+    }
+
+    /// Writes that take more than half the poll period make the loop overrun: counted, said at WARN with what the
+    /// poll rate has become.
+    fn note_slow_write(&mut self, cycle_start: Instant, took: std::time::Duration) {
+        let poll = self.settings.poll;
+        if took <= poll / 2 {
+            return;
+        }
+        self.metrics.slow_writes.get_or_create(&self.label).inc();
+        if let Some(held) = self.loud.allow("slow write", Instant::now()) {
+            let cycle = Instant::now().saturating_duration_since(cycle_start).max(poll);
+            tracing::warn!(drive = %self.settings.name, write_ms = took.as_secs_f64() * 1e3,
+                poll_ms = poll.as_secs_f64() * 1e3, polls_per_s = 1.0 / cycle.as_secs_f64(), more_since_last = held,
+                "the drive answers setpoint writes slowly: the loop overruns its period");
+        }
+    }
+
+    /// A trip (or its end) is said once, and counted.
+    fn note_trip(&mut self) {
+        let tripped = self.cycle.tripped();
+        if tripped == self.was_tripped {
+            return;
+        }
+        self.was_tripped = tripped;
+        let word = self.cycle.status().word;
+        if tripped {
+            self.metrics.trips.get_or_create(&self.label).inc();
+            tracing::warn!(drive = %self.settings.name, status_word = word,
+                "the drive tripped (fault or comm-loss): no RUN is sent and the setpoint ramps to 0 Hz; \
+                 POST /api/drives/<name>/reset re-arms it");
+        } else {
+            tracing::info!(drive = %self.settings.name, status_word = word, "the drive's trip has cleared");
+        }
+    }
+
     fn publish(&mut self) {
+        self.note_trip();
         let now = Instant::now();
         if self.stats_at.is_none_or(|t| now.saturating_duration_since(t) >= STATS_EVERY) {
             self.stats = self.timing.stats();

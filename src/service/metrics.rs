@@ -51,6 +51,10 @@ pub struct Metrics {
     pub rejected_samples: Family<DriveLabel, Counter>,
     pub stale_samples: Family<DriveLabel, Counter>,
     pub writes: Family<DriveLabel, Counter>,
+    /// Setpoint writes refused or unanswered; writes slower than half the poll period; trips.
+    pub writes_refused: Family<DriveLabel, Counter>,
+    pub slow_writes: Family<DriveLabel, Counter>,
+    pub trips: Family<DriveLabel, Counter>,
     pub overruns: Family<DriveLabel, Counter>,
     pub stale: Family<DriveLabel, Gauge>,
     pub link_up: Family<DriveLabel, Gauge>,
@@ -104,6 +108,9 @@ impl Metrics {
             rejected_samples: Family::default(),
             stale_samples: Family::default(),
             writes: Family::default(),
+            writes_refused: Family::default(),
+            slow_writes: Family::default(),
+            trips: Family::default(),
             overruns: Family::default(),
             stale: Family::default(),
             link_up: Family::default(),
@@ -148,6 +155,13 @@ impl Metrics {
         );
         r.register("stale_samples", "Reads whose sample counter had not moved", m.stale_samples.clone());
         r.register("writes", "Modbus write requests sent", m.writes.clone());
+        r.register("writes_refused", "Setpoint writes the device refused or never answered", m.writes_refused.clone());
+        r.register(
+            "slow_writes",
+            "Setpoint writes that took more than half the poll period (the loop overruns)",
+            m.slow_writes.clone(),
+        );
+        r.register("trips", "Times the drive reported a fault or comm-loss trip", m.trips.clone());
         r.register("loop_overruns", "Poll cycles that took longer than the poll period", m.overruns.clone());
         r.register("stale", "1 while the drive's data are stale", m.stale.clone());
         r.register("link_up", "1 while the Modbus connection is open and answering", m.link_up.clone());

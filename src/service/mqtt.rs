@@ -343,7 +343,8 @@ pub struct MqttStatus {
     pub url: String,
     /// True while the broker has accepted the connection.
     pub connected: bool,
-    /// Messages handed to the connection (QoS 0 status messages are not acknowledged).
+    /// Messages the broker has taken: QoS 1 ones it acknowledged, QoS 0 ones (status) sent on the open
+    /// connection; nothing while it is away or does not answer.
     pub published: u64,
     /// Messages dropped, oldest first, because the queue was full (the broker down or too slow).
     pub dropped: u64,
@@ -387,7 +388,11 @@ impl MqttMetrics {
     pub fn register(r: &mut Registry) -> MqttMetrics {
         let m = MqttMetrics { connected: Gauge::default(), published: Counter::default(), dropped: Counter::default() };
         r.register("mqtt_connected", "1 while the MQTT broker has accepted the connection", m.connected.clone());
-        r.register("mqtt_published_messages", "Messages handed to the MQTT connection", m.published.clone());
+        r.register(
+            "mqtt_published_messages",
+            "MQTT messages the broker has taken (QoS 1 acknowledged; QoS 0 sent on the open connection)",
+            m.published.clone(),
+        );
         r.register(
             "mqtt_dropped_messages",
             "MQTT messages dropped, oldest first, because the queue was full",
@@ -516,9 +521,8 @@ async fn run(
         loop {
             let m = outbox.pop().await;
             // waits while rumqttc's channel is full (the broker down); the outbox keeps taking messages meanwhile
-            if client.publish(m.topic, m.qos, m.retain, m.payload).await.is_ok() {
-                health.count_published();
-            }
+            // counted as published by the connection's events, once the broker has it
+            let _ = client.publish(m.topic, m.qos, m.retain, m.payload).await;
         }
     };
     let drive_connection = async {
@@ -539,6 +543,11 @@ async fn run(
                     tokio::spawn(async move {
                         let _ = c.publish(topic, QoS::AtLeastOnce, true, "online").await;
                     });
+                }
+                // published: a QoS 1 message once the broker acknowledges it; a QoS 0 one (status) once it has
+                // gone into the open connection (nothing acknowledges those)
+                Ok(Event::Incoming(Packet::PubAck(_))) | Ok(Event::Outgoing(rumqttc::Outgoing::Publish(0))) => {
+                    health.count_published();
                 }
                 Ok(_) => {}
                 Err(e) => {

@@ -117,6 +117,10 @@ pub struct Link {
     pub reconnects: u64,
     pub rejected_samples: u64,
     pub writes: u64,
+    /// Setpoint writes the device refused (an exception) or never answered.
+    pub writes_refused: u64,
+    /// The last writes (3 or more in a row) all failed: the drive is not ready.
+    pub writes_failing: bool,
     /// Milliseconds since the last fresh sample; None before the first.
     pub sample_age_ms: Option<f64>,
 }
@@ -224,11 +228,16 @@ impl DriveState {
     /// Ready: connected and fresh.
     /// Ready: connected and fresh, and the recording (if on) is being written.
     pub fn ready(&self) -> bool {
-        let (connected, recording_ok) = {
+        let (connected, recording_ok, writes_ok) = {
             let s = lock(&self.snapshot);
-            (s.link.connected, s.recording.as_ref().is_none_or(|r| r.ok))
+            (s.link.connected, s.recording.as_ref().is_none_or(|r| r.ok), !s.link.writes_failing)
         };
-        connected && recording_ok && !self.freshness().0 && !self.not_following()
+        connected && recording_ok && writes_ok && !self.freshness().0 && !self.not_following()
+    }
+
+    /// Every recent setpoint write failed (the snapshot's `link.writes_failing`).
+    pub fn writes_failing(&self) -> bool {
+        lock(&self.snapshot).link.writes_failing
     }
 
     /// The drive does not follow its setpoints (the snapshot's `status.not_following`).

@@ -2,75 +2,32 @@
 //! binary (its memory is its own) over real sockets: a flood of event streams, a crowd of idle connections, slow and
 //! stalled downloads. Each prints what the closing note reports.
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
-use crate::support::{TOKEN, bin, metric};
+use crate::support::{ServeProcess, TOKEN, metric};
 
-/// `hydrolens serve` on a drive in speed mode at a closed Modbus port, recording into `dir`, killed on drop.
-struct Serve {
-    child: Child,
-    url: String,
-    addr: std::net::SocketAddr,
+/// `hydrolens serve` on a drive in speed mode at a closed Modbus port, recording into `dir/rec`.
+struct Serve(ServeProcess);
+
+impl std::ops::Deref for Serve {
+    type Target = ServeProcess;
+    fn deref(&self) -> &ServeProcess {
+        &self.0
+    }
 }
 
 impl Serve {
     fn start(dir: &std::path::Path, http_extra: &str) -> Serve {
-        let config = dir.join("serve.toml");
         let text = format!(
             "[http]\nbind = \"127.0.0.1:0\"\ntoken = \"{TOKEN}\"\n{http_extra}\n[recording]\ndir = {d:?}\n\n\
              [[drives]]\nname = \"pump1\"\naddress = \"127.0.0.1:9\"\npoll_ms = 10\ntimeout_ms = 100\n\
              [drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\n",
             d = dir.join("rec").display().to_string()
         );
-        std::fs::write(&config, text).expect("config");
-        let mut child = Command::new(bin())
-            .args(["serve", "--config"])
-            .arg(&config)
-            .env("RUST_LOG", "warn")
-            .env("NO_COLOR", "1")
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("serve starts");
-        let mut lines = BufReader::new(child.stderr.take().expect("stderr")).lines();
-        let url = loop {
-            let line = lines.next().expect("serve announces its address").expect("utf-8");
-            if let Some(url) = line.split("dashboard on ").nth(1) {
-                break url.trim().trim_end_matches('/').to_string();
-            }
-        };
-        // keep reading the log so that the child never blocks on a full pipe
-        std::thread::spawn(move || for _ in lines {});
-        let addr = url.trim_start_matches("http://").parse().expect("an address");
-        Serve { child, url, addr }
-    }
-
-    /// The resident memory of the service, in MB.
-    fn rss_mb(&self) -> f64 {
-        let status = std::fs::read_to_string(format!("/proc/{}/status", self.child.id())).expect("proc status");
-        let kb: f64 = status
-            .lines()
-            .find_map(|l| l.strip_prefix("VmRSS:"))
-            .and_then(|v| v.split_whitespace().next())
-            .and_then(|v| v.parse().ok())
-            .expect("VmRSS");
-        kb / 1024.0
-    }
-
-    async fn metrics(&self) -> String {
-        reqwest::get(format!("{}/metrics", self.url)).await.expect("GET metrics").text().await.expect("text")
-    }
-}
-
-impl Drop for Serve {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        Serve(ServeProcess::start(dir, &text))
     }
 }
 

@@ -14,6 +14,7 @@ mod faults;
 mod hardening;
 mod http;
 mod link_faults;
+mod loud;
 mod mqtt;
 mod multi;
 mod noload;

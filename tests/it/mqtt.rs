@@ -489,3 +489,34 @@ async fn tls_broker_gets_status_and_an_untrusted_ca_is_refused() {
     };
     tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
 }
+
+/// Issue 29, finding 9: a broker that takes the connection but never reads nor answers receives nothing, and nothing
+/// is counted published (before, every message handed to the client was).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_broker_that_never_answers_gets_nothing_counted_as_published() {
+    let run = async {
+        let mute = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let port = mute.local_addr().expect("addr").port();
+        let held = tokio::spawn(async move {
+            let mut conns = Vec::new();
+            while let Ok((c, _)) = mute.accept().await {
+                conns.push(c); // held open, never read
+            }
+        });
+        let mqtt = format!(
+            "\n[mqtt]\nurl = \"mqtt://127.0.0.1:{port}\"\ntopic_prefix = \"hl\"\ninterval_ms = 100\nqueue_messages = 8\n"
+        );
+        let stack = Stack::start(5.0, 10, &format!("[drives.control]\nmode = \"monitor\"\n{mqtt}")).await;
+        let dropped = wait_for(Duration::from_secs(10), || async {
+            api_status(&stack).await["mqtt"]["dropped"].as_u64().unwrap_or(0) >= 5
+        })
+        .await;
+        let status = api_status(&stack).await;
+        assert!(dropped.is_some(), "the queue overflows and says so: {status}");
+        assert_eq!(status["mqtt"]["published"], 0, "nothing reached a broker: {status}");
+        assert_eq!(status["mqtt"]["connected"], false, "{status}");
+        stack.stop().await;
+        held.abort();
+    };
+    tokio::time::timeout(Duration::from_secs(30), run).await.expect("bounded");
+}

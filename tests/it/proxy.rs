@@ -31,6 +31,11 @@ pub enum Fault {
     ExtraRegister,
     /// Pass frames through after a delay.
     Slow(Duration),
+    /// Answer every write (functions 6 and 16) with a Modbus exception (4, server device failure), without passing
+    /// it on; reads pass.
+    RefuseWrites,
+    /// Hold the reply to every write this long; reads pass at once.
+    SlowWrites(Duration),
 }
 
 /// A proxy in front of an upstream Modbus TCP server.
@@ -142,10 +147,20 @@ async fn relay(mut client: TcpStream, upstream: SocketAddr, fault: Arc<Mutex<Fau
     loop {
         let request = read_frame(&mut client).await?;
         let current = *fault.lock().unwrap_or_else(|e| e.into_inner());
+        let write = request.len() > 7 && matches!(request[7], 6 | 16);
         match current {
             Fault::Stall => continue,
             Fault::Drop | Fault::Refuse => return Ok(()),
             Fault::Slow(d) => tokio::time::sleep(d).await,
+            Fault::SlowWrites(d) if write => tokio::time::sleep(d).await,
+            Fault::RefuseWrites if write => {
+                // MBAP with length 3 (unit, function | 0x80, exception code)
+                let mut reply = request[..7].to_vec();
+                reply[4..6].copy_from_slice(&3u16.to_be_bytes());
+                reply.extend_from_slice(&[request[7] | 0x80, 4]);
+                client.write_all(&reply).await?;
+                continue;
+            }
             _ => {}
         }
         server.write_all(&request).await?;

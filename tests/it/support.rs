@@ -219,3 +219,88 @@ where
 pub fn metric(text: &str, prefix: &str) -> Option<f64> {
     text.lines().find(|l| l.starts_with(prefix)).and_then(|l| l.rsplit(' ').next()).and_then(|v| v.parse().ok())
 }
+
+/// `hydrolens serve` run as the real binary from config text (written to `dir/serve.toml`), its memory its own and
+/// its log collected; killed on drop.
+pub struct ServeProcess {
+    child: std::process::Child,
+    pub url: String,
+    pub addr: SocketAddr,
+    log: Arc<std::sync::Mutex<String>>,
+}
+
+impl ServeProcess {
+    pub fn start(dir: &std::path::Path, config_text: &str) -> ServeProcess {
+        use std::io::{BufRead, BufReader};
+        let config = dir.join("serve.toml");
+        std::fs::write(&config, config_text).expect("config");
+        let mut child = std::process::Command::new(bin())
+            .args(["serve", "--config"])
+            .arg(&config)
+            .env("RUST_LOG", "info")
+            .env("NO_COLOR", "1")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("serve starts");
+        let mut lines = BufReader::new(child.stderr.take().expect("stderr")).lines();
+        let log = Arc::new(std::sync::Mutex::new(String::new()));
+        let url = loop {
+            let line = lines.next().expect("serve announces its address").expect("utf-8");
+            log.lock().expect("log").push_str(&format!("{line}\n"));
+            if let Some(url) = line.split("dashboard on ").nth(1) {
+                break url.trim().trim_end_matches('/').to_string();
+            }
+        };
+        // keep reading the log so that the child never blocks on a full pipe
+        let sink = log.clone();
+        std::thread::spawn(move || {
+            for line in lines.map_while(Result::ok) {
+                let mut l = sink.lock().unwrap_or_else(|e| e.into_inner());
+                l.push_str(&line);
+                l.push('\n');
+            }
+        });
+        let addr = url.trim_start_matches("http://").parse().expect("an address");
+        ServeProcess { child, url, addr, log }
+    }
+
+    /// The log so far (stderr).
+    pub fn log(&self) -> String {
+        self.log.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    /// The resident memory of the service, in MB.
+    pub fn rss_mb(&self) -> f64 {
+        let status = std::fs::read_to_string(format!("/proc/{}/status", self.child.id())).expect("proc status");
+        let kb: f64 = status
+            .lines()
+            .find_map(|l| l.strip_prefix("VmRSS:"))
+            .and_then(|v| v.split_whitespace().next())
+            .and_then(|v| v.parse().ok())
+            .expect("VmRSS");
+        kb / 1024.0
+    }
+
+    pub async fn metrics(&self) -> String {
+        reqwest::get(format!("{}/metrics", self.url)).await.expect("GET metrics").text().await.expect("text")
+    }
+
+    pub async fn status(&self) -> serde_json::Value {
+        reqwest::get(format!("{}/api/status", self.url)).await.expect("GET status").json().await.expect("json")
+    }
+
+    /// `GET /readyz`: its code and body.
+    pub async fn readyz(&self) -> (u16, serde_json::Value) {
+        let r = reqwest::get(format!("{}/readyz", self.url)).await.expect("GET readyz");
+        let code = r.status().as_u16();
+        (code, r.json().await.unwrap_or(serde_json::Value::Null))
+    }
+}
+
+impl Drop for ServeProcess {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}

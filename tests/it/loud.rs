@@ -1,0 +1,131 @@
+//! Loud where it matters (issue 29, finding 9, and the RUN rule): `hydrolens serve` as the real binary behind a
+//! fault proxy in front of the simulator; what `/readyz`, `/api/status`, `/metrics` and the log say while a drive
+//! refuses every write, answers writes slowly, or trips.
+
+use std::time::Duration;
+
+use hydrolens::modbus::Table;
+use hydrolens::modbus::map::control;
+
+use crate::proxy::{Fault, FaultProxy};
+use crate::support::{ServeProcess, TOKEN, metric, start_sim, test_plant, wait_for};
+
+fn config(modbus: std::net::SocketAddr, dir: &std::path::Path, poll_ms: u64) -> String {
+    format!(
+        "[http]\nbind = \"127.0.0.1:0\"\ntoken = \"{TOKEN}\"\n\n[recording]\ndir = {d:?}\n\n\
+         [[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = {poll_ms}\ntimeout_ms = 200\n\
+         stale_ms = 200\n[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\n",
+        d = dir.join("rec").display().to_string()
+    )
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_drive_that_refuses_every_write_is_not_ready_counted_and_logged_at_warn() {
+    let run = async {
+        let (_sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
+        let proxy = FaultProxy::start(sim_addr).await;
+        let dir = tempfile::tempdir().expect("tmp");
+        let s = ServeProcess::start(dir.path(), &config(proxy.addr, dir.path(), 10));
+        wait_for(Duration::from_secs(10), || async { s.readyz().await.0 == 200 }).await.expect("ready");
+        proxy.set(Fault::RefuseWrites);
+        wait_for(Duration::from_secs(5), || async { s.readyz().await.0 == 503 })
+            .await
+            .expect("not ready while every write is refused");
+        let (_, body) = s.readyz().await;
+        assert_eq!(body["writes_refused"], serde_json::json!(["pump1"]), "{body}");
+        let st = s.status().await;
+        let link = &st["drives"][0]["link"];
+        assert_eq!(link["writes_failing"], true, "{link}");
+        assert!(link["writes_refused"].as_u64().unwrap_or(0) >= 3, "{link}");
+        assert!(link["last_error"].as_str().unwrap_or("").contains("exception"), "{link}");
+        let m = s.metrics().await;
+        assert!(metric(&m, "hydrolens_writes_refused_total{drive=\"pump1\"}").unwrap_or(0.0) >= 3.0, "{m}");
+        assert!(metric(&m, "hydrolens_errors_total{drive=\"pump1\",kind=\"exception\"}").unwrap_or(0.0) >= 3.0);
+        // a second's refusals are said once each kind (rate-limited), not once a write
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        let log = s.log();
+        let said = log.lines().filter(|l| l.contains("WARN") && l.contains("a setpoint write failed")).count();
+        let exceptions = log.lines().filter(|l| l.contains("WARN") && l.contains("Modbus exception")).count();
+        eprintln!("refused writes: {said} warning(s) about writes, {exceptions} about exceptions in ≥ 1 s");
+        assert_eq!(said, 1, "one warning for the spell:\n{log}");
+        assert!((1..=2).contains(&exceptions), "{log}");
+        // the writes carried the watchdog too: the drive tripped on comm loss meanwhile, and is re-armed
+        proxy.set(Fault::Pass);
+        wait_for(Duration::from_secs(5), || async { s.readyz().await.1["writes_refused"] == serde_json::json!([]) })
+            .await
+            .expect("writes go through again");
+        let reset = reqwest::Client::new()
+            .post(format!("{}/api/drives/pump1/reset", s.url))
+            .bearer_auth(TOKEN)
+            .send()
+            .await
+            .expect("POST reset");
+        assert_eq!(reset.status(), 202);
+        let ready = wait_for(Duration::from_secs(5), || async { s.readyz().await.0 == 200 }).await;
+        assert!(ready.is_some(), "ready again: {}", s.readyz().await.1);
+        sim_stop.cancel();
+    };
+    tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn slow_write_echoes_that_make_the_loop_overrun_are_counted_and_logged() {
+    let run = async {
+        let (_sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
+        let proxy = FaultProxy::start(sim_addr).await;
+        let dir = tempfile::tempdir().expect("tmp");
+        let s = ServeProcess::start(dir.path(), &config(proxy.addr, dir.path(), 5));
+        wait_for(Duration::from_secs(10), || async { s.readyz().await.0 == 200 }).await.expect("ready");
+        proxy.set(Fault::SlowWrites(Duration::from_millis(40)));
+        let m = wait_for(Duration::from_secs(5), || async {
+            metric(&s.metrics().await, "hydrolens_slow_writes_total{drive=\"pump1\"}").unwrap_or(0.0) >= 1.0
+        })
+        .await;
+        let log = s.log();
+        let line = log.lines().find(|l| l.contains("answers setpoint writes slowly")).unwrap_or("").to_string();
+        eprintln!("40 ms write echo at a 5 ms poll: {line}");
+        assert!(m.is_some(), "slow writes counted");
+        assert!(line.contains("WARN") && line.contains("polls_per_s"), "logged with the poll rate:\n{log}");
+        sim_stop.cancel();
+    };
+    tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tripped_drive_is_sent_no_run_until_it_is_reset_and_ready() {
+    let run = async {
+        let (sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
+        let dir = tempfile::tempdir().expect("tmp");
+        let s = ServeProcess::start(dir.path(), &config(sim_addr, dir.path(), 10));
+        wait_for(Duration::from_secs(10), || async { (sim.lock().truth().omega_rad_s - 30.0).abs() < 2.0 })
+            .await
+            .expect("runs at the target");
+        let control_word = || sim.lock().read(Table::Holding, 1, 1).expect("control word")[0];
+        assert_eq!(control_word() & control::RUN, control::RUN);
+        sim.lock().set_fault(true);
+        wait_for(Duration::from_secs(3), || async { control_word() & control::RUN == 0 })
+            .await
+            .expect("RUN withdrawn from a drive that reports a fault");
+        // and it stays withdrawn while the fault stands
+        for _ in 0..20 {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+            assert_eq!(control_word() & control::RUN, 0, "no RUN to a faulted drive");
+        }
+        let m = s.metrics().await;
+        assert_eq!(metric(&m, "hydrolens_trips_total{drive=\"pump1\"}"), Some(1.0), "{m}");
+        assert!(s.log().lines().any(|l| l.contains("WARN") && l.contains("the drive tripped")), "{}", s.log());
+        let reset = reqwest::Client::new()
+            .post(format!("{}/api/drives/pump1/reset", s.url))
+            .bearer_auth(TOKEN)
+            .send()
+            .await
+            .expect("POST reset");
+        assert_eq!(reset.status(), 202);
+        wait_for(Duration::from_secs(5), || async { (sim.lock().truth().omega_rad_s - 30.0).abs() < 3.0 })
+            .await
+            .expect("re-armed: runs again");
+        assert!(s.log().contains("trip has cleared"), "{}", s.log());
+        sim_stop.cancel();
+    };
+    tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+}
