@@ -211,6 +211,22 @@ fn http_runtime() -> anyhow::Result<tokio::runtime::Runtime> {
         .context("starting the async runtime")
 }
 
+/// A file-size limit (`ulimit -f`) fails a write past it with EFBIG and sends SIGXFSZ, whose default kills the
+/// process: handled for the process's lifetime, the limit is an error the recorder reports and survives, as it does
+/// a full disk. Called inside the runtime, before any file is written.
+fn file_size_limit_is_an_error() {
+    #[cfg(target_os = "linux")]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        match signal(SignalKind::from_raw(rustix::process::Signal::XFSZ.as_raw())) {
+            Ok(mut xfsz) => {
+                tokio::spawn(async move { while xfsz.recv().await.is_some() {} });
+            }
+            Err(e) => tracing::warn!(error = %e, "cannot handle SIGXFSZ: a file-size limit would stop the process"),
+        }
+    }
+}
+
 /// A token cancelled on Ctrl-C or SIGTERM.
 fn shutdown_on_signal() -> CancellationToken {
     let token = CancellationToken::new();
@@ -445,6 +461,7 @@ fn serve(config: &Path, http_override: Option<&str>) -> anyhow::Result<()> {
         settings.http.bind = parse_addr("--http", h)?;
     }
     http_runtime()?.block_on(async move {
+        file_size_limit_is_an_error();
         let shutdown = shutdown_on_signal();
         run_service(settings, shutdown, |url, _| eprintln!("hydrolens serve: dashboard on {url}")).await
     })
@@ -591,6 +608,7 @@ fn demo(http_addr: &str, modbus_addr: &str, recordings: &Path, plant: DemoPlant<
         .context("simulator")
     })?;
     let result = http_runtime()?.block_on(async move {
+        file_size_limit_is_an_error();
         let signalled = shutdown_on_signal();
         let stop = shutdown.clone();
         tokio::spawn(async move {

@@ -72,21 +72,30 @@ pub fn drive_file_key(name: &str, drive: &str) -> Option<(Vec<u64>, bool)> {
 }
 
 /// The files `<drive>-<unix ms>[-<n>].csv[.gz]` the service wrote for `drive` in `dir`, oldest first. A file
-/// found both plain and compressed (compressing was cut short after its rename) is taken once, plain.
+/// found both plain and compressed (compressing was cut short after its rename) is taken once, plain. A file that
+/// holds no row (empty, or a header alone: a full disk left it) is skipped with a warning naming it.
 pub fn drive_files(dir: &Path, drive: &str) -> Result<Vec<PathBuf>, RecordingError> {
     let io = |source| RecordingError::Io { path: dir.display().to_string(), source };
     let mut found: Vec<((Vec<u64>, bool), PathBuf)> = Vec::new();
+    let mut skipped = 0;
     for entry in std::fs::read_dir(dir).map_err(io)? {
         let entry = entry.map_err(io)?;
         let name = entry.file_name().to_string_lossy().into_owned();
         if let Some(key) = drive_file_key(&name, drive) {
+            // a file that cannot be read is kept: reading it says what is wrong
+            if super::holds_no_rows(&entry.path()).unwrap_or(false) {
+                tracing::warn!(file = %entry.path().display(), "skipping a recording that holds no rows");
+                skipped += 1;
+                continue;
+            }
             found.push((key, entry.path()));
         }
     }
     if found.is_empty() {
+        let skipped = if skipped > 0 { format!("; {skipped} file(s) with no rows skipped") } else { String::new() };
         return Err(RecordingError::File {
             path: dir.display().to_string(),
-            message: format!("no recording of drive `{drive}` (files named {drive}-<unix ms>.csv or .csv.gz)"),
+            message: format!("no recording of drive `{drive}` (files named {drive}-<unix ms>.csv or .csv.gz){skipped}"),
         });
     }
     found.sort();
@@ -176,5 +185,22 @@ mod tests {
         assert_eq!(names, vec!["pump1-100.csv.gz", "pump1-200.csv", "pump1-200-1.csv", "pump1-300.csv.gz"]);
         let e = drive_files(dir.path(), "pump2").expect_err("none").to_string();
         assert!(e.contains("pump2"), "{e}");
+    }
+
+    #[test]
+    fn a_drives_files_that_hold_no_rows_are_skipped() {
+        let dir = tempfile::tempdir().expect("tmp");
+        std::fs::write(dir.path().join("pump1-100.csv"), "t_s\n0\n").expect("write");
+        std::fs::write(dir.path().join("pump1-200.csv.gz"), "").expect("write");
+        std::fs::write(dir.path().join("pump1-300.csv"), "t_s,x\n").expect("write");
+        std::fs::write(dir.path().join("pump1-400.csv"), "t_s\n1\n").expect("write");
+        let files = drive_files(dir.path(), "pump1").expect("found");
+        let names: Vec<String> =
+            files.iter().map(|p| p.file_name().expect("name").to_string_lossy().into_owned()).collect();
+        assert_eq!(names, vec!["pump1-100.csv", "pump1-400.csv"]);
+        std::fs::remove_file(dir.path().join("pump1-100.csv")).expect("rm");
+        std::fs::remove_file(dir.path().join("pump1-400.csv")).expect("rm");
+        let e = drive_files(dir.path(), "pump1").expect_err("only empty files").to_string();
+        assert!(e.contains("pump1") && e.contains("2 file(s) with no rows skipped"), "{e}");
     }
 }

@@ -10,8 +10,8 @@ mod write;
 
 pub use cut::RecordingFile;
 pub use join::{drive_file_key, drive_files, join, last_run};
-pub use read::{Batch, RecordingError, StreamReader, load, parse};
-pub use write::{RotatingWriter, RowWriter, push_value, write_csv};
+pub use read::{Batch, RecordingError, StreamReader, holds_no_rows, load, parse};
+pub use write::{LostFile, RotatingWriter, RowWriter, push_value, write_csv};
 
 /// The estimate columns, in the order every file that carries them writes them (`estimate`'s output after `t_s`, the
 /// service's recordings after the measured columns).

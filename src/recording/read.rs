@@ -65,6 +65,39 @@ pub fn load(path: &Path) -> Result<Recording, RecordingError> {
     parse(super::cut::open(path)?, &name)
 }
 
+/// Whether a recording file (plain or gzip) holds no row: empty, or nothing but its header (what a file leaves
+/// when the disk was full before its first row reached it). A last line cut mid-row is no row. Reads no further
+/// than the start of its second non-empty line.
+pub fn holds_no_rows(path: &Path) -> Result<bool, RecordingError> {
+    let name = path.display().to_string();
+    no_rows_in(super::cut::open(path)?).map_err(|e| io_error(&name, e))
+}
+
+/// Whether the text has at most one non-empty line (see [`holds_no_rows`]).
+fn no_rows_in<R: Read>(mut text: R) -> std::io::Result<bool> {
+    let mut buf = [0u8; 8192];
+    let (mut lines, mut in_line) = (0, false);
+    loop {
+        let n = match text.read(&mut buf) {
+            Ok(0) => return Ok(true),
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(e),
+        };
+        for &b in &buf[..n] {
+            if b == b'\n' || b == b'\r' {
+                in_line = false;
+            } else if !in_line {
+                in_line = true;
+                lines += 1;
+                if lines == 2 {
+                    return Ok(false);
+                }
+            }
+        }
+    }
+}
+
 /// Parses recording CSV text whole, `t_s` first and the other columns in file order; `origin` names it in errors.
 pub fn parse<R: Read>(reader: R, origin: &str) -> Result<Recording, RecordingError> {
     let mut r = StreamReader::new(reader, origin)?;
@@ -712,6 +745,38 @@ mod tests {
         let x = r.column("x").expect("x");
         assert!(x[0].is_nan() && x[1] == f64::NEG_INFINITY && x[2] == f64::INFINITY);
         assert_eq!(x[3..], [1.0, 0.5, 1e5]);
+    }
+
+    #[test]
+    fn a_file_holds_no_rows_when_empty_or_a_header_alone_plain_or_gzip() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let gzip = |text: &[u8]| {
+            use std::io::Write;
+            let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::default());
+            e.write_all(text).expect("gzip");
+            e.finish().expect("gzip")
+        };
+        let cases: [(&[u8], bool); 8] = [
+            (b"", true),
+            (b"t_s,x", true),
+            (b"t_s,x\n", true),
+            (b"\r\nt_s,x\r\n\n", true),
+            // a row cut mid-way is no row: the readers drop it
+            (b"t_s,x\n0,", true),
+            (b"t_s,x\n0,1\n", false),
+            (b"t_s,x\r0,1\r", false),
+            (b"t_s,x\n\n0,1\n0.1,2", false),
+        ];
+        for (k, (text, none)) in cases.into_iter().enumerate() {
+            let plain = dir.path().join(format!("{k}.csv"));
+            std::fs::write(&plain, text).expect("write");
+            assert_eq!(holds_no_rows(&plain).expect("reads"), none, "{:?}", String::from_utf8_lossy(text));
+            let gz = dir.path().join(format!("{k}.csv.gz"));
+            std::fs::write(&gz, gzip(text)).expect("write");
+            assert_eq!(holds_no_rows(&gz).expect("reads"), none, "gzip {:?}", String::from_utf8_lossy(text));
+        }
+        let missing = holds_no_rows(&dir.path().join("none.csv")).expect_err("no such file");
+        assert!(!missing.to_string().is_empty());
     }
 
     #[test]

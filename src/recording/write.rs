@@ -2,6 +2,7 @@
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
+use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
@@ -78,7 +79,9 @@ pub fn write_csv<W: Write>(out: W, rec: &Recording) -> std::io::Result<()> {
 }
 
 /// A recording split into files `<prefix>-<unix seconds>.csv` in a directory, starting a new file every
-/// `max_age` or `max_bytes`, flushed at most `flush_every` after a row is written.
+/// `max_age` or `max_bytes`, flushed at most `flush_every` after a row is written. A new file gets its header at
+/// once; a file that holds no complete row when it is closed after a failure (a full disk) is removed, so that
+/// failures leave no empty files behind.
 pub struct RotatingWriter {
     dir: PathBuf,
     prefix: String,
@@ -94,6 +97,76 @@ struct Current {
     opened: Instant,
     last_flush: Instant,
     path: PathBuf,
+    /// The open file's (device, inode): its path names it until the file is deleted or replaced.
+    identity: (u64, u64),
+    /// Rows written to the file, and of those the rows a flush has proven on disk.
+    rows: u64,
+    flushed_rows: u64,
+}
+
+/// An open file whose path no longer names it (deleted, its directory removed, or another file put in its place):
+/// the rows written to it went with it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LostFile {
+    pub path: PathBuf,
+    pub rows: u64,
+    /// Another file is at its path (else the path is gone).
+    pub replaced: bool,
+}
+
+/// Whether `path` names the file `identity`.
+fn names(path: &Path, identity: (u64, u64)) -> bool {
+    std::fs::metadata(path).is_ok_and(|m| (m.dev(), m.ino()) == identity)
+}
+
+impl Current {
+    /// Creates the file at `path` and writes its header through to it: a file that cannot take even that is removed
+    /// and the error returned.
+    fn create(path: PathBuf, names: &[&str], now: Instant) -> std::io::Result<Current> {
+        let file = File::create(&path)?;
+        let identity = match file.metadata() {
+            Ok(m) => (m.dev(), m.ino()),
+            Err(e) => {
+                let _ = std::fs::remove_file(&path);
+                return Err(e);
+            }
+        };
+        let writer =
+            RowWriter::new(CountingWriter { inner: BufWriter::with_capacity(1 << 16, file), bytes: 0 }, names)?;
+        let mut c = Current { writer, opened: now, last_flush: now, path, identity, rows: 0, flushed_rows: 0 };
+        if let Err(e) = c.flush() {
+            let _ = c.end();
+            return Err(e);
+        }
+        Ok(c)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.writer.flush()?;
+        self.flushed_rows = self.rows;
+        Ok(())
+    }
+
+    /// Flushes, syncs and closes the file. When that fails with no row proven on disk, or no row was written, a
+    /// file that holds no complete row is removed (if its path still names it).
+    fn end(self) -> std::io::Result<()> {
+        let Current { writer, path, identity, rows, flushed_rows, .. } = self;
+        let mut counting = writer.into_inner();
+        let flushed = counting.inner.flush();
+        // what could not be written is dropped here, not tried again when the buffer is dropped
+        let (file, _) = counting.inner.into_parts();
+        let result = flushed.and_then(|()| file.sync_all());
+        drop(file);
+        let may_be_rowless = if result.is_ok() { rows == 0 } else { flushed_rows == 0 };
+        if may_be_rowless && names(&path, identity) && super::holds_no_rows(&path).unwrap_or(false) {
+            match std::fs::remove_file(&path) {
+                Ok(()) => tracing::info!(file = %path.display(), "removed a recording that holds no rows"),
+                Err(e) => tracing::warn!(file = %path.display(), error = %e,
+                    "cannot remove a recording that holds no rows"),
+            }
+        }
+        result
+    }
 }
 
 /// Counts bytes on their way out, for size rotation.
@@ -140,12 +213,10 @@ impl RotatingWriter {
             path = self.dir.join(format!("{}-{stamp}-{i}.csv", self.prefix));
             i += 1;
         }
-        let file = File::create(&path)?;
         let names: Vec<&str> = self.names.iter().map(String::as_str).collect();
-        let writer =
-            RowWriter::new(CountingWriter { inner: BufWriter::with_capacity(1 << 16, file), bytes: 0 }, &names)?;
-        tracing::info!(file = %path.display(), "recording to new file");
-        self.current = Some(Current { writer, opened: now, last_flush: now, path });
+        let current = Current::create(path, &names, now)?;
+        tracing::info!(file = %current.path.display(), "recording to new file");
+        self.current = Some(current);
         Ok(())
     }
 
@@ -161,8 +232,9 @@ impl RotatingWriter {
         }
         let Some(c) = self.current.as_mut() else { return Ok(()) };
         c.writer.write_row(values)?;
+        c.rows += 1;
         if now.duration_since(c.last_flush) >= self.flush_every {
-            c.writer.flush()?;
+            c.flush()?;
             c.last_flush = now;
         }
         Ok(())
@@ -171,33 +243,45 @@ impl RotatingWriter {
     /// Flushes what is buffered.
     pub fn flush(&mut self) -> std::io::Result<()> {
         if let Some(c) = self.current.as_mut() {
-            c.writer.flush()?;
+            c.flush()?;
             c.last_flush = Instant::now();
         }
         Ok(())
     }
 
-    /// Gives up the current file after a failed write (it may end in a cut row, which readers drop): the next row
-    /// starts a new file. Errors on the way out are ignored, the failure was reported already.
+    /// Gives up the open file if its path no longer names it (deleted, its directory removed, or replaced): rows
+    /// written to it would go nowhere until the next rotation. The next row starts a new file (the directory
+    /// recreated). A path that cannot be looked up for another reason (permissions) is taken as still naming it.
+    pub fn give_up_if_lost(&mut self) -> Option<LostFile> {
+        let c = self.current.as_ref()?;
+        let replaced = match std::fs::metadata(&c.path) {
+            Ok(m) if (m.dev(), m.ino()) == c.identity => return None,
+            Ok(_) => true,
+            Err(e) if matches!(e.kind(), std::io::ErrorKind::NotFound | std::io::ErrorKind::NotADirectory) => false,
+            Err(_) => return None,
+        };
+        let c = self.current.take()?;
+        let lost = LostFile { path: c.path.clone(), rows: c.rows, replaced };
+        // the rows go to the lost file's inode, which is freed when it closes
+        let _ = c.end();
+        Some(lost)
+    }
+
+    /// Gives up the current file after a failed write (it may end in a cut row, which readers drop; one that holds
+    /// no row is removed): the next row starts a new file. Errors on the way out are ignored, the failure was
+    /// reported already.
     pub fn abandon(&mut self) {
         if let Some(c) = self.current.take() {
-            let mut counting = c.writer.into_inner();
-            let _ = counting.flush();
-            if let Ok(file) = counting.inner.into_inner() {
-                let _ = file.sync_all();
-            }
+            let _ = c.end();
         }
     }
 
     /// Flushes and closes the current file, syncing it to disk.
     pub fn close(&mut self) -> std::io::Result<()> {
-        if let Some(c) = self.current.take() {
-            let mut counting = c.writer.into_inner();
-            counting.flush()?;
-            let file = counting.inner.into_inner().map_err(|e| e.into_error())?;
-            file.sync_all()?;
+        match self.current.take() {
+            Some(c) => c.end(),
+            None => Ok(()),
         }
-        Ok(())
     }
 }
 
@@ -270,6 +354,77 @@ mod tests {
         assert_eq!(w[0], 1.0 / 3.0);
         assert!(w[1].is_nan());
         assert_eq!(w[2], -2.5e-7);
+    }
+
+    fn rows_in(path: &Path) -> usize {
+        crate::recording::load(path).expect("a valid recording").len()
+    }
+
+    #[test]
+    fn a_deleted_or_replaced_file_or_a_removed_directory_is_given_up_and_the_next_row_starts_a_new_file() {
+        let tmp = tempfile::tempdir().expect("tmp");
+        let dir = tmp.path().join("rec");
+        let mut w = RotatingWriter::new(&dir, "d", &["t_s", "x"], Duration::from_secs(3600), 1 << 20);
+        let mut t = 0.0;
+        let mut rows = |w: &mut RotatingWriter, n: usize| {
+            for _ in 0..n {
+                w.write_row(Instant::now(), [t, 1.0]).expect("write");
+                t += 1.0;
+            }
+            w.flush().expect("flush");
+            w.current_path().expect("open").to_path_buf()
+        };
+        let first = rows(&mut w, 5);
+        assert_eq!(w.give_up_if_lost(), None, "the file is where it was");
+        std::fs::remove_file(&first).expect("rm");
+        assert_eq!(w.give_up_if_lost(), Some(LostFile { path: first.clone(), rows: 5, replaced: false }));
+        assert_eq!(w.current_path(), None);
+        assert_eq!(w.give_up_if_lost(), None, "one event, told once");
+
+        // a new file (its name may be the lost one's, within the same millisecond)
+        let second = rows(&mut w, 3);
+        assert_eq!(rows_in(&second), 3);
+        let other = dir.join("other");
+        std::fs::write(&other, "not ours").expect("write");
+        std::fs::rename(&other, &second).expect("replace");
+        assert_eq!(w.give_up_if_lost(), Some(LostFile { path: second.clone(), rows: 3, replaced: true }));
+        assert_eq!(std::fs::read_to_string(&second).expect("read"), "not ours", "the file put there is untouched");
+
+        let third = rows(&mut w, 2);
+        std::fs::remove_dir_all(&dir).expect("rm -r");
+        assert_eq!(w.give_up_if_lost(), Some(LostFile { path: third, rows: 2, replaced: false }));
+        let fourth = rows(&mut w, 4);
+        w.close().expect("close");
+        assert_eq!(rows_in(&fourth), 4, "the directory is recreated and the rows reach the new file");
+    }
+
+    #[test]
+    fn a_file_closed_without_rows_is_removed_and_one_with_rows_kept() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let path = dir.path().join("d-1.csv");
+        let c = Current::create(path.clone(), &["t_s", "x"], Instant::now()).expect("created");
+        assert_eq!(std::fs::read_to_string(&path).expect("read"), "t_s,x\n", "the header is written at once");
+        c.end().expect("closed");
+        assert!(!path.exists(), "a header alone is removed");
+
+        let mut w = RotatingWriter::new(dir.path(), "d", &["t_s", "x"], Duration::from_secs(3600), 1 << 20);
+        w.write_row(Instant::now(), [0.0, 1.0]).expect("write");
+        let kept = w.current_path().expect("open").to_path_buf();
+        w.abandon();
+        assert_eq!(rows_in(&kept), 1, "a file given up with a row in it is kept");
+    }
+
+    /// `/dev/full` refuses every write with ENOSPC, as a full disk does: the file the writer created (here a link
+    /// to it) is removed and the error returned.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_file_that_cannot_take_its_header_is_removed() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let path = dir.path().join("d-1.csv");
+        std::os::unix::fs::symlink("/dev/full", &path).expect("symlink");
+        let e = Current::create(path.clone(), &["t_s", "x"], Instant::now()).err().expect("a full device");
+        assert_eq!(e.raw_os_error(), Some(28), "ENOSPC: {e}");
+        assert!(std::fs::symlink_metadata(&path).is_err(), "nothing is left at {}", path.display());
     }
 
     #[test]

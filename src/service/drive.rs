@@ -399,6 +399,8 @@ impl DriveLoop {
             errors.inc_by(h.errors.saturating_sub(errors.get()));
             let lost = self.metrics.recording_rows_lost.get_or_create(l);
             lost.inc_by(h.rows_lost.saturating_sub(lost.get()));
+            let files_lost = self.metrics.recording_files_lost.get_or_create(l);
+            files_lost.inc_by(h.files_lost.saturating_sub(files_lost.get()));
             let deleted = self.metrics.recording_files_deleted.get_or_create(l);
             deleted.inc_by(h.files_deleted.saturating_sub(deleted.get()));
             let compressed = self.metrics.recording_files_compressed.get_or_create(l);

@@ -81,10 +81,11 @@ pub struct Metrics {
     pub not_following: Family<DriveLabel, GaugeF>,
     pub setpoint: Family<DriveLabel, GaugeF>,
     pub target: Family<DriveLabel, GaugeF>,
-    /// The recorder's: 1 while rows reach the disk; failures; rows lost to them.
+    /// The recorder's: 1 while rows reach the disk; failures; rows lost to them or with a lost file; files lost.
     pub recording_ok: Family<DriveLabel, Gauge>,
     pub recording_errors: Family<DriveLabel, Counter>,
     pub recording_rows_lost: Family<DriveLabel, Counter>,
+    pub recording_files_lost: Family<DriveLabel, Counter>,
     pub recording_files_deleted: Family<DriveLabel, Counter>,
     pub recording_files_compressed: Family<DriveLabel, Counter>,
     /// The HTTP side's (no drive label): open connections, wrong tokens, requests refused while throttled.
@@ -136,6 +137,7 @@ impl Metrics {
             recording_ok: Family::default(),
             recording_errors: Family::default(),
             recording_rows_lost: Family::default(),
+            recording_files_lost: Family::default(),
             recording_files_deleted: Family::default(),
             recording_files_compressed: Family::default(),
             http_connections: Gauge::default(),
@@ -229,7 +231,16 @@ impl Metrics {
         r.register_with_unit("target_omega", "Speed target", unit(RAD_S), m.target.clone());
         r.register("recording_ok", "1 while the drive's rows reach the disk", m.recording_ok.clone());
         r.register("recording_errors", "Recording write, flush or open failures", m.recording_errors.clone());
-        r.register("recording_rows_lost", "Rows not recorded because writing failed", m.recording_rows_lost.clone());
+        r.register(
+            "recording_rows_lost",
+            "Rows not recorded: writing failed, or the open file was lost",
+            m.recording_rows_lost.clone(),
+        );
+        r.register(
+            "recording_files_lost",
+            "Open recordings lost while written (deleted, their directory removed, or replaced)",
+            m.recording_files_lost.clone(),
+        );
         r.register(
             "recording_files_deleted",
             "Old recordings deleted by retention (max_total_mb, keep_days)",

@@ -1,7 +1,9 @@
 //! Recording a drive's fresh samples to rotated CSV files on a thread of its own, so that file I/O never delays
-//! the poll loop. Rows are flushed at least every 500 ms; [`Recorder::finish`] drains, closes and syncs the file.
-//! A second thread keeps the directory: it compresses each closed file (`recording.compress`) and applies
-//! retention, so that neither delays the rows; it alone deletes and compresses, so the two never meet on a file.
+//! the poll loop. Rows are flushed at least every 500 ms, and at each flush the open file is checked to be still
+//! where it was (a file deleted while open would take every row with it until the next rotation);
+//! [`Recorder::finish`] drains, closes and syncs the file. A second thread keeps the directory: it compresses each
+//! closed file (`recording.compress`; one that holds no row is removed instead) and applies retention, so that
+//! neither delays the rows; it alone deletes and compresses, so the two never meet on a file.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -9,7 +11,7 @@ use std::sync::{Arc, Mutex, mpsc};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use crate::recording::{RotatingWriter, drive_file_key, gz};
+use crate::recording::{LostFile, RotatingWriter, drive_file_key, gz, holds_no_rows};
 
 use super::retention::{Retention, prune};
 use super::state::{COLUMNS, Point, RecordingHealth};
@@ -34,6 +36,7 @@ pub struct Health {
     errors: AtomicU64,
     rows_lost: AtomicU64,
     last_error: Mutex<Option<String>>,
+    files_lost: AtomicU64,
     files_deleted: AtomicU64,
     files_compressed: AtomicU64,
 }
@@ -46,6 +49,7 @@ impl Health {
             rows_lost: self.rows_lost.load(Ordering::Relaxed),
             // never wait for the writer thread: a busy lock shows no message this time
             last_error: self.last_error.try_lock().ok().and_then(|e| e.clone()),
+            files_lost: self.files_lost.load(Ordering::Relaxed),
             files_deleted: self.files_deleted.load(Ordering::Relaxed),
             files_compressed: self.files_compressed.load(Ordering::Relaxed),
         }
@@ -80,6 +84,16 @@ impl Keeper {
         let mut failed = Vec::new();
         for path in std::mem::take(&mut self.to_compress) {
             if !path.exists() {
+                continue;
+            }
+            // a file with no row (a full disk left it) is worth nothing, and an empty .csv.gz would be worse
+            if holds_no_rows(&path).unwrap_or(false) {
+                match std::fs::remove_file(&path) {
+                    Ok(()) => tracing::info!(drive = %self.drive, file = %path.display(),
+                        "removed a closed recording that holds no rows"),
+                    Err(e) => tracing::warn!(drive = %self.drive, file = %path.display(), error = %e,
+                        "cannot remove a closed recording that holds no rows"),
+                }
                 continue;
             }
             match gz::compress(&path) {
@@ -182,6 +196,22 @@ impl Spell<'_> {
         self.retry_at = Some(Instant::now() + RETRY_EVERY);
     }
 
+    /// The open file was lost (deleted, its directory removed, or replaced): told once, its rows counted as lost.
+    fn lost(&mut self, lost: &LostFile) {
+        let how = if lost.replaced { "was replaced by another file" } else { "was deleted (or its directory removed)" };
+        let message = format!(
+            "recording file {} {how} while open: the {} row(s) written to it are lost; recording goes on in a new file",
+            lost.path.display(),
+            lost.rows
+        );
+        tracing::warn!(drive = %self.name, file = %lost.path.display(), rows_lost = lost.rows, "{message}");
+        self.health.files_lost.fetch_add(1, Ordering::Relaxed);
+        self.health.rows_lost.fetch_add(lost.rows, Ordering::Relaxed);
+        if let Ok(mut last) = self.health.last_error.lock() {
+            *last = Some(message);
+        }
+    }
+
     fn succeeded(&mut self) {
         if self.health.failing.swap(false, Ordering::Relaxed) {
             tracing::info!(drive = %self.name, "recording resumed");
@@ -209,6 +239,7 @@ pub const LOCK_FILE: &str = ".hydrolens.lock";
 /// One writer per recordings directory: an exclusive lock on `<dir>/.hydrolens.lock`, held as long as the returned
 /// file is open (the service keeps it for its lifetime; the OS drops it if the process dies), with the holder's pid
 /// in it. A second instance gets a bad-input error naming the directory and that pid, before it touches any file.
+/// The pid is a courtesy: a full disk that refuses it is logged, and the lock holds without it.
 pub fn lock_dir(dir: &Path) -> std::io::Result<std::fs::File> {
     use std::io::{Read, Seek, Write};
     std::fs::create_dir_all(dir)?;
@@ -216,10 +247,11 @@ pub fn lock_dir(dir: &Path) -> std::io::Result<std::fs::File> {
     let mut f = std::fs::OpenOptions::new().read(true).write(true).create(true).truncate(false).open(&path)?;
     match f.try_lock() {
         Ok(()) => {
-            f.set_len(0)?;
-            f.rewind()?;
-            writeln!(f, "{}", std::process::id())?;
-            f.sync_all()?;
+            let pid = f.set_len(0).and_then(|()| f.rewind()).and_then(|()| writeln!(f, "{}", std::process::id()));
+            if let Err(e) = pid.and_then(|()| f.sync_all()) {
+                tracing::warn!(file = %path.display(), error = %e,
+                    "cannot write the pid to the recordings directory's lock file; the lock holds without it");
+            }
             Ok(f)
         }
         Err(std::fs::TryLockError::WouldBlock) => {
@@ -301,6 +333,9 @@ impl Recorder {
                         Ok(()) => {}
                         Err(e) => spell.failed(&mut writer, &e),
                     }
+                    if let Some(lost) = writer.give_up_if_lost() {
+                        spell.lost(&lost);
+                    }
                     flushed = Instant::now();
                 }
                 // the keeper hears of each new file: the one before it is closed
@@ -340,5 +375,110 @@ impl Recorder {
         {
             tracing::error!("the recordings keeper thread panicked");
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimator::Estimate;
+    use crate::service::state::Measured;
+
+    fn point(t_s: f64) -> Point {
+        let estimate = Estimate {
+            omega_hat_rad_s: 1.0,
+            load_hat_nm: 2.0,
+            inertia_hat_kg_m2: 3.0,
+            viscous_hat_nm_s_rad: 4.0,
+            inertia_sd_kg_m2: 5.0,
+            viscous_sd_nm_s_rad: 6.0,
+            inertia_identified: 1.0,
+            viscous_identified: 1.0,
+            load_character: 1.0,
+        };
+        let sample = Measured { t_s, f_set_hz: 1.0, f_drive_hz: 1.0, p_in_bar: 8.0, p_out_bar: 2.0, omega_rad_s: 10.0 };
+        Point { sample, estimate, status_word: 3 }
+    }
+
+    /// The drive's plain files in `dir` that hold rows.
+    fn with_rows(dir: &Path) -> Vec<PathBuf> {
+        let Ok(entries) = std::fs::read_dir(dir) else { return Vec::new() };
+        let mut files: Vec<PathBuf> = entries
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x == "csv") && holds_no_rows(p).is_ok_and(|none| !none))
+            .collect();
+        files.sort();
+        files
+    }
+
+    /// Sends a row every 5 ms until `done` holds (true) or 10 s pass (false).
+    fn record_until(rec: &Recorder, t: &mut f64, mut done: impl FnMut() -> bool) -> bool {
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while Instant::now() < deadline {
+            rec.record(point(*t));
+            *t += 0.005;
+            if done() {
+                return true;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        false
+    }
+
+    #[test]
+    fn a_recording_deleted_while_open_or_its_directory_removed_is_counted_and_a_new_file_started() {
+        let tmp = tempfile::tempdir().expect("tmp");
+        let dir = tmp.path().join("rec");
+        let rec = Recorder::start(&dir, "pump1", Duration::from_secs(3600), 1 << 30, Retention::default(), false)
+            .expect("starts");
+        let mut t = 0.0;
+        assert!(record_until(&rec, &mut t, || !with_rows(&dir).is_empty()), "rows reach a file");
+        let first = with_rows(&dir).remove(0);
+        std::fs::remove_file(&first).expect("rm");
+        assert!(record_until(&rec, &mut t, || rec.health.snapshot().files_lost == 1), "the loss is noticed");
+        let h = rec.health.snapshot();
+        assert!(h.rows_lost > 0, "{h:?}");
+        let name = first.file_name().expect("name").to_string_lossy().into_owned();
+        assert!(h.last_error.as_deref().is_some_and(|e| e.contains(&name) && e.contains("deleted")), "{h:?}");
+        assert!(h.ok && h.errors == 0, "a lost file is no write failure: {h:?}");
+        assert!(record_until(&rec, &mut t, || !with_rows(&dir).is_empty()), "a new file is started and takes rows");
+
+        let lost_before = rec.health.snapshot().rows_lost;
+        std::fs::remove_dir_all(&dir).expect("rm -r");
+        assert!(record_until(&rec, &mut t, || rec.health.snapshot().files_lost == 2), "the loss is noticed");
+        assert!(rec.health.snapshot().rows_lost > lost_before);
+        assert!(record_until(&rec, &mut t, || !with_rows(&dir).is_empty()), "the directory is made again");
+        rec.finish();
+        let files = with_rows(&dir);
+        assert_eq!(files.len(), 1, "{files:?}");
+        crate::recording::load(&files[0]).expect("a valid recording");
+    }
+
+    #[test]
+    fn the_keeper_removes_closed_files_that_hold_no_rows_instead_of_compressing_them() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let empty = dir.path().join("pump1-1.csv");
+        let header = dir.path().join("pump1-2.csv");
+        let good = dir.path().join("pump1-3.csv");
+        std::fs::write(&empty, "").expect("write");
+        std::fs::write(&header, format!("{}\n", COLUMNS.join(","))).expect("write");
+        std::fs::write(&good, "t_s,omega_rad_s\n0,1\n").expect("write");
+        let mut keeper = Keeper {
+            dir: dir.path().to_path_buf(),
+            drive: "pump1".into(),
+            compress: true,
+            retention: Retention::default(),
+            open: None,
+            to_compress: vec![empty.clone(), header.clone(), good.clone()],
+            health: Arc::new(Health::default()),
+        };
+        keeper.turn();
+        let mut names: Vec<String> = std::fs::read_dir(dir.path())
+            .expect("dir")
+            .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(names, vec!["pump1-3.csv.gz"], "the empty and header-only files are removed, not compressed");
+        assert_eq!(keeper.health.snapshot().files_compressed, 1);
     }
 }

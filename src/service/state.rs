@@ -158,6 +158,9 @@ pub struct RecordingHealth {
     /// Rows not recorded because of them.
     pub rows_lost: u64,
     pub last_error: Option<String>,
+    /// Open recordings lost while written (deleted, their directory removed, or replaced); their rows are in
+    /// `rows_lost`.
+    pub files_lost: u64,
     /// Old recordings deleted by retention.
     pub files_deleted: u64,
     /// Closed recordings compressed to `.csv.gz` (`recording.compress`).

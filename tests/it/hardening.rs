@@ -3,6 +3,7 @@
 
 use hydrolens::recording::simulated;
 use std::net::SocketAddr;
+use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -22,7 +23,7 @@ const SPEED: &str = crate::support::SPEED_30;
 struct Svc {
     svc: Option<Server>,
     url: String,
-    _dir: tempfile::TempDir,
+    dir: tempfile::TempDir,
 }
 
 impl Svc {
@@ -39,7 +40,7 @@ impl Svc {
         );
         let svc = start_service(&text).await;
         let url = svc.url.clone();
-        Svc { svc: Some(svc), url, _dir: dir }
+        Svc { svc: Some(svc), url, dir }
     }
 
     fn state(&self) -> &Arc<service::ServiceState> {
@@ -538,6 +539,103 @@ fn a_recording_cut_mid_row_at_its_end_is_read_without_that_line_and_a_cut_inside
 
 // ---- item 9: the disk fills ----
 
+/// `hydrolens serve --config <config>` run by `sh -c` after `limits` (shell commands such as `ulimit -f 0`), on
+/// HTTP 127.0.0.1:0; its stderr is drained so that it never blocks on a full pipe, and kept for messages. Killed if
+/// still running when dropped.
+struct ServeProcess {
+    child: std::process::Child,
+    url: String,
+    stderr: Arc<Mutex<Vec<String>>>,
+}
+
+impl ServeProcess {
+    /// Starts it and waits (10 s at most) for the URL it announces.
+    async fn start(limits: &str, config: &std::path::Path) -> ServeProcess {
+        let script = format!(
+            "{limits}; exec {} serve --config {} --http 127.0.0.1:0",
+            crate::support::bin().display(),
+            config.display()
+        );
+        let mut child = std::process::Command::new("sh")
+            .args(["-c", &script])
+            .stderr(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::null())
+            .spawn()
+            .expect("starts");
+        let stderr = child.stderr.take().expect("stderr");
+        let lines = Arc::new(Mutex::new(Vec::new()));
+        let kept = lines.clone();
+        let (tx, rx) = std::sync::mpsc::channel::<String>();
+        std::thread::spawn(move || {
+            use std::io::BufRead;
+            for line in std::io::BufReader::new(stderr).lines().map_while(Result::ok) {
+                if let Some(url) = line.split_whitespace().find(|w| w.starts_with("http://")) {
+                    let _ = tx.send(url.to_string());
+                }
+                kept.lock().expect("lines").push(line);
+            }
+        });
+        let url = tokio::task::spawn_blocking(move || rx.recv_timeout(Duration::from_secs(10))).await.expect("joins");
+        let mut serve = ServeProcess { child, url: String::new(), stderr: lines };
+        match url {
+            Ok(url) => serve.url = url,
+            Err(_) => panic!("serve announces its URL; it said:\n{}", serve.log()),
+        }
+        serve
+    }
+
+    fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// What it wrote to stderr so far.
+    fn log(&self) -> String {
+        self.stderr.lock().expect("lines").join("\n")
+    }
+
+    /// The drive's entry in /api/status.
+    async fn status(&self) -> serde_json::Value {
+        get_json(format!("{}/api/status", self.url)).await["drives"][0].clone()
+    }
+
+    /// SIGTERM, then waits (10 s at most) for it to exit: its exit status, None if it had to be killed.
+    fn stop(&mut self) -> Option<std::process::ExitStatus> {
+        let _ = std::process::Command::new("kill").args(["-TERM", &self.pid().to_string()]).status();
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        loop {
+            if let Some(code) = self.child.try_wait().expect("wait") {
+                return Some(code);
+            }
+            if std::time::Instant::now() > deadline {
+                let _ = self.child.kill();
+                let _ = self.child.wait();
+                return None;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+impl Drop for ServeProcess {
+    fn drop(&mut self) {
+        if self.child.try_wait().is_ok_and(|s| s.is_none()) {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+/// A config of the drive `pump1` on `modbus`, recording to `rec_dir`, polled every `poll_ms`, written to `dir`.
+fn serve_config(dir: &std::path::Path, rec_dir: &std::path::Path, modbus: SocketAddr, poll_ms: u64) -> PathBuf {
+    let config = dir.join("c.toml");
+    let text = format!(
+        "[recording]\ndir = {:?}\n[[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = {poll_ms}\n",
+        rec_dir.display().to_string()
+    );
+    std::fs::write(&config, text).expect("write");
+    config
+}
+
 /// `hydrolens serve` under a file-size limit (the kernel refuses writes past it, as a full disk does; SIGXFSZ
 /// ignored so that the write fails instead): the recorder's trouble shows in /api/status, /metrics and readiness
 /// while polling goes on, and recording resumes once the limit is lifted (`prlimit`), as when space returns.
@@ -546,41 +644,12 @@ async fn a_full_disk_shows_in_status_metrics_and_readiness_and_recording_resumes
     let (_sim, modbus, sim_stop, _task) = crate::support::start_sim(crate::support::test_plant(5.0), 0).await;
     let dir = tempfile::tempdir().expect("tmp");
     let rec_dir = dir.path().join("rec");
-    let config = dir.path().join("c.toml");
-    let text = format!(
-        "[recording]\ndir = {:?}\n[[drives]]\nname = \"pump1\"\naddress = \"{modbus}\"\npoll_ms = 2\n",
-        rec_dir.display().to_string()
-    );
-    std::fs::write(&config, text).expect("write");
-    let script = format!(
-        "trap '' XFSZ; ulimit -S -f 64; exec {} serve --config {} --http 127.0.0.1:0",
-        crate::support::bin().display(),
-        config.display()
-    );
-    let mut child = std::process::Command::new("sh")
-        .args(["-c", &script])
-        .stderr(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::null())
-        .spawn()
-        .expect("starts");
-    let pid = child.id();
-    let stderr = child.stderr.take().expect("stderr");
-    let (tx, rx) = std::sync::mpsc::channel::<String>();
-    // the first line with a URL, then drained so that the service never blocks on a full pipe
-    std::thread::spawn(move || {
-        use std::io::BufRead;
-        for line in std::io::BufReader::new(stderr).lines().map_while(Result::ok) {
-            if let Some(url) = line.split_whitespace().find(|w| w.starts_with("http://")) {
-                let _ = tx.send(url.to_string());
-            }
-        }
-    });
+    let config = serve_config(dir.path(), &rec_dir, modbus, 2);
+    let mut serve = ServeProcess::start("trap '' XFSZ; ulimit -S -f 64", &config).await;
+    let pid = serve.pid();
     let run = async {
-        let url = tokio::task::spawn_blocking(move || rx.recv_timeout(Duration::from_secs(10)))
-            .await
-            .expect("joins")
-            .expect("serve announces its URL");
-        let status = || async { get_json(format!("{url}/api/status")).await["drives"][0].clone() };
+        let url = &serve.url;
+        let status = || serve.status();
         let failing = wait_for(Duration::from_secs(10), || async { status().await["recording"]["ok"] == false }).await;
         assert!(failing.is_some(), "recording trouble shows in /api/status: {}", status().await);
         let s = status().await;
@@ -606,21 +675,9 @@ async fn a_full_disk_shows_in_status_metrics_and_readiness_and_recording_resumes
         })
         .await;
         assert!(ready.is_some(), "ready again");
-        let _ = std::process::Command::new("kill").args(["-TERM", &pid.to_string()]).status();
     };
     let finished = tokio::time::timeout(Duration::from_secs(40), run).await;
-    let deadline = std::time::Instant::now() + Duration::from_secs(10);
-    let code = loop {
-        if let Some(code) = child.try_wait().expect("wait") {
-            break Some(code);
-        }
-        if std::time::Instant::now() > deadline {
-            let _ = child.kill();
-            let _ = child.wait();
-            break None;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let code = serve.stop();
     finished.expect("bounded");
     assert!(code.is_some_and(|c| c.success()), "stops cleanly on SIGTERM: {code:?}");
     sim_stop.cancel();
@@ -631,6 +688,113 @@ async fn a_full_disk_shows_in_status_metrics_and_readiness_and_recording_resumes
             hydrolens::recording::load(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()));
         }
     }
+}
+
+/// The recordings in `dir` (`.csv` and `.csv.gz`) and their sizes.
+fn recordings_in(dir: &std::path::Path) -> Vec<(PathBuf, u64)> {
+    let Ok(entries) = std::fs::read_dir(dir) else { return Vec::new() };
+    let mut files: Vec<(PathBuf, u64)> = entries
+        .filter_map(Result::ok)
+        .filter(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            name.ends_with(".csv") || name.ends_with(".csv.gz")
+        })
+        .map(|e| (e.path(), e.metadata().map_or(0, |m| m.len())))
+        .collect();
+    files.sort();
+    files
+}
+
+/// A disk with no room at all (a file-size limit of 0, and no help from the shell with SIGXFSZ: the service takes
+/// the signal itself, and the lock file's pid is best-effort): rows are lost and shown as lost, and the tries at a
+/// new file, one a second, leave no empty files behind (issue 29, finding 8).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_disk_with_no_room_leaves_no_empty_recordings_and_shows_the_rows_lost() {
+    let (_sim, modbus, sim_stop, _task) = crate::support::start_sim(crate::support::test_plant(5.0), 0).await;
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec_dir = dir.path().join("rec");
+    let config = serve_config(dir.path(), &rec_dir, modbus, 10);
+    let mut serve = ServeProcess::start("ulimit -f 0", &config).await;
+    let run = async {
+        let status = || serve.status();
+        // three tries at a file, a second apart
+        let tried = wait_for(Duration::from_secs(15), || async {
+            status().await["recording"]["errors"].as_u64().is_some_and(|e| e >= 3)
+        })
+        .await;
+        assert!(tried.is_some(), "{}\n{}", status().await, serve.log());
+        let r = status().await["recording"].clone();
+        assert_eq!(r["ok"], false, "{r}");
+        assert!(r["rows_lost"].as_u64().is_some_and(|n| n > 0), "{r}");
+        assert!(r["last_error"].as_str().is_some_and(|e| !e.is_empty()), "{r}");
+        // a file exists only for the instant a try takes
+        let files = recordings_in(&rec_dir);
+        assert!(
+            files.len() <= 1 && files.iter().all(|(p, b)| *b == 0 && !p.to_string_lossy().ends_with(".gz")),
+            "{files:?}"
+        );
+    };
+    let finished = tokio::time::timeout(Duration::from_secs(30), run).await;
+    let code = serve.stop();
+    finished.expect("bounded");
+    assert!(code.is_some_and(|c| c.success()), "stops cleanly on SIGTERM: {code:?}\n{}", serve.log());
+    sim_stop.cancel();
+    assert_eq!(recordings_in(&rec_dir), vec![], "no empty recordings left");
+}
+
+/// The open recording deleted, then the whole recordings directory removed, while the service runs: each loss
+/// shows in /api/status (rows and files lost, the last error naming the file), and a new file takes the rows
+/// (issue 29, finding 8).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_recording_deleted_while_open_or_its_directory_removed_shows_in_status_and_a_new_file_grows() {
+    let run = async {
+        let (_sim, modbus, sim_stop, _task) = crate::support::start_sim(crate::support::test_plant(5.0), 0).await;
+        let s = Svc::start(modbus, "", "").await;
+        let dir = s.dir.path().to_path_buf();
+        let recording = || async { get_json(format!("{}/api/status", s.url)).await["drives"][0]["recording"].clone() };
+        let count = |r: &serde_json::Value, key: &str| r[key].as_u64().unwrap_or_else(|| panic!("{key}: {r}"));
+        // the open (plain) file once it holds rows; then that it grows
+        let open_file_grows = || async {
+            let with_rows = || {
+                recordings_in(&dir).into_iter().find(|(p, _)| {
+                    p.extension().is_some_and(|x| x == "csv")
+                        && hydrolens::recording::holds_no_rows(p).is_ok_and(|none| !none)
+                })
+            };
+            let found = wait_for(Duration::from_secs(10), || async { with_rows().is_some() }).await;
+            assert!(found.is_some(), "a file with rows: {:?}", recordings_in(&dir));
+            let (path, bytes) = with_rows().expect("found");
+            let grew =
+                wait_for(Duration::from_secs(10), || async { std::fs::metadata(&path).is_ok_and(|m| m.len() > bytes) })
+                    .await;
+            assert!(grew.is_some(), "{} grows past {bytes} bytes", path.display());
+            path
+        };
+        let first = open_file_grows().await;
+        let r = recording().await;
+        assert!(count(&r, "rows_lost") == 0 && count(&r, "files_lost") == 0 && r["ok"] == true, "{r}");
+
+        std::fs::remove_file(&first).expect("rm");
+        let noticed = wait_for(Duration::from_secs(5), || async { count(&recording().await, "files_lost") >= 1 }).await;
+        assert!(noticed.is_some(), "{}", recording().await);
+        let r = recording().await;
+        assert!(count(&r, "rows_lost") > 0, "{r}");
+        let name = first.file_name().expect("name").to_string_lossy().into_owned();
+        assert!(r["last_error"].as_str().is_some_and(|e| e.contains(&name)), "names the file: {r}");
+        open_file_grows().await;
+        let m = s.metrics().await;
+        assert!(metric(&m, "hydrolens_recording_files_lost_total{drive=\"pump1\"}").unwrap_or(0.0) >= 1.0, "{m}");
+
+        let lost = count(&recording().await, "rows_lost");
+        std::fs::remove_dir_all(&dir).expect("rm -r");
+        let noticed = wait_for(Duration::from_secs(5), || async { count(&recording().await, "files_lost") >= 2 }).await;
+        assert!(noticed.is_some(), "{}", recording().await);
+        assert!(count(&recording().await, "rows_lost") > lost, "{}", recording().await);
+        open_file_grows().await;
+        s.stop().await;
+        sim_stop.cancel();
+    };
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
 }
 
 // ---- item 10: retention ----
