@@ -47,7 +47,7 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
     let mut conditions = Vec::with_capacity(settings.drives.len());
     let mut condition_jobs = Vec::new();
     // one writer per recordings directory, taken before anything in it is touched (leftovers, retention)
-    let recording_lock = settings.recording.dir.as_deref().map(recorder::lock_dir).transpose()?;
+    let recording_lock = settings.recording.dir.as_deref().map(recorder::DirLock::take).transpose()?.map(Arc::new);
     // one bus per RTU line (serial port or gateway), shared by the drives on it
     let mut buses: Vec<Bus> = Vec::new();
     for d in &settings.drives {
@@ -92,7 +92,8 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
                     max_bytes: r.max_total_bytes.map(|t| t / settings.drives.len().max(1) as u64),
                     keep: r.keep,
                 };
-                Some(Recorder::start(dir, &d.name, r.rotate_after, r.max_file_bytes, retention, r.compress)?)
+                let lock = recording_lock.clone();
+                Some(Recorder::start(dir, &d.name, r.rotate_after, r.max_file_bytes, retention, r.compress, lock)?)
             }
             None => None,
         };

@@ -269,6 +269,41 @@ pub fn lock_dir(dir: &Path) -> std::io::Result<std::fs::File> {
     }
 }
 
+/// The recordings directory's lock ([`lock_dir`]) as the service holds it: taken again when its file is no longer
+/// the one held (the directory was removed and made again), so that a second instance is still refused.
+#[derive(Debug)]
+pub struct DirLock {
+    dir: PathBuf,
+    held: Mutex<std::fs::File>,
+}
+
+impl DirLock {
+    pub fn take(dir: &Path) -> std::io::Result<DirLock> {
+        Ok(DirLock { dir: dir.to_path_buf(), held: Mutex::new(lock_dir(dir)?) })
+    }
+
+    /// Takes the lock again (making the directory again) if `<dir>/.hydrolens.lock` is not the file held.
+    pub fn keep(&self) {
+        use std::os::unix::fs::MetadataExt;
+        let mut held = self.held.lock().unwrap_or_else(|e| e.into_inner());
+        let same = match (std::fs::metadata(self.dir.join(LOCK_FILE)), held.metadata()) {
+            (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+            _ => false,
+        };
+        if same {
+            return;
+        }
+        match lock_dir(&self.dir) {
+            Ok(f) => {
+                *held = f;
+                tracing::warn!(dir = %self.dir.display(), "the recordings directory's lock file was gone: taken again");
+            }
+            Err(e) => tracing::error!(dir = %self.dir.display(), error = %e,
+                "the recordings directory's lock file was gone and cannot be taken again"),
+        }
+    }
+}
+
 impl Recorder {
     /// Starts writing `<dir>/<drive>-<unix ms>.csv` files, rotated after `rotate_after` or `max_bytes`; closed
     /// files are compressed to `.csv.gz` when `compress` (those of earlier runs too).
@@ -279,6 +314,7 @@ impl Recorder {
         max_bytes: u64,
         retention: Retention,
         compress: bool,
+        lock: Option<Arc<DirLock>>,
     ) -> std::io::Result<Recorder> {
         std::fs::create_dir_all(dir)?;
         let found = leftovers(dir, drive)?;
@@ -335,6 +371,11 @@ impl Recorder {
                     }
                     if let Some(lost) = writer.give_up_if_lost() {
                         spell.lost(&lost);
+                        // the directory may have gone with it: the next row makes it again, and the lock is kept
+                        if let Some(l) = &lock {
+                            let _ = std::fs::create_dir_all(&l.dir);
+                            l.keep();
+                        }
                     }
                     flushed = Instant::now();
                 }
@@ -429,7 +470,7 @@ mod tests {
     fn a_recording_deleted_while_open_or_its_directory_removed_is_counted_and_a_new_file_started() {
         let tmp = tempfile::tempdir().expect("tmp");
         let dir = tmp.path().join("rec");
-        let rec = Recorder::start(&dir, "pump1", Duration::from_secs(3600), 1 << 30, Retention::default(), false)
+        let rec = Recorder::start(&dir, "pump1", Duration::from_secs(3600), 1 << 30, Retention::default(), false, None)
             .expect("starts");
         let mut t = 0.0;
         assert!(record_until(&rec, &mut t, || !with_rows(&dir).is_empty()), "rows reach a file");

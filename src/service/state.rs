@@ -320,7 +320,7 @@ pub struct ServiceState {
     /// Where recordings are written; None when recording is off.
     pub recording_dir: Option<PathBuf>,
     /// The exclusive lock on the recordings directory (`recorder::lock_dir`), held while the service lives.
-    pub recording_lock: Option<std::fs::File>,
+    pub recording_lock: Option<Arc<super::recorder::DirLock>>,
     pub started: Instant,
 }
 

@@ -791,6 +791,16 @@ async fn a_recording_deleted_while_open_or_its_directory_removed_shows_in_status
         assert!(noticed.is_some(), "{}", recording().await);
         assert!(count(&recording().await, "rows_lost") > lost, "{}", recording().await);
         open_file_grows().await;
+        // the lock went with the directory and is taken again: a second instance is still refused
+        assert!(dir.join(hydrolens::service::recorder::LOCK_FILE).exists(), "the lock file is back");
+        let text = format!(
+            "[http]\nbind = \"127.0.0.1:0\"\n[recording]\ndir = {:?}\n[[drives]]\nname = \"pump2\"\naddress = \"{modbus}\"\n",
+            dir.display().to_string()
+        );
+        let settings = service::config::parse(&text, "test config", Some(&root())).expect("config");
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let second = hydrolens::server::start(listener, &settings, tokio_util::sync::CancellationToken::new());
+        assert!(second.is_err_and(|e| hydrolens::is_bad_input(&e)), "a second instance is refused");
         s.stop().await;
         sim_stop.cancel();
     };
