@@ -391,7 +391,8 @@ fn analysis_recording(paths: &[PathBuf], drive: Option<&str>) -> anyhow::Result<
         }
         (files, None) => files.to_vec(),
     };
-    let parts = files.iter().map(|p| recording::load(p)).collect::<Result<Vec<_>, _>>()?;
+    let columns = hydrolens::analysis::RECORDING_COLUMNS;
+    let parts = files.iter().map(|p| recording::load_columns(p, &columns)).collect::<Result<Vec<_>, _>>()?;
     let parts = if drive.is_some() {
         let (run, left_out) = recording::last_run(parts);
         if left_out > 0 {

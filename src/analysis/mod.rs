@@ -29,6 +29,10 @@ pub use series::{Family, Series};
 use predict::Prediction;
 use search::{MechTerms, Rows, Scored};
 
+/// The recording columns the analysis reads (besides `t_s`); `analyze` holds only these in memory.
+pub const RECORDING_COLUMNS: [&str; 8] =
+    ["f_set_hz", "f_drive_hz", "p_in_bar", "p_out_bar", "omega_rad_s", "theta_rad", "load_nm", "torque_nm"];
+
 /// Settings of an analysis; the defaults are the documented method.
 #[derive(Debug, Clone, Copy)]
 pub struct Options {
@@ -106,6 +110,12 @@ pub struct Analysis {
     /// Where the improved model's residual still exceeds the noise floor, grouped by signal and operating
     /// condition; empty when the model explains the recording down to the sensor noise.
     pub unexplained: Vec<mismatch::Unexplained>,
+    /// Cells outside their sensor's range, read as missing (per file and column, with the first line).
+    pub out_of_range: Vec<crate::recording::OutOfRange>,
+    /// Lone values far off their neighbours (spikes), taken as missing (per column, with the first `t_s`).
+    pub outliers: Vec<series::Outlier>,
+    /// Steps in `t_s` the free run restarts after (see `series::gaps`): how many, and the longest.
+    pub gaps: Gaps,
     /// How effects were validated and how the confidence intervals were computed.
     pub validation_rule: String,
     pub interval_method: String,
@@ -115,6 +125,15 @@ pub struct Analysis {
     pub improved_model: PlantModel,
     #[serde(skip)]
     pub traces: Traces,
+}
+
+/// The recording's gaps in time.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Gaps {
+    pub count: usize,
+    /// The longest gap (s) and the `t_s` it follows; absent without gaps.
+    pub longest_s: Option<f64>,
+    pub after_t_s: Option<f64>,
 }
 
 /// A model's parameters and its validation errors.
@@ -565,6 +584,13 @@ pub fn analyze(
         not_identified,
         improved: improved_summary,
         unexplained,
+        out_of_range: rec.out_of_range.clone(),
+        outliers: s.outliers.clone(),
+        gaps: {
+            let longest =
+                s.restarts.iter().map(|&k| (s.t_s[k] - s.t_s[k - 1], s.t_s[k - 1])).max_by(|a, b| a.0.total_cmp(&b.0));
+            Gaps { count: s.restarts.len(), longest_s: longest.map(|l| l.0), after_t_s: longest.map(|l| l.1) }
+        },
         validation_rule,
         interval_method,
         candidates,
@@ -863,7 +889,27 @@ fn with_nominal_load(mut m: PlantModel, nominal: &PlantModel) -> PlantModel {
 }
 
 /// Measured − model for each judged signal of the family, over the whole recording.
+/// Residuals (measured − predicted) per judged signal; NaN where nothing was measured, so that no window of
+/// filled-in values is called unexplained.
 fn residual_signals(sc: &Scored, s: &Series) -> Vec<(&'static str, Vec<f64>)> {
+    let mut out = residual_signals_filled(sc, s);
+    for (name, r) in &mut out {
+        let mask = match *name {
+            "omega" => &s.measured_omega,
+            "dp" => &s.measured_dp,
+            "f_drive" => &s.measured_f_drive,
+            _ => continue,
+        };
+        for (v, m) in r.iter_mut().zip(mask) {
+            if !m {
+                *v = f64::NAN;
+            }
+        }
+    }
+    out
+}
+
+fn residual_signals_filled(sc: &Scored, s: &Series) -> Vec<(&'static str, Vec<f64>)> {
     let mut out = Vec::new();
     match s.family {
         Family::Hydraulic => {

@@ -134,9 +134,11 @@ pub fn predict_rows(
 pub fn errors(p: &Prediction, s: &Series, from: usize, to: usize) -> Errors {
     let to = to.min(p.omega_rad_s.len());
     let from = from.min(to);
-    let omega_nrmse = nrmse(&p.omega_rad_s[from..to], &s.omega_rad_s[from..to]);
+    let omega_nrmse = measured_nrmse(&p.omega_rad_s[from..to], &s.omega_rad_s[from..to], &s.measured_omega[from..to]);
     let dp_nrmse = match (&p.dp_bar, &s.dp_bar) {
-        (Some(sim), Some(meas)) => Some(nrmse(&sim[from..to], &meas[from..to])),
+        (Some(sim), Some(meas)) => {
+            Some(measured_nrmse(&sim[from..to], &meas[from..to], &s.measured_dp[from..to])).filter(|v| v.is_finite())
+        }
         _ => None,
     };
     let dp_noise_nrmse2 = match &s.dp_bar {
@@ -158,10 +160,27 @@ pub fn errors(p: &Prediction, s: &Series, from: usize, to: usize) -> Errors {
         None => (None, None),
     };
     let f_drive_nrmse = match (&p.f_drive_hz, &s.f_drive_hz) {
-        (Some(sim), Some(meas)) => Some(nrmse(&sim[from..to], &meas[from..to])),
+        (Some(sim), Some(meas)) => Some(measured_nrmse(&sim[from..to], &meas[from..to], &s.measured_f_drive[from..to]))
+            .filter(|v| v.is_finite()),
         _ => None,
     };
     Errors { omega_nrmse, dp_nrmse, torque_nrmse, torque_relative_error, f_drive_nrmse, dp_noise_nrmse2 }
+}
+
+/// A window's NRMSE needs at least this share of its rows measured (and [`MIN_MEASURED_ROWS`]); less gives NaN
+/// (null in the JSON): a score of filled-in values would be a score from nothing.
+pub const MIN_MEASURED_SHARE: f64 = 0.1;
+pub const MIN_MEASURED_ROWS: usize = 20;
+
+/// [`nrmse`] over the rows where `measured` holds; NaN when too few do, or when the measurement does not vary.
+fn measured_nrmse(sim: &[f64], meas: &[f64], measured: &[bool]) -> f64 {
+    let rows = measured.iter().filter(|m| **m).count();
+    if rows < MIN_MEASURED_ROWS || (rows as f64) < MIN_MEASURED_SHARE * measured.len() as f64 {
+        return f64::NAN;
+    }
+    let meas: Vec<f64> = meas.iter().zip(measured).map(|(v, m)| if *m { *v } else { f64::NAN }).collect();
+    let e = nrmse(sim, &meas);
+    if e.is_finite() { e } else { f64::NAN }
 }
 
 /// Free run of the whole plant from the recorded setpoint and load. Row k is the state at t_k; the inputs of row k
@@ -187,6 +206,7 @@ fn free_run_hydraulic(
         omega_rad_s: s.omega_f.get(k).copied().unwrap_or(0.0),
     };
     let mut x = measured(start);
+    let restarts = with_gaps(s, restarts);
     let mut next_restart = restarts.iter().copied().filter(|r| *r > start).peekable();
     let dt_nominal = 1.0 / s.sample_hz;
     let delay = c.dead_time_s.max(0.0);
@@ -216,7 +236,8 @@ fn free_run_hydraulic(
         if k + 1 == end {
             break;
         }
-        let len = s.t_s[k + 1] - s.t_s[k];
+        // across a gap nothing is integrated: the run restarts from the measured state after it
+        let len = if next_restart.peek() == Some(&(k + 1)) { 0.0 } else { s.t_s[k + 1] - s.t_s[k] };
         let load = s.load_nm[k];
         let k = k as isize - m as isize;
         let first = r.min(len);
@@ -287,6 +308,9 @@ fn free_run_flow(c: &Coefficients, s: &Series, start: usize, end: usize, restart
         if k + 1 == end {
             break;
         }
+        if next_restart.peek() == Some(&(k + 1)) {
+            continue;
+        }
         let len = s.t_s[k + 1] - s.t_s[k];
         let (w0, w1) = (s.omega_f[k], s.omega_f[k + 1]);
         let pump = f_meas.map(|fm| (fm[k], fm[k + 1]));
@@ -354,11 +378,21 @@ fn noise_in_dp_bar2(c: &Coefficients, s: &Series) -> f64 {
     sum / count / (crate::units::PA_PER_BAR * crate::units::PA_PER_BAR)
 }
 
+/// `restarts` and the rows after the recording's gaps, sorted: a free run restarts from the measured state there and
+/// integrates nothing across the gap, so its work follows the rows, not the seconds.
+fn with_gaps(s: &Series, restarts: &[usize]) -> Vec<usize> {
+    let mut all: Vec<usize> = s.restarts.iter().chain(restarts).copied().collect();
+    all.sort_unstable();
+    all.dedup();
+    all
+}
+
 /// Free run of the mechanics from the recorded drive and load torques, starting at the measured speed.
 fn free_run_mechanics(m: &Mechanics, s: &Series, start: usize, end: usize, restarts: &[usize]) -> Vec<f64> {
     let mut omega = vec![f64::NAN; start];
     omega.reserve(end - start);
     let mut w = s.omega_f.get(start).copied().unwrap_or(0.0);
+    let restarts = with_gaps(s, restarts);
     let mut next_restart = restarts.iter().copied().filter(|r| *r > start).peekable();
     for k in start..end {
         if next_restart.peek() == Some(&k) {
@@ -366,8 +400,8 @@ fn free_run_mechanics(m: &Mechanics, s: &Series, start: usize, end: usize, resta
             w = s.omega_f[k];
         }
         omega.push(w);
-        if k + 1 == end {
-            break;
+        if k + 1 == end || next_restart.peek() == Some(&(k + 1)) {
+            continue;
         }
         let len = s.t_s[k + 1] - s.t_s[k];
         let steps = (len / FREE_RUN_STEP_S).ceil().max(1.0);

@@ -6,7 +6,7 @@ use crate::plant::{LoadSpec, PlantModel};
 use crate::recording::Recording;
 use crate::units::cm3_per_rev_to_m3_per_rad;
 
-use super::signal::{derivative, fill_gaps, filtfilt_butter4};
+use super::signal::{derivative, fill_gaps, filtfilt_butter4, without_spikes};
 
 /// Which simulation explains the recording: the pressure-driven hydraulic plant, or mechanics driven by a
 /// measured torque.
@@ -88,7 +88,26 @@ pub struct Series {
     pub speed_source: &'static str,
     /// Speed band of the smooth sign in friction terms (see [`Series::sign_speed`]).
     pub sign_speed: f64,
+    /// Per row, whether the speed, ΔP and drive frequency compared with a model's were measured there (gaps are
+    /// filled for the filters; errors and unexplained windows count only measured rows).
+    pub measured_omega: Vec<bool>,
+    pub measured_dp: Vec<bool>,
+    pub measured_f_drive: Vec<bool>,
+    /// Values taken out as spikes ([`without_spikes`]), per column.
+    pub outliers: Vec<Outlier>,
 }
+
+/// Lone values of one column that stood far off their neighbours and were taken as missing.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Outlier {
+    pub column: &'static str,
+    pub rows: usize,
+    /// The first such row's `t_s`.
+    pub first_t_s: f64,
+}
+
+/// The measured columns screened for spikes (a setpoint is a command and `theta_rad` a position: not screened).
+const SCREENED: [&str; 6] = ["p_in_bar", "p_out_bar", "omega_rad_s", "f_drive_hz", "torque_nm", "load_nm"];
 
 impl Series {
     /// Reads the signals, naming the missing column or model key when the recording or model cannot be analysed.
@@ -103,7 +122,25 @@ impl Series {
         // the median step, not the mean: a recording with gaps (skipped stale cycles) keeps its poll rate
         let steps: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
         let sample_hz = 1.0 / percentile(&steps, 0.5);
-        let col = |name: &str| rec.present(name).map(fill_gaps);
+        let mut outliers = Vec::new();
+        let mut raw: Vec<(&str, Vec<f64>)> = Vec::new();
+        for name in super::RECORDING_COLUMNS {
+            let Some(c) = rec.present(name) else { continue };
+            if SCREENED.contains(&name) {
+                let (c, taken) = without_spikes(c);
+                if let Some(&first) = taken.first() {
+                    outliers.push(Outlier { column: name, rows: taken.len(), first_t_s: t_s[first] });
+                    tracing::warn!(recording = %src, column = name, rows = taken.len(), first_t_s = t_s[first],
+                        "lone values far off their neighbours (spikes) taken as missing");
+                }
+                raw.push((name, c));
+            } else {
+                raw.push((name, c.to_vec()));
+            }
+        }
+        let raw_of = |name: &str| raw.iter().find(|r| r.0 == name).map(|r| r.1.as_slice());
+        let col = |name: &str| raw_of(name).filter(|c| c.iter().any(|v| v.is_finite())).map(fill_gaps);
+        let finite_rows = |name: &str| raw_of(name).map(|c| c.iter().map(|v| v.is_finite()).collect::<Vec<bool>>());
         let need = |name: &str, why: &str| BadInput(format!("recording {src}: column `{name}` is required {why}"));
 
         let recorded_load = col("load_nm");
@@ -202,6 +239,28 @@ impl Series {
         let drive_torque_f = filtfilt_butter4(&drive_torque_nm, cutoff_hz, sample_hz);
         let load_f = filtfilt_butter4(&load_nm, cutoff_hz, sample_hz);
         let restarts = gaps(&t_s);
+        if let Some(&longest) =
+            restarts.iter().max_by(|&&a, &&b| (t_s[a] - t_s[a - 1]).total_cmp(&(t_s[b] - t_s[b - 1])))
+        {
+            tracing::warn!(
+                recording = %src,
+                "{} gap(s) in t_s, the longest {} s after row {longest} (t_s = {}): the free run restarts from the \
+                 measured state after each",
+                restarts.len(),
+                t_s[longest] - t_s[longest - 1],
+                t_s[longest - 1]
+            );
+        }
+        let measured_omega = match speed_source {
+            "omega_rad_s" => finite_rows("omega_rad_s"),
+            _ => finite_rows("theta_rad"),
+        }
+        .unwrap_or_else(|| vec![true; n]);
+        let measured_dp = match (finite_rows("p_in_bar"), finite_rows("p_out_bar")) {
+            (Some(a), Some(b)) => a.iter().zip(&b).map(|(a, b)| *a && *b).collect(),
+            _ => vec![true; n],
+        };
+        let measured_f_drive = finite_rows("f_drive_hz").unwrap_or_else(|| vec![true; n]);
         let speed_noise_f = (family == Family::Flow && speed_source == "omega_rad_s")
             .then(|| synthetic_speed_noise(&omega_rad_s, &omega_f, cutoff_hz, sample_hz));
         let t_val = t_s[0] + (1.0 - validation_fraction) * span;
@@ -231,6 +290,10 @@ impl Series {
             load,
             restarts,
             speed_noise_f,
+            measured_omega,
+            measured_dp,
+            measured_f_drive,
+            outliers,
         }
         .with_sign_speed())
     }

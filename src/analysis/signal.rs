@@ -79,6 +79,40 @@ pub fn derivative(x: &[f64], t: &[f64]) -> Vec<f64> {
         .collect()
 }
 
+/// A lone value this many robust σ away from the median of its neighbourhood is a spike, not a measurement.
+pub const SPIKE_X_SIGMA: f64 = 30.0;
+
+/// Takes out spikes: values that stand [`SPIKE_X_SIGMA`] robust standard deviations off the median of the five
+/// finite values around them (a row or two corrupted). Where a signal is monotone the median is the value itself,
+/// so steps and ramps are never touched; σ is 1.4826 × the median of the non-zero deviations (the noise where the
+/// signal turns). Returns the signal with spikes as NaN (missing) and the rows taken out.
+pub fn without_spikes(x: &[f64]) -> (Vec<f64>, Vec<usize>) {
+    let finite: Vec<usize> = (0..x.len()).filter(|&k| x[k].is_finite()).collect();
+    let deviation: Vec<f64> = (0..finite.len())
+        .map(|i| {
+            let (a, b) = (i.saturating_sub(2), (i + 3).min(finite.len()));
+            let mut w: Vec<f64> = finite[a..b].iter().map(|&k| x[k]).collect();
+            w.sort_by(f64::total_cmp);
+            x[finite[i]] - w[w.len() / 2]
+        })
+        .collect();
+    let mut nonzero: Vec<f64> = deviation.iter().map(|d| d.abs()).filter(|d| *d > 0.0).collect();
+    let mut out = x.to_vec();
+    if nonzero.len() < 20 {
+        return (out, Vec::new());
+    }
+    let mid = nonzero.len() / 2;
+    let sigma = 1.4826 * *nonzero.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let mut taken = Vec::new();
+    for (i, d) in deviation.iter().enumerate() {
+        if d.abs() > SPIKE_X_SIGMA * sigma {
+            out[finite[i]] = f64::NAN;
+            taken.push(finite[i]);
+        }
+    }
+    (out, taken)
+}
+
 /// Replaces missing (non-finite) values by the last value seen (the first value seen before it).
 pub fn fill_gaps(x: &[f64]) -> Vec<f64> {
     let first = x.iter().copied().find(|v| v.is_finite()).unwrap_or(0.0);
@@ -193,6 +227,19 @@ pub fn minimize_1d(f: &mut dyn FnMut(f64) -> f64, grid: &[f64], refine_iters: us
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn spikes_go_and_steps_stay() {
+        // noise on a step and a ramp, with two lone spikes
+        let mut x: Vec<f64> = (0..2000)
+            .map(|k| if k < 1000 { 10.0 } else { 50.0 + 0.01 * k as f64 } + 0.3 * ((k * 7919 % 101) as f64 / 101.0 - 0.5))
+            .collect();
+        x[500] = 390.0;
+        x[1500] = -1.0;
+        let (y, taken) = without_spikes(&x);
+        assert_eq!(taken, [500, 1500]);
+        assert!(y[500].is_nan() && y[999] == x[999] && y[1000] == x[1000]);
+    }
 
     #[test]
     fn filter_keeps_slow_signals_and_removes_fast_ones_without_lag() {

@@ -2,13 +2,14 @@
 //! a row was being written): the bytes after the last newline are dropped with a warning, so every reader sees
 //! whole lines. A cut anywhere else is still the parser's error. Our writers end every row with a newline.
 //! A compressed recording (gzip, told by its first bytes whatever its name) is read through [`super::gz`], which
-//! drops a cut last line, or the rest of a stream cut short, the same way.
+//! drops a cut last line, or the rest of a stream cut short, the same way. What is not a regular file (a named pipe,
+//! `<(…)` in a shell) is read as a stream, never seeked: gzip is told from its first bytes as they are buffered.
 
 use std::fs::File;
-use std::io::{Read, Seek, SeekFrom, Take};
+use std::io::{BufReader, Chain, Cursor, Read, Seek, SeekFrom, Take};
 use std::path::Path;
 
-use flate2::read::MultiGzDecoder;
+use flate2::bufread::MultiGzDecoder;
 
 use super::RecordingError;
 use super::gz::{self, WholeLines};
@@ -18,14 +19,22 @@ pub struct RecordingFile(Text);
 
 enum Text {
     Plain(Take<File>),
-    Gzip(Box<WholeLines<MultiGzDecoder<File>>>),
+    Gzip(Box<WholeLines<MultiGzDecoder<BufReader<File>>>>),
+    /// From a pipe, plain or compressed: whole lines as they come.
+    Stream(Box<WholeLines<Piped>>),
+    GzipStream(Box<WholeLines<MultiGzDecoder<BufReader<Piped>>>>),
 }
+
+/// A pipe's first bytes (read to tell gzip) put back in front of the rest.
+type Piped = Chain<Cursor<Vec<u8>>, File>;
 
 impl Read for RecordingFile {
     fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
         match &mut self.0 {
             Text::Plain(f) => f.read(buf),
             Text::Gzip(g) => g.read(buf),
+            Text::Stream(s) => s.read(buf),
+            Text::GzipStream(g) => g.read(buf),
         }
     }
 }
@@ -34,14 +43,38 @@ impl Read for RecordingFile {
 pub fn open(path: &Path) -> Result<RecordingFile, RecordingError> {
     let name = path.display().to_string();
     let io = |source| RecordingError::Io { path: name.clone(), source };
-    let mut file = File::open(path).map_err(io)?;
-    let len = file.metadata().map_err(io)?.len();
-    let mut head = [0u8; 2];
-    let got = file.read(&mut head).map_err(io)?;
-    if gz::starts_gzip(&head[..got]) {
-        file.seek(SeekFrom::Start(0)).map_err(io)?;
-        return Ok(RecordingFile(Text::Gzip(Box::new(gz::decoder(file, &name)))));
+    let file = File::open(path).map_err(io)?;
+    let meta = file.metadata().map_err(io)?;
+    if meta.is_dir() {
+        let source = std::io::Error::new(std::io::ErrorKind::IsADirectory, "a directory, not a recording file");
+        return Err(io(source));
     }
+    let mut file = file;
+    let mut head = [0u8; 2];
+    let mut got = 0;
+    // a pipe may hand out one byte at a time
+    while got < head.len() {
+        match file.read(&mut head[got..]) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(io(e)),
+        }
+    }
+    let compressed = gz::starts_gzip(&head[..got]);
+    if !meta.is_file() {
+        let input = Cursor::new(head[..got].to_vec()).chain(file);
+        return Ok(RecordingFile(if compressed {
+            Text::GzipStream(Box::new(gz::decoder(BufReader::with_capacity(1 << 16, input), &name)))
+        } else {
+            Text::Stream(Box::new(WholeLines::new(input, &name)))
+        }));
+    }
+    file.seek(SeekFrom::Start(0)).map_err(io)?;
+    if compressed {
+        return Ok(RecordingFile(Text::Gzip(Box::new(gz::decoder(BufReader::with_capacity(1 << 16, file), &name)))));
+    }
+    let len = meta.len();
     let keep = whole_lines_len(&mut file, len).map_err(io)?;
     if keep < len {
         tracing::warn!(recording = %name, dropped_bytes = len - keep,

@@ -4,11 +4,11 @@
 //! most a temporary `.<name>.csv.gz.tmp`, which the service removes on start.
 
 use std::fs::File;
-use std::io::{BufWriter, ErrorKind, Read};
+use std::io::{BufRead, BufWriter, ErrorKind, Read};
 use std::path::{Path, PathBuf};
 
 use flate2::Compression;
-use flate2::read::MultiGzDecoder;
+use flate2::bufread::MultiGzDecoder;
 use flate2::write::GzEncoder;
 
 /// The first two bytes of every gzip stream (RFC 1952).
@@ -67,11 +67,13 @@ pub fn starts_gzip(head: &[u8]) -> bool {
 /// The text of a compressed recording, up to its last newline: a last line cut mid-row, or a gzip stream cut
 /// short (the process died, or the disk filled, while it was written), is dropped with a warning. Corrupt data is
 /// an error of kind `InvalidData` naming the line it follows.
-pub fn decoder(file: File, origin: &str) -> WholeLines<MultiGzDecoder<File>> {
-    WholeLines::new(MultiGzDecoder::new(file), origin)
+pub fn decoder<R: BufRead>(input: R, origin: &str) -> WholeLines<MultiGzDecoder<R>> {
+    WholeLines::new(MultiGzDecoder::new(input), origin)
 }
 
-/// Hands out the text of `inner` a whole line at a time (see [`decoder`]).
+/// Hands out the text of `inner` a whole line at a time (see [`decoder`]). A line longer than
+/// [`super::MAX_LINE_BYTES`] is handed out as it comes, for the reader to refuse: the buffer stays small whatever
+/// the stream holds (a gzip bomb of one endless line).
 pub struct WholeLines<R> {
     inner: R,
     origin: String,
@@ -144,6 +146,9 @@ impl<R: Read> Read for WholeLines<R> {
                         self.ready = self.end + i + 1;
                     }
                     self.end += n;
+                    if self.end - self.ready > super::MAX_LINE_BYTES {
+                        self.ready = self.end;
+                    }
                 }
                 Err(e) if e.kind() == ErrorKind::Interrupted => {}
                 Err(e) if e.kind() == ErrorKind::UnexpectedEof => self.finish(true),
@@ -223,7 +228,9 @@ mod tests {
         assert_eq!(gz, dir.path().join("pump1-1.csv.gz"));
         assert!(!plain.exists() && !temp_path(&plain).exists());
         let mut s = String::new();
-        MultiGzDecoder::new(File::open(&gz).expect("open")).read_to_string(&mut s).expect("gunzip");
+        MultiGzDecoder::new(std::io::BufReader::new(File::open(&gz).expect("open")))
+            .read_to_string(&mut s)
+            .expect("gunzip");
         assert_eq!(s, "t_s,a\n1,2\n");
         assert!(compress(&dir.path().join("missing.csv")).is_err());
         assert_eq!(std::fs::read_dir(dir.path()).expect("dir").count(), 1);

@@ -5,8 +5,10 @@ use std::path::{Path, PathBuf};
 
 use super::{Recording, RecordingError};
 
-/// Joins recordings of one drive in the order of their first time stamp. Columns missing from a file are empty in
-/// its rows. Files that overlap in time (the service's `t_s` restarts with each run) are refused, naming both.
+/// Joins recordings of one drive in the order of their first time stamp. Files named for different drives
+/// (`<drive>-<unix ms>.csv[.gz]`) are refused, naming both, and so are files that overlap in time (the service's
+/// `t_s` restarts with each run). Columns missing from a file are empty in its rows, with a warning naming the
+/// file; `load_nm` is kept only when every file has it (a load recorded in part is no recorded load).
 pub fn join(mut parts: Vec<Recording>) -> Result<Recording, RecordingError> {
     if parts.len() == 1 {
         return Ok(parts.remove(0));
@@ -15,6 +17,20 @@ pub fn join(mut parts: Vec<Recording>) -> Result<Recording, RecordingError> {
         return Err(RecordingError::File { path: "(none)".into(), message: "no recording given".into() });
     };
     let mut names: Vec<String> = first.names().to_vec();
+    let drives: Vec<(usize, &str)> =
+        parts.iter().enumerate().filter_map(|(i, p)| drive_of(&p.source).map(|d| (i, d))).collect();
+    if let Some(&(i, a)) = drives.first()
+        && let Some(&(j, b)) = drives.iter().find(|(_, b)| *b != a)
+    {
+        return Err(RecordingError::File {
+            path: parts[j].source.clone(),
+            message: format!(
+                "is a recording of drive `{b}`, {} one of drive `{a}`: files of different drives are not joined; \
+                 analyse one drive's files",
+                parts[i].source
+            ),
+        });
+    }
     parts.sort_by(|a, b| a.t_s()[0].total_cmp(&b.t_s()[0]));
     for w in parts.windows(2) {
         let (a, b) = (&w[0], &w[1]);
@@ -37,6 +53,16 @@ pub fn join(mut parts: Vec<Recording>) -> Result<Recording, RecordingError> {
             }
         }
     }
+    for p in &parts {
+        let missing: Vec<&str> = names.iter().filter(|n| p.column(n).is_none()).map(String::as_str).collect();
+        if !missing.is_empty() {
+            tracing::warn!(recording = %p.source, columns = ?missing, "joined without these columns: empty in its rows");
+        }
+    }
+    if parts.iter().any(|p| p.column("load_nm").is_none()) && names.iter().any(|n| n == "load_nm") {
+        tracing::warn!("`load_nm` is not in every file: the joined recording is taken as having no recorded load");
+        names.retain(|n| n != "load_nm");
+    }
     let total: usize = parts.iter().map(Recording::len).sum();
     let columns: Vec<Vec<f64>> = names
         .iter()
@@ -52,7 +78,23 @@ pub fn join(mut parts: Vec<Recording>) -> Result<Recording, RecordingError> {
         })
         .collect();
     let source = parts.iter().map(|p| p.source.as_str()).collect::<Vec<_>>().join(" + ");
-    Ok(Recording::from_columns(&source, names, columns))
+    let mut joined = Recording::from_columns(&source, names, columns);
+    joined.out_of_range = parts.iter().flat_map(|p| p.out_of_range.iter().cloned()).collect();
+    Ok(joined)
+}
+
+/// The drive a recording file is named for (`<drive>-<unix ms>[-<n>].csv[.gz]`), if it is named so.
+fn drive_of(path: &str) -> Option<&str> {
+    let name = Path::new(path).file_name()?.to_str()?;
+    let stem = name.strip_suffix(".csv.gz").or_else(|| name.strip_suffix(".csv"))?;
+    let mut drive = stem;
+    for _ in 0..2 {
+        match drive.rsplit_once('-') {
+            Some((head, tail)) if !tail.is_empty() && tail.bytes().all(|b| b.is_ascii_digit()) => drive = head,
+            _ => break,
+        }
+    }
+    (drive != stem && !drive.is_empty()).then_some(drive)
 }
 
 /// Where `name` sorts among `drive`'s recording files `<drive>-<unix ms>[-<n>].csv[.gz]`: the stamp and the
@@ -82,6 +124,11 @@ pub fn drive_files(dir: &Path, drive: &str) -> Result<Vec<PathBuf>, RecordingErr
         let entry = entry.map_err(io)?;
         let name = entry.file_name().to_string_lossy().into_owned();
         if let Some(key) = drive_file_key(&name, drive) {
+            // a named pipe or a device would block or never end: only regular files (a link to one too)
+            if !std::fs::metadata(entry.path()).is_ok_and(|m| m.is_file()) {
+                tracing::warn!(path = %entry.path().display(), "not a regular file: skipped");
+                continue;
+            }
             // a file that cannot be read is kept: reading it says what is wrong
             if super::holds_no_rows(&entry.path()).unwrap_or(false) {
                 tracing::warn!(file = %entry.path().display(), "skipping a recording that holds no rows");
@@ -151,6 +198,28 @@ mod tests {
         let b = rec("b.csv", &[0.2, 0.3], &[]);
         let e = join(vec![a, b]).expect_err("overlap").to_string();
         assert!(e.contains("a.csv") && e.contains("b.csv") && e.contains("overlaps"), "{e}");
+    }
+
+    #[test]
+    fn files_of_two_drives_are_refused_naming_both() {
+        let a = rec("d/pump1-100.csv", &[0.0, 0.1], &[]);
+        let b = rec("d/pump2-200.csv.gz", &[0.2, 0.3], &[]);
+        let e = join(vec![a, b]).expect_err("two drives").to_string();
+        assert!(e.contains("pump1-100.csv") && e.contains("pump2-200.csv.gz") && e.contains("`pump2`"), "{e}");
+        let a = rec("d/pump1-a-100.csv", &[0.0, 0.1], &[]);
+        let b = rec("d/pump1-a-200-1.csv", &[0.2, 0.3], &[]);
+        assert!(join(vec![a, b]).is_ok());
+        assert_eq!(drive_of("x/pump1-100-2.csv.gz"), Some("pump1"));
+        assert_eq!(drive_of("rec.csv"), None);
+        assert_eq!(drive_of("100.csv"), None);
+    }
+
+    #[test]
+    fn a_load_in_some_files_only_is_no_recorded_load() {
+        let a = rec("a.csv", &[0.0, 0.1], &["omega_rad_s", "load_nm"]);
+        let b = rec("b.csv", &[0.2, 0.3], &["omega_rad_s"]);
+        let j = join(vec![a, b]).expect("joins");
+        assert!(j.column("load_nm").is_none() && j.column("omega_rad_s").is_some());
     }
 
     #[test]

@@ -10,7 +10,7 @@ mod write;
 
 pub use cut::RecordingFile;
 pub use join::{drive_file_key, drive_files, join, last_run};
-pub use read::{Batch, RecordingError, StreamReader, holds_no_rows, load, parse};
+pub use read::{Batch, MAX_LINE_BYTES, RecordingError, StreamReader, holds_no_rows, load, load_columns, parse};
 pub use write::{LostFile, RotatingWriter, RowWriter, push_value, write_csv};
 
 /// The estimate columns, in the order every file that carries them writes them (`estimate`'s output after `t_s`, the
@@ -35,6 +35,53 @@ pub const KNOWN_COLUMNS: [&str; 19] = concat(
     ),
     ["status_word"],
 );
+
+/// Inlet and outlet pressure a sensor reads (bar, gauge): the service's `[drives.limits]` defaults too.
+pub const PRESSURE_RANGE_BAR: (f64, f64) = (-1.0, 400.0);
+/// The largest shaft speed a tachogenerator reads (rad/s, either way).
+pub const MAX_SPEED_RAD_S: f64 = 1000.0;
+/// The highest drive frequency (Hz); a drive reads back down to −0.5 Hz at standstill.
+pub const MAX_FREQUENCY_HZ: f64 = 400.0;
+pub const MIN_FREQUENCY_HZ: f64 = -0.5;
+/// Torque beyond this (N·m, either way) is no measurement of a drive of this kind.
+pub const MAX_TORQUE_NM: f64 = 1e5;
+
+/// The range a column's sensor can read; a cell outside it is not a measurement and is read as missing (the same
+/// rule for `estimate` and `analyze`, and the service's defaults for what it accepts from a drive). Columns without
+/// a sensor range (time, position, estimates) have none.
+pub fn sensor_range(column: &str) -> Option<(f64, f64)> {
+    match column {
+        "p_in_bar" | "p_out_bar" => Some(PRESSURE_RANGE_BAR),
+        "omega_rad_s" => Some((-MAX_SPEED_RAD_S, MAX_SPEED_RAD_S)),
+        "f_set_hz" | "f_drive_hz" => Some((MIN_FREQUENCY_HZ, MAX_FREQUENCY_HZ)),
+        "torque_nm" | "load_nm" => Some((-MAX_TORQUE_NM, MAX_TORQUE_NM)),
+        "theta_rad" => Some((f64::MIN, f64::MAX)),
+        _ => None,
+    }
+}
+
+/// Cells of one column of one file outside the column's [`sensor_range`], taken as missing.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct OutOfRange {
+    pub file: String,
+    pub column: String,
+    pub low: f64,
+    pub high: f64,
+    pub cells: u64,
+    /// The line (of the file, from 1) of the first such cell.
+    pub first_line: u64,
+}
+
+impl std::fmt::Display for OutOfRange {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "recording {}, line {}, column `{}`: {} cell(s) outside the sensor's range {}…{}, the first on this line; \
+             taken as missing",
+            self.file, self.first_line, self.column, self.cells, self.low, self.high
+        )
+    }
+}
 
 /// `a` then `b`, for column lists built from [`ESTIMATE_COLUMNS`] (N = A + B, checked when the constant is built).
 pub const fn concat<const A: usize, const B: usize, const N: usize>(
@@ -62,6 +109,8 @@ pub struct Recording {
     pub source: String,
     names: Vec<String>,
     columns: Vec<Vec<f64>>,
+    /// Cells read as missing because they lay outside their sensor's range.
+    pub out_of_range: Vec<OutOfRange>,
 }
 
 impl Recording {
@@ -69,7 +118,7 @@ impl Recording {
     pub fn from_columns(source: &str, names: Vec<String>, columns: Vec<Vec<f64>>) -> Recording {
         debug_assert_eq!(names.len(), columns.len());
         debug_assert!(columns.windows(2).all(|w| w[0].len() == w[1].len()));
-        Recording { source: source.to_string(), names, columns }
+        Recording { source: source.to_string(), names, columns, out_of_range: Vec::new() }
     }
 
     pub fn names(&self) -> &[String] {

@@ -27,8 +27,12 @@ use std::path::Path;
 
 use super::{KNOWN_COLUMNS, Recording};
 
-/// Bytes asked of the reader at a time; a longer line grows the buffer.
+/// Bytes asked of the reader at a time.
 const READ_BYTES: usize = 1 << 18;
+/// The longest line a recording may have (bytes, without its end): a row of the contract's columns is a few
+/// hundred bytes, a header with every `true_*` and estimate column under one kB. A longer line is an error naming
+/// its number and this cap, so a file of one endless line costs no more memory than a normal one.
+pub const MAX_LINE_BYTES: usize = 1 << 14;
 /// Rows per batch when a whole recording is loaded.
 const LOAD_BATCH_ROWS: usize = 4096;
 const UTF8_BOM: &[u8] = b"\xef\xbb\xbf";
@@ -48,11 +52,12 @@ pub enum RecordingError {
 
 impl RecordingError {
     /// True when the user can fix it: the file's content (corrupt compressed data too), or a path that does not
-    /// exist (exit code 2).
+    /// exist, may not be read or is a directory (exit code 2).
     pub fn is_bad_input(&self) -> bool {
+        use std::io::ErrorKind as K;
         match self {
             RecordingError::Io { source, .. } => {
-                matches!(source.kind(), std::io::ErrorKind::NotFound | std::io::ErrorKind::InvalidData)
+                matches!(source.kind(), K::NotFound | K::InvalidData | K::PermissionDenied | K::IsADirectory)
             }
             _ => true,
         }
@@ -98,10 +103,22 @@ fn no_rows_in<R: Read>(mut text: R) -> std::io::Result<bool> {
     }
 }
 
+/// Reads of a recording file only `t_s` and those of `columns` it has (the other cells are checked, not kept): what
+/// `analyze` holds in memory.
+pub fn load_columns(path: &Path, columns: &[&str]) -> Result<Recording, RecordingError> {
+    let name = path.display().to_string();
+    read_whole(super::cut::open(path)?, &name, |n| columns.contains(&n))
+}
+
 /// Parses recording CSV text whole, `t_s` first and the other columns in file order; `origin` names it in errors.
 pub fn parse<R: Read>(reader: R, origin: &str) -> Result<Recording, RecordingError> {
+    read_whole(reader, origin, |_| true)
+}
+
+/// The columns `keep` says yes to, whole.
+fn read_whole<R: Read>(reader: R, origin: &str, keep: impl Fn(&str) -> bool) -> Result<Recording, RecordingError> {
     let mut r = StreamReader::new(reader, origin)?;
-    let others: Vec<usize> = (0..r.names.len()).filter(|&i| i != r.t_index).collect();
+    let others: Vec<usize> = (0..r.names.len()).filter(|&i| i != r.t_index && keep(&r.names[i])).collect();
     r.select(&others);
     let mut columns = vec![Vec::new(); others.len() + 1];
     let mut batch = Batch::default();
@@ -112,7 +129,9 @@ pub fn parse<R: Read>(reader: R, origin: &str) -> Result<Recording, RecordingErr
         }
     }
     let names = std::iter::once(r.t_index).chain(others).map(|i| r.names[i].clone()).collect();
-    Ok(Recording::from_columns(origin, names, columns))
+    let mut rec = Recording::from_columns(origin, names, columns);
+    rec.out_of_range = r.out_of_range();
+    Ok(rec)
 }
 
 /// Rows of a recording, column by column: `t_s` and the columns [`StreamReader::select`] chose, in its order.
@@ -153,6 +172,8 @@ impl Batch {
 enum Role {
     /// Checked to be a number or empty, then dropped.
     Check,
+    /// A column the contract does not name: not looked at (CONTRACT.md: unknown columns are ignored).
+    Ignore,
     Time,
     /// Parsed into `Batch::columns[slot]`.
     Slot(usize),
@@ -170,6 +191,20 @@ pub struct StreamReader<R: Read> {
     rows: u64,
     /// Whether [`plain_row`] is tried first (tests turn it off to compare).
     plain_first: bool,
+    /// Per column: whether the contract names it (an unknown column's cells are never an error).
+    known: Vec<bool>,
+    /// Per slot: the sensor's range ([`super::sensor_range`]) and what fell outside it so far.
+    screens: Vec<Option<Screen>>,
+}
+
+/// A selected column's sensor range, and the cells outside it (taken as missing).
+#[derive(Debug, Clone)]
+struct Screen {
+    column: String,
+    low: f64,
+    high: f64,
+    cells: u64,
+    first_line: u64,
 }
 
 /// The input: a buffer of whole lines plus the start of the next.
@@ -205,7 +240,7 @@ impl<R: Read> StreamReader<R> {
             lines.start = UTF8_BOM.len();
         }
         let header = loop {
-            match lines.next_line().map_err(io_err)? {
+            match lines.next_line(origin)? {
                 Some((a, b, _)) if a == b => continue,
                 found => break found,
             }
@@ -227,18 +262,22 @@ impl<R: Read> StreamReader<R> {
                 header_names(names, number, origin)?
             }
         };
-        let roles = (0..names.len()).map(|i| if i == t_index { Role::Time } else { Role::Check }).collect();
-        Ok(StreamReader {
+        let known: Vec<bool> = names.iter().map(|n| is_known(n)).collect();
+        let mut r = StreamReader {
             origin: origin.to_string(),
             names,
             t_index,
-            roles,
+            roles: Vec::new(),
             selected: 0,
             lines,
             last_t: f64::NEG_INFINITY,
             rows: 0,
             plain_first: true,
-        })
+            known,
+            screens: Vec::new(),
+        };
+        r.select(&[]);
+        Ok(r)
     }
 
     /// The header's column names, in file order.
@@ -252,17 +291,45 @@ impl<R: Read> StreamReader<R> {
     }
 
     /// Chooses the columns that [`StreamReader::read_batch`] returns besides `t_s` (indices into
-    /// [`StreamReader::names`], not `t_s`'s); the cells of every other column are only checked.
+    /// [`StreamReader::names`], not `t_s`'s); the cells of every other column the contract names are only checked,
+    /// those of unknown columns not looked at. A selected value outside its sensor's range
+    /// ([`super::sensor_range`]) comes as NaN (missing) and is counted ([`StreamReader::out_of_range`]).
     pub fn select(&mut self, columns: &[usize]) {
         debug_assert!(!columns.contains(&self.t_index), "t_s always comes in Batch::t_s");
         self.roles = (0..self.names.len())
             .map(|i| match columns.iter().position(|&c| c == i) {
                 _ if i == self.t_index => Role::Time,
                 Some(slot) => Role::Slot(slot),
-                None => Role::Check,
+                None if self.known[i] => Role::Check,
+                None => Role::Ignore,
+            })
+            .collect();
+        self.screens = columns
+            .iter()
+            .map(|&c| {
+                let name = self.names.get(c)?;
+                let (low, high) = super::sensor_range(name)?;
+                Some(Screen { column: name.clone(), low, high, cells: 0, first_line: 0 })
             })
             .collect();
         self.selected = columns.len();
+    }
+
+    /// The selected cells read so far that lay outside their sensor's range and were taken as missing, per column.
+    pub fn out_of_range(&self) -> Vec<super::OutOfRange> {
+        self.screens
+            .iter()
+            .flatten()
+            .filter(|s| s.cells > 0)
+            .map(|s| super::OutOfRange {
+                file: self.origin.clone(),
+                column: s.column.clone(),
+                low: s.low,
+                high: s.high,
+                cells: s.cells,
+                first_line: s.first_line,
+            })
+            .collect()
     }
 
     /// Rows read so far.
@@ -274,7 +341,7 @@ impl<R: Read> StreamReader<R> {
     pub fn read_batch(&mut self, batch: &mut Batch, max_rows: usize) -> Result<usize, RecordingError> {
         batch.reset(self.selected);
         while batch.len() < max_rows {
-            let Some((a, b, number)) = self.lines.next_line().map_err(|e| io_error(&self.origin, e))? else {
+            let Some((a, b, number)) = self.lines.next_line(&self.origin)? else {
                 break;
             };
             let line = &self.lines.buf[a..b];
@@ -286,13 +353,26 @@ impl<R: Read> StreamReader<R> {
                 Some(t) => t,
                 None => {
                     batch.truncate_to_rows();
-                    row(line, number, &self.names, &self.roles, self.t_index, &self.origin, batch)?
+                    let names = (&self.names[..], &self.known[..]);
+                    row(line, number, names, &self.roles, self.t_index, &self.origin, batch)?
                 }
             };
             check_time(t, self.last_t, &self.origin, number)?;
             self.last_t = t;
             batch.t_s.push(t);
             self.rows += 1;
+            for (screen, column) in self.screens.iter_mut().zip(&mut batch.columns) {
+                if let (Some(s), Some(v)) = (screen, column.last_mut())
+                    && !v.is_nan()
+                    && !(s.low..=s.high).contains(v)
+                {
+                    *v = f64::NAN;
+                    if s.cells == 0 {
+                        s.first_line = number;
+                    }
+                    s.cells += 1;
+                }
+            }
         }
         if batch.is_empty() && self.rows == 0 {
             return Err(RecordingError::File {
@@ -300,15 +380,39 @@ impl<R: Read> StreamReader<R> {
                 message: "no data rows after the header".into(),
             });
         }
+        if batch.is_empty() {
+            for s in self.out_of_range() {
+                tracing::warn!(recording = %self.origin, "{s}");
+            }
+        }
         Ok(batch.len())
     }
 }
 
 impl<R: Read> Lines<R> {
-    /// The next line as `(start, end, number)`, `buf[start..end]` its bytes without the line end.
-    fn next_line(&mut self) -> std::io::Result<Option<(usize, usize, u64)>> {
+    /// The next line as `(start, end, number)`, `buf[start..end]` its bytes without the line end; a line longer
+    /// than [`MAX_LINE_BYTES`] is an error (`origin` names the file).
+    fn next_line(&mut self, origin: &str) -> Result<Option<(usize, usize, u64)>, RecordingError> {
+        let line = self.next_line_within(MAX_LINE_BYTES).map_err(|e| io_error(origin, e))?;
+        line.map_err(|number| RecordingError::Line {
+            path: origin.into(),
+            line: number,
+            message: format!(
+                "longer than {MAX_LINE_BYTES} bytes, the most a recording's line may have (a row of the contract's \
+                 columns is a few hundred): not a recording, or a line end is missing"
+            ),
+        })
+    }
+
+    /// The next line, or `Err(number)` for a line longer than `max` bytes.
+    #[allow(clippy::type_complexity)]
+    fn next_line_within(&mut self, max: usize) -> std::io::Result<Result<Option<(usize, usize, u64)>, u64>> {
         loop {
-            if let Some(k) = memchr::memchr2(b'\n', b'\r', &self.buf[self.start..self.end]) {
+            let found = memchr::memchr2(b'\n', b'\r', &self.buf[self.start..self.end]);
+            if found.unwrap_or(self.end - self.start) > max {
+                return Ok(Err(self.line + 1));
+            }
+            if let Some(k) = found {
                 let (a, b) = (self.start, self.start + k);
                 let mut next = b + 1;
                 if self.buf[b] == b'\r' {
@@ -323,22 +427,22 @@ impl<R: Read> Lines<R> {
                 }
                 self.start = next;
                 self.line += 1;
-                return Ok(Some((a, b, self.line)));
+                return Ok(Ok(Some((a, b, self.line))));
             }
             if self.eof {
                 if self.start == self.end {
-                    return Ok(None);
+                    return Ok(Ok(None));
                 }
                 let found = (self.start, self.end);
                 self.start = self.end;
                 self.line += 1;
-                return Ok(Some((found.0, found.1, self.line)));
+                return Ok(Ok(Some((found.0, found.1, self.line))));
             }
             self.fill()?;
         }
     }
 
-    /// Reads more, keeping `buf[start..end]` (moved to the front) and growing the buffer for a long line.
+    /// Reads more, keeping `buf[start..end]` (moved to the front); the buffer holds a line of the longest allowed.
     fn fill(&mut self) -> std::io::Result<()> {
         if self.start > 0 {
             self.buf.copy_within(self.start..self.end, 0);
@@ -389,12 +493,17 @@ fn header_names(names: Vec<String>, line: u64, origin: &str) -> Result<(Vec<Stri
             });
         }
     }
-    let unknown: Vec<&str> =
-        names.iter().map(String::as_str).filter(|n| !KNOWN_COLUMNS.contains(n) && !n.starts_with("true_")).collect();
+    let unknown: Vec<&str> = names.iter().map(String::as_str).filter(|n| !is_known(n)).collect();
     if !unknown.is_empty() {
         tracing::info!(recording = origin, columns = ?unknown, "ignoring unknown columns");
     }
     Ok((names, t_index))
+}
+
+/// Whether the contract names a column (its own columns and the simulator's `true_*`); the cells of any other are
+/// never an error.
+fn is_known(name: &str) -> bool {
+    KNOWN_COLUMNS.contains(&name) || name.starts_with("true_")
 }
 
 /// The cells of a line, by the grammar's rules on commas and quotes (not yet trimmed).
@@ -449,7 +558,7 @@ fn field(line: &[u8], i: usize) -> (Cow<'_, [u8]>, usize) {
 fn row(
     line: &[u8],
     number: u64,
-    names: &[String],
+    (names, known): (&[String], &[bool]),
     roles: &[Role],
     t_index: usize,
     origin: &str,
@@ -466,11 +575,14 @@ fn row(
     let t = cell_value(&cells[t_index], origin, number, &names[t_index])?;
     let mut values = Vec::new();
     for (i, role) in roles.iter().enumerate() {
-        if i != t_index {
-            let v = cell_value(&cells[i], origin, number, &names[i])?;
-            if let Role::Slot(slot) = role {
-                values.push((*slot, v));
+        match role {
+            Role::Time | Role::Ignore => {}
+            Role::Check => {
+                cell_value(&cells[i], origin, number, &names[i])?;
             }
+            // an unknown column read whole: text in it is no value
+            Role::Slot(slot) if !known[i] => values.push((*slot, cell_value(&cells[i], "", 0, "").unwrap_or(f64::NAN))),
+            Role::Slot(slot) => values.push((*slot, cell_value(&cells[i], origin, number, &names[i])?)),
         }
     }
     for (slot, v) in values {
@@ -526,6 +638,14 @@ fn plain_row(line: &[u8], roles: &[Role], batch: &mut Batch) -> Option<f64> {
     for (c, &role) in roles.iter().enumerate() {
         let end = match role {
             Role::Check => checked_cell_end(line, i)?,
+            // quotes may hide a comma: those lines go to `row`
+            Role::Ignore => {
+                let end = memchr::memchr(b',', &line[i..]).map_or(line.len(), |k| i + k);
+                if memchr::memchr(b'"', &line[i..end]).is_some() {
+                    return None;
+                }
+                end
+            }
             Role::Time => {
                 let (v, end) = number_cell(line, i)?;
                 t = v;
@@ -844,12 +964,45 @@ mod tests {
     }
 
     #[test]
-    fn a_line_longer_than_the_buffer_grows_it() {
-        let long_name = "x".repeat(READ_BYTES + 10);
-        let text = format!("t_s,{long_name}\n0,1\n0.001,2\n");
-        let (names, columns) = read_all(text.as_bytes(), 10, 1 << 16, true).expect("valid");
-        assert_eq!(names[1], long_name);
-        assert_eq!(columns[1], [1.0, 2.0]);
+    fn a_line_longer_than_the_cap_is_named_not_echoed() {
+        // a line at the cap reads, through reads that cut it anywhere
+        let name = "x".repeat(MAX_LINE_BYTES - 4);
+        let text = format!("t_s,{name}\n0,1\n0.001,2\n");
+        let (names, columns) = read_all(text.as_bytes(), 10, 1 << 12, true).expect("valid");
+        assert_eq!((names[1].len(), &columns[1]), (name.len(), &vec![1.0, 2.0]));
+        // one byte more, in a row or with no line end at all: the line's number and the cap, not its text
+        for text in [format!("t_s,x\n0,1\n0.001,{}\n", "7".repeat(MAX_LINE_BYTES)), "9".repeat(1 << 20)] {
+            let e = parse_str(&text).expect_err("too long").to_string();
+            let line = if text.starts_with('t') { "line 3" } else { "line 1" };
+            assert!(e.contains(line) && e.contains(&MAX_LINE_BYTES.to_string()) && e.len() < 300, "{e}");
+        }
+    }
+
+    #[test]
+    fn unknown_columns_are_ignored_whatever_they_hold() {
+        let text = "t_s,note,omega_rad_s\n0,started,1\n0.001,\"a, b\",2\n0.002,x\"y,3\n";
+        let r = parse_str(text).expect("text in an unknown column is no error");
+        assert_eq!(r.column("omega_rad_s").expect("omega"), [1.0, 2.0, 3.0]);
+        assert!(r.column("note").expect("kept").iter().all(|v| v.is_nan()));
+        let mut s = StreamReader::new(text.as_bytes(), "r.csv").expect("header");
+        s.select(&[2]);
+        assert_eq!(s.read_batch(&mut Batch::default(), 10).expect("rows"), 3);
+        // a column the contract names is still checked
+        assert!(parse_str("t_s,f_set_hz\n0,fast\n").is_err());
+    }
+
+    #[test]
+    fn cells_outside_the_sensor_range_are_missing_and_counted() {
+        let text =
+            "t_s,p_in_bar,omega_rad_s,theta_rad\n0,1e308,5,inf\n0.001,10,1e308,1\n0.002,-3,6,2\n0.003,,7,1e300\n";
+        let r = parse_str(text).expect("valid");
+        let p = r.column("p_in_bar").expect("p_in");
+        assert!(p[0].is_nan() && p[1] == 10.0 && p[2].is_nan() && p[3].is_nan());
+        let got: Vec<(&str, u64, u64)> =
+            r.out_of_range.iter().map(|o| (o.column.as_str(), o.cells, o.first_line)).collect();
+        assert_eq!(got, [("p_in_bar", 2, 2), ("omega_rad_s", 1, 3), ("theta_rad", 1, 2)]);
+        let shown = r.out_of_range[0].to_string();
+        assert!(shown.contains("r.csv, line 2, column `p_in_bar`") && shown.contains("2 cell(s)"), "{shown}");
     }
 
     #[test]

@@ -222,11 +222,12 @@ impl Default for RawLimits {
         // the rates: about four times what the reference plant can do (≈ 40 000 bar/s with the pump into a closed
         // volume, ≈ 2 500 rad/s² at 400 bar) and far above sensor noise differenced at a 1 ms poll (≈ 2 500 bar/s,
         // ≈ 9 000 rad/s² at 8 σ); drives ramp at tens of Hz/s
+        // the ranges: the sensors' (one definition, which `estimate` and `analyze` apply to recordings too)
         RawLimits {
-            min_pressure_bar: -1.0,
-            max_pressure_bar: 400.0,
-            max_speed_rad_s: 1000.0,
-            max_frequency_hz: 400.0,
+            min_pressure_bar: crate::recording::PRESSURE_RANGE_BAR.0,
+            max_pressure_bar: crate::recording::PRESSURE_RANGE_BAR.1,
+            max_speed_rad_s: crate::recording::MAX_SPEED_RAD_S,
+            max_frequency_hz: crate::recording::MAX_FREQUENCY_HZ,
             max_pressure_rate_bar_per_s: 200_000.0,
             max_speed_rate_rad_per_s2: 10_000.0,
             max_frequency_rate_hz_per_s: 1_000.0,

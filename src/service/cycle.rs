@@ -73,7 +73,7 @@ pub fn validate(r: &Reading, ranges: &ValidRanges) -> Result<Sample, Rejected> {
     if omega.abs() > ranges.max_speed_rad_s {
         return Err(Rejected::Range { entry: "shaft_speed_rpm", value: r.shaft_speed_rpm });
     }
-    if !(-0.5..=ranges.max_frequency_hz).contains(&r.drive_frequency_hz) {
+    if !(crate::recording::MIN_FREQUENCY_HZ..=ranges.max_frequency_hz).contains(&r.drive_frequency_hz) {
         return Err(Rejected::Range { entry: "drive_frequency_hz", value: r.drive_frequency_hz });
     }
     if !(0.0..=65535.0).contains(&r.status_word) || r.status_word.fract() != 0.0 {

@@ -1,6 +1,7 @@
 //! The one integration-test binary (faster to build on two cores): each module tests one room through real parts.
 
 mod analysis;
+mod analysis_bad_input;
 mod capacity;
 mod cli_service;
 mod client;
