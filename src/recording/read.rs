@@ -82,13 +82,19 @@ pub fn holds_no_rows(path: &Path) -> Result<bool, RecordingError> {
 fn no_rows_in<R: Read>(mut text: R) -> std::io::Result<bool> {
     let mut buf = [0u8; 8192];
     let (mut lines, mut in_line) = (0, false);
+    let mut read = 0;
     loop {
+        // a header is shorter than a line may be: more than that is something (a device that never ends, say)
+        if read > MAX_LINE_BYTES {
+            return Ok(false);
+        }
         let n = match text.read(&mut buf) {
             Ok(0) => return Ok(true),
             Ok(n) => n,
             Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
             Err(e) => return Err(e),
         };
+        read += n;
         for &b in &buf[..n] {
             if b == b'\n' || b == b'\r' {
                 in_line = false;

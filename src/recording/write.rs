@@ -158,7 +158,12 @@ impl Current {
         let result = flushed.and_then(|()| file.sync_all());
         drop(file);
         let may_be_rowless = if result.is_ok() { rows == 0 } else { flushed_rows == 0 };
-        if may_be_rowless && names(&path, identity) && super::holds_no_rows(&path).unwrap_or(false) {
+        // a device in its place (what a test stands in for a full disk) is not read: nothing reached it
+        let rowless = |p: &Path| match std::fs::metadata(p) {
+            Ok(m) if !m.is_file() => true,
+            _ => super::holds_no_rows(p).unwrap_or(false),
+        };
+        if may_be_rowless && names(&path, identity) && rowless(&path) {
             match std::fs::remove_file(&path) {
                 Ok(()) => tracing::info!(file = %path.display(), "removed a recording that holds no rows"),
                 Err(e) => tracing::warn!(file = %path.display(), error = %e,
