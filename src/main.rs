@@ -163,6 +163,7 @@ fn main() -> ExitCode {
         )
         .with_writer(std::io::stderr)
         .init();
+    stop_on_panic();
     let cli = Cli::parse();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
@@ -170,6 +171,25 @@ fn main() -> ExitCode {
             eprintln!("error: {err:#}");
             if hydrolens::is_bad_input(err.as_ref()) { ExitCode::from(2) } else { ExitCode::from(1) }
         }
+    }
+}
+
+/// A panic in any thread stops the process (exit by SIGABRT) rather than leave it half alive: the release profile
+/// aborts on panic, and this hook makes the debug build (and the tests against it) do the same.
+fn stop_on_panic() {
+    let report = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        report(info);
+        eprintln!("error: a thread of hydrolens panicked (a bug; please report it): the process stops");
+        std::process::abort();
+    }));
+    // fault injection for the tests of this hook, in debug builds only
+    #[cfg(debug_assertions)]
+    if let Some(ms) = std::env::var("HYDROLENS_DEBUG_PANIC_AFTER_MS").ok().and_then(|v| v.parse::<u64>().ok()) {
+        let _ = std::thread::Builder::new().name("debug-panic".into()).spawn(move || {
+            std::thread::sleep(std::time::Duration::from_millis(ms));
+            panic!("HYDROLENS_DEBUG_PANIC_AFTER_MS: a panic injected after {ms} ms");
+        });
     }
 }
 
@@ -240,9 +260,18 @@ fn shutdown_on_signal() -> CancellationToken {
         let _ = tokio::signal::ctrl_c().await;
         tracing::info!("shutting down");
         t.cancel();
+        // whatever holds the shutdown up, the process ends: after a grace period, on a thread of its own
+        let _ = std::thread::Builder::new().name("shutdown-deadline".into()).spawn(|| {
+            std::thread::sleep(SHUTDOWN_GRACE);
+            eprintln!("error: not stopped {} s after the signal: exiting", SHUTDOWN_GRACE.as_secs());
+            std::process::exit(1);
+        });
     });
     token
 }
+
+/// How long a signalled shutdown may take (the loops close their recordings) before the process exits anyway.
+const SHUTDOWN_GRACE: std::time::Duration = std::time::Duration::from_secs(15);
 
 fn load_model(path: &Path) -> anyhow::Result<PlantModel> {
     Ok(PlantModel::load(path)?)
@@ -311,11 +340,24 @@ fn progress(label: &'static str) -> impl FnMut(f64) {
     }
 }
 
+/// The most rows `simulate` writes (`--duration` over the model's `sensors.sample_ms`): about 10 GB of CSV.
+const MAX_SIMULATE_ROWS: f64 = 1e8;
+
 fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyhow::Result<()> {
     if !(duration.is_finite() && duration > 0.0 && duration <= 1e6) {
         return Err(BadInput(format!("--duration {duration}: expected seconds, > 0 and ≤ 1e6")).into());
     }
     let model = load_model(model_path)?;
+    let rows = duration / model.sample_s();
+    if rows > MAX_SIMULATE_ROWS {
+        return Err(BadInput(format!(
+            "--duration {duration}: at sensors.sample_ms = {} (model file {}) that is {rows:.3e} rows, more than \
+             {MAX_SIMULATE_ROWS:e}; simulate less or sample slower",
+            model.sensors.sample_ms,
+            model_path.display()
+        ))
+        .into());
+    }
     let file = std::fs::File::create(out).with_context(|| format!("creating {}", out.display()))?;
     let mut writer =
         recording::RowWriter::new(std::io::BufWriter::with_capacity(1 << 16, file), &plant::simulate::COLUMNS)

@@ -2,6 +2,7 @@
 
 mod analysis;
 mod capacity;
+mod cli_bad_input;
 mod cli_service;
 mod client;
 mod compressed;
