@@ -1,6 +1,6 @@
 //! The `hydrolens` command line: parses arguments and wires the rooms together. Exit 0 ok, 2 bad input, 1 other.
 
-use std::io::IsTerminal;
+use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -9,7 +9,7 @@ use clap::{Parser, Subcommand};
 use hydrolens::modbus::simulator::Simulator;
 use hydrolens::plant::PlantModel;
 use hydrolens::service::Settings;
-use hydrolens::{BadInput, plant, recording, replay_file, server, service};
+use hydrolens::{BadInput, output, plant, recording, replay_file, server, service};
 use tokio_util::sync::CancellationToken;
 
 #[derive(Parser)]
@@ -347,6 +347,7 @@ fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyhow::
     if !(duration.is_finite() && duration > 0.0 && duration <= 1e6) {
         return Err(BadInput(format!("--duration {duration}: expected seconds, > 0 and ≤ 1e6")).into());
     }
+    output::check(&[model_path], &[("--out", out)])?;
     let model = load_model(model_path)?;
     let rows = duration / model.sample_s();
     if rows > MAX_SIMULATE_ROWS {
@@ -358,9 +359,9 @@ fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyhow::
         ))
         .into());
     }
-    let file = std::fs::File::create(out).with_context(|| format!("creating {}", out.display()))?;
+    let mut file = output::Replacement::create(out).with_context(|| format!("creating {}", out.display()))?;
     let mut writer =
-        recording::RowWriter::new(std::io::BufWriter::with_capacity(1 << 16, file), &plant::simulate::COLUMNS)
+        recording::RowWriter::new(std::io::BufWriter::with_capacity(1 << 16, file.file()), &plant::simulate::COLUMNS)
             .with_context(|| format!("writing {}", out.display()))?;
     let load = model.load.clone();
     let inputs = plant::simulate::Inputs {
@@ -376,12 +377,15 @@ fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyhow::
             plant::simulate::RunError::Sink(e) => anyhow::Error::new(e).context(format!("writing {}", out.display())),
         })?;
     writer.flush().with_context(|| format!("writing {}", out.display()))?;
+    drop(writer);
+    file.commit().with_context(|| format!("writing {}", out.display()))?;
     eprintln!("simulate: {rows} samples written to {}", out.display());
     Ok(())
 }
 
 fn estimate(rec_path: &Path, model_path: &Path, out: &Path, flags: &EstimateFlags) -> anyhow::Result<()> {
     use hydrolens::estimator::{self, EstimatorSettings};
+    output::check(&[rec_path, model_path], &[("--out", out)])?;
     let model = load_model(model_path)?;
     let origin = model_path.display().to_string();
     let mut settings = EstimatorSettings::from_model(&model, &origin)?;
@@ -400,10 +404,10 @@ fn estimate(rec_path: &Path, model_path: &Path, out: &Path, flags: &EstimateFlag
     Ok(())
 }
 
-/// The recording `analyze` reads: one file, several files of one drive joined in time order, or a directory's
+/// The recording files `analyze` reads: one file, several files of one drive joined in time order, or a directory's
 /// files of `--drive` (the last service run; earlier runs are named on stderr and left out).
-fn analysis_recording(paths: &[PathBuf], drive: Option<&str>) -> anyhow::Result<recording::Recording> {
-    let files = match (paths, drive) {
+fn analysis_files(paths: &[PathBuf], drive: Option<&str>) -> anyhow::Result<Vec<PathBuf>> {
+    Ok(match (paths, drive) {
         ([dir], Some(drive)) if dir.is_dir() => recording::drive_files(dir, drive)?,
         ([dir], None) if dir.is_dir() => {
             return Err(BadInput(format!(
@@ -416,7 +420,11 @@ fn analysis_recording(paths: &[PathBuf], drive: Option<&str>) -> anyhow::Result<
             return Err(BadInput("--drive goes with a single recordings directory, not with files".into()).into());
         }
         (files, None) => files.to_vec(),
-    };
+    })
+}
+
+/// The files of [`analysis_files`] read and joined.
+fn analysis_recording(files: &[PathBuf], drive: Option<&str>) -> anyhow::Result<recording::Recording> {
     let parts = files.iter().map(|p| recording::load(p)).collect::<Result<Vec<_>, _>>()?;
     let parts = if drive.is_some() {
         let (run, left_out) = recording::last_run(parts);
@@ -445,8 +453,20 @@ fn analyze(
     model_out: Option<&Path>,
 ) -> anyhow::Result<()> {
     use hydrolens::analysis;
+    let files = analysis_files(rec_paths, drive)?;
+    let mut inputs: Vec<&Path> = files.iter().map(PathBuf::as_path).collect();
+    inputs.push(model_path);
+    let mut outputs = vec![("--json", json)];
+    outputs.extend(report.map(|p| ("--report", p)));
+    outputs.extend(model_out.map(|p| ("--model-out", p)));
+    output::check(&inputs, &outputs)?;
     let model = load_model(model_path)?;
-    let rec = analysis_recording(rec_paths, drive)?;
+    // every output is opened before the analysis runs, and replaces its file only once all are written
+    let create = |p: &Path| output::Replacement::create(p).with_context(|| format!("creating {}", p.display()));
+    let mut json_file = create(json)?;
+    let mut model_file = model_out.map(create).transpose()?;
+    let mut report_file = report.map(create).transpose()?;
+    let rec = analysis_recording(&files, drive)?;
     let result = analysis::analyze(&rec, &model, &analysis::Options::default(), &mut progress("analyze"))?;
     if result.load == "unknown" && model.load == plant::LoadSpec::Recorded {
         eprintln!(
@@ -458,14 +478,25 @@ fn analyze(
         );
     }
     let text = serde_json::to_string_pretty(&result).context("serialising the analysis")?;
-    std::fs::write(json, text + "\n").with_context(|| format!("writing {}", json.display()))?;
-    if let Some(path) = model_out {
+    let write = |file: &mut output::Replacement, path: &Path, text: &str| {
+        file.file().write_all(text.as_bytes()).with_context(|| format!("writing {}", path.display()))
+    };
+    write(&mut json_file, json, &(text + "\n"))?;
+    if let (Some(file), Some(path)) = (model_file.as_mut(), model_out) {
         let header = format!("# Fitted by `hydrolens analyze {}` from {}\n", rec.source, model_path.display());
-        std::fs::write(path, header + &result.improved_model.to_toml())
-            .with_context(|| format!("writing {}", path.display()))?;
+        write(file, path, &(header + &result.improved_model.to_toml()))?;
     }
-    if let Some(path) = report {
-        std::fs::write(path, analysis::report::html(&result)).with_context(|| format!("writing {}", path.display()))?;
+    if let (Some(file), Some(path)) = (report_file.as_mut(), report) {
+        write(file, path, &analysis::report::html(&result))?;
+    }
+    let commit =
+        |file: output::Replacement, path: &Path| file.commit().with_context(|| format!("writing {}", path.display()));
+    commit(json_file, json)?;
+    if let (Some(file), Some(path)) = (model_file, model_out) {
+        commit(file, path)?;
+    }
+    if let (Some(file), Some(path)) = (report_file, report) {
+        commit(file, path)?;
     }
     let named: Vec<&str> = result.findings.iter().map(|f| f.effect.as_str()).collect();
     eprintln!(

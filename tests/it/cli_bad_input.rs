@@ -122,6 +122,28 @@ fn model_sampling_at(dir: &Path, sample_ms: &str) -> PathBuf {
 }
 
 /// A short test-stand recording made by `simulate`.
+fn recording(dir: &Path) -> PathBuf {
+    let rec = dir.join("rec.csv");
+    let (code, out) = run(&[
+        "simulate".as_ref(),
+        "--model".as_ref(),
+        root().join("config/plant.toml").as_os_str(),
+        "--duration".as_ref(),
+        "3".as_ref(),
+        "--out".as_ref(),
+        rec.as_os_str(),
+    ]);
+    assert_eq!(code, Some(0), "{out}");
+    rec
+}
+
+fn files_in(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> =
+        std::fs::read_dir(dir).expect("dir").map(|e| e.expect("entry").file_name().to_string_lossy().into()).collect();
+    names.sort();
+    names
+}
+
 // ---- finding 1: rates and sizes within bounds; a panic stops the process; SIGTERM ends `sim`
 
 #[test]
@@ -177,4 +199,96 @@ fn sigterm_ends_sim() {
     running.sigterm();
     let (status, out) = running.finish(Duration::from_secs(10));
     assert_eq!(status.and_then(|s| s.code()), Some(0), "{out}");
+}
+
+// ---- finding 2: outputs checked before any work, never an input, written whole or not at all
+
+#[test]
+fn an_output_that_is_an_input_or_another_output_is_refused_and_nothing_is_lost() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = dir.path();
+    let rec = recording(d);
+    let before = std::fs::read(&rec).expect("recording");
+    let model = d.join("plant.toml");
+    std::fs::write(&model, reference_model()).expect("model");
+    let p = |name: &str| d.join(name).into_os_string();
+    let (rec_s, model_s) = (rec.clone().into_os_string(), model.clone().into_os_string());
+    let estimate = |out: &OsStr| {
+        vec!["estimate".into(), rec_s.clone(), "--model".into(), model_s.clone(), "--out".into(), out.into()]
+    };
+    let analyze = |more: &[&OsStr]| {
+        let mut args: Vec<std::ffi::OsString> =
+            vec!["analyze".into(), rec_s.clone(), "--model".into(), model_s.clone()];
+        args.extend(more.iter().map(|a| a.into()));
+        args
+    };
+    exits_2_naming(&estimate(rec.as_os_str()), &["--out", "rec.csv", "input"]);
+    exits_2_naming(&estimate(model.as_os_str()), &["--out", "plant.toml", "input"]);
+    exits_2_naming(&analyze(&["--json".as_ref(), rec.as_os_str()]), &["--json", "rec.csv", "input"]);
+    exits_2_naming(
+        &analyze(&["--json".as_ref(), &p("a.json"), "--report".as_ref(), rec.as_os_str()]),
+        &["--report", "rec.csv", "input"],
+    );
+    exits_2_naming(
+        &analyze(&["--json".as_ref(), &p("out"), "--report".as_ref(), &p("out")]),
+        &["--report", "--json", "out"],
+    );
+    exits_2_naming(
+        &analyze(&["--json".as_ref(), &p("a.json"), "--model-out".as_ref(), model.as_os_str()]),
+        &["--model-out", "plant.toml", "input"],
+    );
+    // a directory that is not there: refused at once, before the analysis
+    let started = Instant::now();
+    exits_2_naming(&analyze(&["--json".as_ref(), &p("nodir/x.json")]), &["--json", "nodir", "does not exist"]);
+    assert!(started.elapsed() < Duration::from_secs(5), "refused only after {:?}", started.elapsed());
+    assert_eq!(std::fs::read(&rec).expect("recording"), before, "the recording is untouched");
+    assert_eq!(std::fs::read_to_string(&model).expect("model"), reference_model(), "the model is untouched");
+    assert_eq!(files_in(d), ["plant.toml", "rec.csv"], "nothing else written");
+}
+
+#[test]
+fn simulate_with_a_bad_model_leaves_the_old_output() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("rec.csv");
+    std::fs::write(&out, "the old recording\n").expect("write");
+    // a model that loads but cannot run (no hydraulics: it fails once the run starts), and one that does not load
+    let no_pump = dir.path().join("no_pump.toml");
+    let torque_only = "[motor]\ninertia_kg_m2 = 0.08\nviscous_nm_s_rad = 0.04\n[load]\nkind = \"none\"\n";
+    std::fs::write(&no_pump, torque_only).expect("write");
+    let negative = dir.path().join("negative.toml");
+    std::fs::write(&negative, reference_model().replace("inertia_kg_m2 = 0.08", "inertia_kg_m2 = -1.0"))
+        .expect("write");
+    for (model, key) in [(&no_pump, "[drive]"), (&negative, "motor.inertia_kg_m2")] {
+        let name = model.file_name().expect("name").to_string_lossy().into_owned();
+        exits_2_naming(
+            &["simulate".as_ref(), "--model".as_ref(), model.as_os_str(), "--duration".as_ref(), "1".as_ref()]
+                .into_iter()
+                .chain(["--out".as_ref(), out.as_os_str()])
+                .collect::<Vec<&OsStr>>(),
+            &[key, &name],
+        );
+        assert_eq!(std::fs::read_to_string(&out).expect("out"), "the old recording\n", "{name}");
+    }
+    assert_eq!(files_in(dir.path()), ["negative.toml", "no_pump.toml", "rec.csv"]);
+}
+
+#[test]
+fn a_killed_runs_temporary_file_is_removed_by_the_next_run() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec = recording(dir.path());
+    // what `estimate` killed by SIGKILL leaves: its pid is beyond any pid Linux hands out
+    let stale = dir.path().join(".est.csv.4294967294.tmp");
+    std::fs::write(&stale, "half an estimate").expect("write");
+    let out = dir.path().join("est.csv");
+    let model = root().join("config/plant.toml");
+    let (code, msg) = run(&[
+        "estimate".as_ref(),
+        rec.as_os_str(),
+        "--model".as_ref(),
+        model.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert_eq!(code, Some(0), "{msg}");
+    assert_eq!(files_in(dir.path()), ["est.csv", "rec.csv"]);
 }
