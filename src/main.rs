@@ -156,12 +156,15 @@ struct EstimateFlags {
 }
 
 fn main() -> ExitCode {
+    // colour only for a person at a terminal who has not asked for none (https://no-color.org)
+    let colour = std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none_or(|v| v.is_empty());
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
         )
         .with_writer(std::io::stderr)
+        .with_ansi(colour)
         .init();
     stop_on_panic();
     let cli = Cli::parse();

@@ -128,8 +128,9 @@ pub struct HydraulicParts<'a> {
 /// What can be wrong with a model file. Every variant is bad input (exit 2) except `Io`.
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
-    #[error("cannot read model file {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    /// The reason is in the message and not the error's source, so that a chain prints it once.
+    #[error("cannot read model file {path}: {error}")]
+    Io { path: PathBuf, error: std::io::Error },
     #[error("model file {path}: {message}")]
     Syntax { path: String, message: String },
     #[error("model file {path}: key `{key}` {message}")]
@@ -140,7 +141,7 @@ impl ModelError {
     /// True when the user can fix it: by editing the file, or naming one that exists (exit code 2).
     pub fn is_bad_input(&self) -> bool {
         match self {
-            ModelError::Io { source, .. } => source.kind() == std::io::ErrorKind::NotFound,
+            ModelError::Io { error, .. } => crate::error::unreadable_is_bad_input(error),
             _ => true,
         }
     }
@@ -149,7 +150,7 @@ impl ModelError {
 impl PlantModel {
     /// Reads and validates a model file.
     pub fn load(path: &Path) -> Result<PlantModel, ModelError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io { path: path.into(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|error| ModelError::Io { path: path.into(), error })?;
         PlantModel::parse(&text, &path.display().to_string())
     }
 

@@ -17,11 +17,12 @@ use crate::modbus::map::{RegisterMap, RegisterSpec, Table, ValueType, WordOrder}
 use crate::plant::PlantModel;
 use crate::plant::dynamics::Coefficients;
 
-/// What can be wrong with a config. Everything but `Io` is bad input (exit 2).
+/// What can be wrong with a config. Everything is bad input (exit 2) but an `Io` error the user cannot fix.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    #[error("cannot read config {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    /// The reason is in the message and not the error's source, so that a chain prints it once.
+    #[error("cannot read config {path}: {error}")]
+    Io { path: PathBuf, error: std::io::Error },
     #[error("config {path}: {message}")]
     Syntax { path: String, message: String },
     #[error("config {path}: key `{key}` {message}")]
@@ -30,7 +31,10 @@ pub enum ConfigError {
 
 impl ConfigError {
     pub fn is_bad_input(&self) -> bool {
-        !matches!(self, ConfigError::Io { .. })
+        match self {
+            ConfigError::Io { error, .. } => crate::error::unreadable_is_bad_input(error),
+            _ => true,
+        }
     }
 }
 
@@ -389,7 +393,7 @@ impl DriveSettings {
 /// Reads and validates a config file. Relative model paths are tried from the working directory, then from the
 /// config file's directory.
 pub fn load(path: &Path) -> Result<Settings, ConfigError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io { path: path.into(), source })?;
+    let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Io { path: path.into(), error })?;
     parse(&text, &path.display().to_string(), path.parent())
 }
 

@@ -292,3 +292,69 @@ fn a_killed_runs_temporary_file_is_removed_by_the_next_run() {
     assert_eq!(code, Some(0), "{msg}");
     assert_eq!(files_in(dir.path()), ["est.csv", "rec.csv"]);
 }
+
+// ---- finding 3: unreadable files exit 2 naming the path (once); no colour codes in a file
+
+#[test]
+fn missing_or_directory_configs_and_a_non_utf8_model_exit_2_naming_the_path_once() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let missing = dir.path().join("missing.toml");
+    let out = exits_2_naming(&["serve".as_ref(), "--config".as_ref(), missing.as_os_str()], &["missing.toml"]);
+    assert_eq!(out.matches("No such file").count(), 1, "the reason once: {out}");
+    exits_2_naming(&["serve".as_ref(), "--config".as_ref(), dir.path().as_os_str()], &[&*dir.path().to_string_lossy()]);
+    let latin1 = dir.path().join("latin1.toml");
+    let mut bytes = reference_model().into_bytes();
+    bytes.extend_from_slice(b"# caf\xe9\n");
+    std::fs::write(&latin1, bytes).expect("write");
+    let out = dir.path().join("rec.csv");
+    exits_2_naming(
+        &["simulate".as_ref(), "--model".as_ref(), latin1.as_os_str(), "--duration".as_ref(), "1".as_ref()]
+            .into_iter()
+            .chain(["--out".as_ref(), out.as_os_str()])
+            .collect::<Vec<&OsStr>>(),
+        &["latin1.toml", "UTF-8"],
+    );
+    // a config whose model cannot be read: the config's key and the model's path
+    let config = dir.path().join("svc.toml");
+    std::fs::write(&config, service_config(dir.path(), "a-token-long-enough-1234", Some(&missing))).expect("write");
+    let out = exits_2_naming(
+        &["serve".as_ref(), "--config".as_ref(), config.as_os_str()],
+        &["estimator.model", "missing.toml"],
+    );
+    assert_eq!(out.matches("No such file").count(), 1, "the reason once: {out}");
+}
+
+/// A service config with one drive that nobody answers, recording into `dir`.
+fn service_config(dir: &Path, token: &str, model: Option<&Path>) -> String {
+    let model = model.map_or_else(|| root().join("config/plant.toml"), Path::to_path_buf);
+    format!(
+        "[http]\nbind = \"127.0.0.1:0\"\ntoken = \"{token}\"\n[recording]\ndir = {:?}\n[[drives]]\nname = \"p\"\n\
+         address = \"127.0.0.1:9\"\n[drives.estimator]\nmodel = {:?}\n",
+        dir.join("rec"),
+        model
+    )
+}
+
+/// `serve` on `http` with `config` (of `mode`), run until it says where its dashboard is; its output.
+fn serve_start(dir: &Path, token: &str, mode: u32, http: &str) -> String {
+    use std::os::unix::fs::PermissionsExt;
+    let config = dir.join("svc.toml");
+    std::fs::write(&config, service_config(dir, token, None)).expect("write");
+    std::fs::set_permissions(&config, std::fs::Permissions::from_mode(mode)).expect("chmod");
+    let args = ["serve".as_ref(), "--config".as_ref(), config.as_os_str(), "--http".as_ref(), http.as_ref()];
+    let mut running = Running::start(&args, &[]);
+    assert!(running.wait_for("dashboard on", Duration::from_secs(20)), "{}", running.output());
+    running.sigterm();
+    let (status, out) = running.finish(Duration::from_secs(20));
+    assert_eq!(status.and_then(|s| s.code()), Some(0), "{out}");
+    out
+}
+
+#[test]
+fn no_colour_codes_reach_a_stderr_that_is_not_a_terminal() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = serve_start(dir.path(), "a-token-long-enough-1234", 0o600, "127.0.0.1:0");
+    assert!(out.contains("INFO"), "the log is there: {out}");
+    assert!(!out.contains('\u{1b}'), "escape codes in: {out:?}");
+    assert!(!out.contains("WARN"), "nothing to warn of: {out}");
+}
