@@ -517,6 +517,9 @@ fn parse_addr(flag: &str, value: &str) -> anyhow::Result<std::net::SocketAddr> {
 
 fn serve(config: &Path, http_override: Option<&str>) -> anyhow::Result<()> {
     let mut settings = service::config::load(config)?;
+    if settings.http.token.is_some() {
+        warn_if_others_read(config);
+    }
     if let Some(h) = http_override {
         settings.http.bind = parse_addr("--http", h)?;
     }
@@ -524,6 +527,23 @@ fn serve(config: &Path, http_override: Option<&str>) -> anyhow::Result<()> {
         let shutdown = shutdown_on_signal();
         run_service(settings, shutdown, |url, _| eprintln!("hydrolens serve: dashboard on {url}")).await
     })
+}
+
+/// Warns when the config, which holds the write token, is readable by its group or by others.
+fn warn_if_others_read(config: &Path) {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        if let Ok(meta) = std::fs::metadata(config)
+            && meta.permissions().mode() & 0o077 != 0
+        {
+            tracing::warn!(
+                "config {} holds http.token and is open to its group or others (mode {:o}): chmod 600 it",
+                config.display(),
+                meta.permissions().mode() & 0o777
+            );
+        }
+    }
 }
 
 /// Binds the HTTP listener, starts the service ([`server::start`]), tells `announce` where it is, and serves until

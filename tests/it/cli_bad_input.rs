@@ -358,3 +358,22 @@ fn no_colour_codes_reach_a_stderr_that_is_not_a_terminal() {
     assert!(!out.contains('\u{1b}'), "escape codes in: {out:?}");
     assert!(!out.contains("WARN"), "nothing to warn of: {out}");
 }
+
+// ---- finding 4: warnings of a token that is guessable or readable
+
+#[test]
+fn serve_warns_of_a_short_token_beyond_loopback_and_of_a_config_others_read() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = serve_start(dir.path(), "short", 0o644, "0.0.0.0:0");
+    assert_eq!(out.matches("http.token is short").count(), 1, "one warning: {out}");
+    assert!(out.contains("beyond loopback"), "{out}");
+    assert!(out.contains("svc.toml") && out.contains("chmod 600"), "{out}");
+}
+
+#[test]
+fn serve_beyond_loopback_without_a_token_says_writes_are_disabled() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = serve_start(dir.path(), "", 0o644, "0.0.0.0:0");
+    assert!(out.contains("write routes are disabled"), "{out}");
+    assert!(!out.contains("chmod 600"), "no token, nothing to hide: {out}");
+}
