@@ -17,6 +17,9 @@ use crate::modbus::map::{RegisterMap, RegisterSpec, Table, ValueType, WordOrder}
 use crate::plant::PlantModel;
 use crate::plant::dynamics::Coefficients;
 
+/// The longest `stale_ms`: data older than this are stale whatever the config says.
+const MAX_STALE_MS: u64 = 600_000;
+
 /// What can be wrong with a config. Everything is bad input (exit 2) but an `Io` error the user cannot fix.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
@@ -809,6 +812,9 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
     if stale_ms < d.poll_ms {
         return Err(KeyError::new(key("stale_ms"), format!("must be ≥ poll_ms ({}), got {stale_ms}", d.poll_ms)));
     }
+    if stale_ms > MAX_STALE_MS {
+        return Err(KeyError::new(key("stale_ms"), format!("must be ≤ {MAX_STALE_MS} (10 min), got {stale_ms}")));
+    }
 
     let c = d.control;
     let min_hz = nonneg(&key("control.min_hz"), c.min_hz)?;
@@ -907,8 +913,11 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
     }
     let comm_timeout_ms =
         d.comm_timeout_ms.unwrap_or_else(|| model.drive.as_ref().map_or(1000, |drive| drive.comm_timeout_ms));
-    if comm_timeout_ms == 0 {
-        return Err(KeyError::new(key("comm_timeout_ms"), "must be ≥ 1".into()));
+    if !(1..=crate::plant::model::MAX_COMM_TIMEOUT_MS).contains(&comm_timeout_ms) {
+        return Err(KeyError::new(
+            key("comm_timeout_ms"),
+            format!("must be 1 ..= {} (one hour), got {comm_timeout_ms}", crate::plant::model::MAX_COMM_TIMEOUT_MS),
+        ));
     }
     if d.watchdog_ms.saturating_mul(3) > comm_timeout_ms {
         return Err(KeyError::new(
@@ -1070,6 +1079,10 @@ address = "127.0.0.1:5020"
         assert!(e.contains("drives[0].control.min_hz"), "{e}");
         let e = err(&format!("{MINIMAL}realtime_priority = 0\n"));
         assert!(e.contains("drives[0].realtime_priority") && e.contains("1 ..= 99"), "{e}");
+        let e = err(&format!("{MINIMAL}stale_ms = 600001\n"));
+        assert!(e.contains("drives[0].stale_ms") && e.contains("600000"), "{e}");
+        let e = err(&format!("{MINIMAL}comm_timeout_ms = 3600001\n"));
+        assert!(e.contains("drives[0].comm_timeout_ms") && e.contains("one hour"), "{e}");
         let e = err(&format!("{MINIMAL}poll_ms = \"fast\"\n"));
         assert!(e.contains("poll_ms"), "{e}");
         let e = err(&format!("{MINIMAL}[drives.registers.inlet_pressure]\naddress = 3\n"));
