@@ -19,3 +19,10 @@ impl KeyError {
         KeyError { key, message }
     }
 }
+
+/// Whether a file the user named cannot be read for a reason theirs to fix: it is missing, not readable, a
+/// directory, or not UTF-8 text (exit 2, not 1).
+pub fn unreadable_is_bad_input(e: &std::io::Error) -> bool {
+    use std::io::ErrorKind::{InvalidData, IsADirectory, NotADirectory, NotFound, PermissionDenied};
+    matches!(e.kind(), NotFound | PermissionDenied | IsADirectory | NotADirectory | InvalidData)
+}

@@ -9,6 +9,8 @@
 //! - [`plant`]: PURE physics (model file, effects, loads, RK4 integrator, test-stand run). No clock, no I/O.
 //! - [`recording`]: the contract's CSV, read strictly by one streaming reader (whole or batch by batch, plain or
 //!   gzip) and written streaming with rotation; a simulated run kept as a recording (`recording::simulated`).
+//! - [`output`]: the files a command writes: checked against its inputs and each other before any work, written
+//!   beside and renamed into place (a failed run leaves the old file).
 //! - [`modbus`]: the register map with a cycle's read plan, sample decoding and write planning, and the RTU line's
 //!   timing (pure), the client (TCP, RTU, RTU over TCP), the bus task that shares an RTU line among its drives, and
 //!   the plant simulator server.
@@ -37,6 +39,7 @@ pub mod error;
 pub mod estimator;
 pub mod http;
 pub mod modbus;
+pub mod output;
 pub mod plant;
 pub mod recording;
 pub mod replay;

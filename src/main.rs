@@ -1,6 +1,6 @@
 //! The `hydrolens` command line: parses arguments and wires the rooms together. Exit 0 ok, 2 bad input, 1 other.
 
-use std::io::IsTerminal;
+use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -9,7 +9,7 @@ use clap::{Parser, Subcommand};
 use hydrolens::modbus::simulator::Simulator;
 use hydrolens::plant::PlantModel;
 use hydrolens::service::Settings;
-use hydrolens::{BadInput, plant, recording, replay_file, server, service};
+use hydrolens::{BadInput, output, plant, recording, replay_file, server, service};
 use tokio_util::sync::CancellationToken;
 
 #[derive(Parser)]
@@ -156,13 +156,17 @@ struct EstimateFlags {
 }
 
 fn main() -> ExitCode {
+    // colour only for a person at a terminal who has not asked for none (https://no-color.org)
+    let colour = std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none_or(|v| v.is_empty());
     tracing_subscriber::fmt()
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
         )
         .with_writer(std::io::stderr)
+        .with_ansi(colour)
         .init();
+    stop_on_panic();
     let cli = Cli::parse();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
@@ -170,6 +174,25 @@ fn main() -> ExitCode {
             eprintln!("error: {err:#}");
             if hydrolens::is_bad_input(err.as_ref()) { ExitCode::from(2) } else { ExitCode::from(1) }
         }
+    }
+}
+
+/// A panic in any thread stops the process (exit by SIGABRT) rather than leave it half alive: the release profile
+/// aborts on panic, and this hook makes the debug build (and the tests against it) do the same.
+fn stop_on_panic() {
+    let report = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        report(info);
+        eprintln!("error: a thread of hydrolens panicked (a bug; please report it): the process stops");
+        std::process::abort();
+    }));
+    // fault injection for the tests of this hook, in debug builds only
+    #[cfg(debug_assertions)]
+    if let Some(ms) = std::env::var("HYDROLENS_DEBUG_PANIC_AFTER_MS").ok().and_then(|v| v.parse::<u64>().ok()) {
+        let _ = std::thread::Builder::new().name("debug-panic".into()).spawn(move || {
+            std::thread::sleep(std::time::Duration::from_millis(ms));
+            panic!("HYDROLENS_DEBUG_PANIC_AFTER_MS: a panic injected after {ms} ms");
+        });
     }
 }
 
@@ -256,9 +279,18 @@ fn shutdown_on_signal() -> CancellationToken {
         let _ = tokio::signal::ctrl_c().await;
         tracing::info!("shutting down");
         t.cancel();
+        // whatever holds the shutdown up, the process ends: after a grace period, on a thread of its own
+        let _ = std::thread::Builder::new().name("shutdown-deadline".into()).spawn(|| {
+            std::thread::sleep(SHUTDOWN_GRACE);
+            eprintln!("error: not stopped {} s after the signal: exiting", SHUTDOWN_GRACE.as_secs());
+            std::process::exit(1);
+        });
     });
     token
 }
+
+/// How long a signalled shutdown may take (the loops close their recordings) before the process exits anyway.
+const SHUTDOWN_GRACE: std::time::Duration = std::time::Duration::from_secs(15);
 
 fn load_model(path: &Path) -> anyhow::Result<PlantModel> {
     Ok(PlantModel::load(path)?)
@@ -327,14 +359,28 @@ fn progress(label: &'static str) -> impl FnMut(f64) {
     }
 }
 
+/// The most rows `simulate` writes (`--duration` over the model's `sensors.sample_ms`): about 10 GB of CSV.
+const MAX_SIMULATE_ROWS: f64 = 1e8;
+
 fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyhow::Result<()> {
     if !(duration.is_finite() && duration > 0.0 && duration <= 1e6) {
         return Err(BadInput(format!("--duration {duration}: expected seconds, > 0 and ≤ 1e6")).into());
     }
+    output::check(&[model_path], &[("--out", out)])?;
     let model = load_model(model_path)?;
-    let file = std::fs::File::create(out).with_context(|| format!("creating {}", out.display()))?;
+    let rows = duration / model.sample_s();
+    if rows > MAX_SIMULATE_ROWS {
+        return Err(BadInput(format!(
+            "--duration {duration}: at sensors.sample_ms = {} (model file {}) that is {rows:.3e} rows, more than \
+             {MAX_SIMULATE_ROWS:e}; simulate less or sample slower",
+            model.sensors.sample_ms,
+            model_path.display()
+        ))
+        .into());
+    }
+    let mut file = output::Replacement::create(out).with_context(|| format!("creating {}", out.display()))?;
     let mut writer =
-        recording::RowWriter::new(std::io::BufWriter::with_capacity(1 << 16, file), &plant::simulate::COLUMNS)
+        recording::RowWriter::new(std::io::BufWriter::with_capacity(1 << 16, file.file()), &plant::simulate::COLUMNS)
             .with_context(|| format!("writing {}", out.display()))?;
     let load = model.load.clone();
     let inputs = plant::simulate::Inputs {
@@ -350,12 +396,15 @@ fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyhow::
             plant::simulate::RunError::Sink(e) => anyhow::Error::new(e).context(format!("writing {}", out.display())),
         })?;
     writer.flush().with_context(|| format!("writing {}", out.display()))?;
+    drop(writer);
+    file.commit().with_context(|| format!("writing {}", out.display()))?;
     eprintln!("simulate: {rows} samples written to {}", out.display());
     Ok(())
 }
 
 fn estimate(rec_path: &Path, model_path: &Path, out: &Path, flags: &EstimateFlags) -> anyhow::Result<()> {
     use hydrolens::estimator::{self, EstimatorSettings};
+    output::check(&[rec_path, model_path], &[("--out", out)])?;
     let model = load_model(model_path)?;
     let origin = model_path.display().to_string();
     let mut settings = EstimatorSettings::from_model(&model, &origin)?;
@@ -374,10 +423,10 @@ fn estimate(rec_path: &Path, model_path: &Path, out: &Path, flags: &EstimateFlag
     Ok(())
 }
 
-/// The recording `analyze` reads: one file, several files of one drive joined in time order, or a directory's
+/// The recording files `analyze` reads: one file, several files of one drive joined in time order, or a directory's
 /// files of `--drive` (the last service run; earlier runs are named on stderr and left out).
-fn analysis_recording(paths: &[PathBuf], drive: Option<&str>) -> anyhow::Result<recording::Recording> {
-    let files = match (paths, drive) {
+fn analysis_files(paths: &[PathBuf], drive: Option<&str>) -> anyhow::Result<Vec<PathBuf>> {
+    Ok(match (paths, drive) {
         ([dir], Some(drive)) if dir.is_dir() => recording::drive_files(dir, drive)?,
         ([dir], None) if dir.is_dir() => {
             return Err(BadInput(format!(
@@ -390,7 +439,11 @@ fn analysis_recording(paths: &[PathBuf], drive: Option<&str>) -> anyhow::Result<
             return Err(BadInput("--drive goes with a single recordings directory, not with files".into()).into());
         }
         (files, None) => files.to_vec(),
-    };
+    })
+}
+
+/// The files of [`analysis_files`] read and joined.
+fn analysis_recording(files: &[PathBuf], drive: Option<&str>) -> anyhow::Result<recording::Recording> {
     let columns = hydrolens::analysis::RECORDING_COLUMNS;
     let parts = files.iter().map(|p| recording::load_columns(p, &columns)).collect::<Result<Vec<_>, _>>()?;
     let parts = if drive.is_some() {
@@ -420,8 +473,20 @@ fn analyze(
     model_out: Option<&Path>,
 ) -> anyhow::Result<()> {
     use hydrolens::analysis;
+    let files = analysis_files(rec_paths, drive)?;
+    let mut inputs: Vec<&Path> = files.iter().map(PathBuf::as_path).collect();
+    inputs.push(model_path);
+    let mut outputs = vec![("--json", json)];
+    outputs.extend(report.map(|p| ("--report", p)));
+    outputs.extend(model_out.map(|p| ("--model-out", p)));
+    output::check(&inputs, &outputs)?;
     let model = load_model(model_path)?;
-    let rec = analysis_recording(rec_paths, drive)?;
+    // every output is opened before the analysis runs, and replaces its file only once all are written
+    let create = |p: &Path| output::Replacement::create(p).with_context(|| format!("creating {}", p.display()));
+    let mut json_file = create(json)?;
+    let mut model_file = model_out.map(create).transpose()?;
+    let mut report_file = report.map(create).transpose()?;
+    let rec = analysis_recording(&files, drive)?;
     let result = analysis::analyze(&rec, &model, &analysis::Options::default(), &mut progress("analyze"))?;
     if result.load == "unknown" && model.load == plant::LoadSpec::Recorded {
         eprintln!(
@@ -433,14 +498,25 @@ fn analyze(
         );
     }
     let text = serde_json::to_string_pretty(&result).context("serialising the analysis")?;
-    std::fs::write(json, text + "\n").with_context(|| format!("writing {}", json.display()))?;
-    if let Some(path) = model_out {
+    let write = |file: &mut output::Replacement, path: &Path, text: &str| {
+        file.file().write_all(text.as_bytes()).with_context(|| format!("writing {}", path.display()))
+    };
+    write(&mut json_file, json, &(text + "\n"))?;
+    if let (Some(file), Some(path)) = (model_file.as_mut(), model_out) {
         let header = format!("# Fitted by `hydrolens analyze {}` from {}\n", rec.source, model_path.display());
-        std::fs::write(path, header + &result.improved_model.to_toml())
-            .with_context(|| format!("writing {}", path.display()))?;
+        write(file, path, &(header + &result.improved_model.to_toml()))?;
     }
-    if let Some(path) = report {
-        std::fs::write(path, analysis::report::html(&result)).with_context(|| format!("writing {}", path.display()))?;
+    if let (Some(file), Some(path)) = (report_file.as_mut(), report) {
+        write(file, path, &analysis::report::html(&result))?;
+    }
+    let commit =
+        |file: output::Replacement, path: &Path| file.commit().with_context(|| format!("writing {}", path.display()));
+    commit(json_file, json)?;
+    if let (Some(file), Some(path)) = (model_file, model_out) {
+        commit(file, path)?;
+    }
+    if let (Some(file), Some(path)) = (report_file, report) {
+        commit(file, path)?;
     }
     let named: Vec<&str> = result.findings.iter().map(|f| f.effect.as_str()).collect();
     eprintln!(
@@ -458,6 +534,9 @@ fn parse_addr(flag: &str, value: &str) -> anyhow::Result<std::net::SocketAddr> {
 
 fn serve(config: &Path, http_override: Option<&str>) -> anyhow::Result<()> {
     let mut settings = service::config::load(config)?;
+    if settings.http.token.is_some() {
+        warn_if_others_read(config);
+    }
     if let Some(h) = http_override {
         settings.http.bind = parse_addr("--http", h)?;
     }
@@ -466,6 +545,23 @@ fn serve(config: &Path, http_override: Option<&str>) -> anyhow::Result<()> {
         let shutdown = shutdown_on_signal();
         run_service(settings, shutdown, |url, _| eprintln!("hydrolens serve: dashboard on {url}")).await
     })
+}
+
+/// Warns when the config, which holds the write token, is readable by its group or by others.
+fn warn_if_others_read(config: &Path) {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        if let Ok(meta) = std::fs::metadata(config)
+            && meta.permissions().mode() & 0o077 != 0
+        {
+            tracing::warn!(
+                "config {} holds http.token and is open to its group or others (mode {:o}): chmod 600 it",
+                config.display(),
+                meta.permissions().mode() & 0o777
+            );
+        }
+    }
 }
 
 /// Binds the HTTP listener, starts the service ([`server::start`]), tells `announce` where it is, and serves until

@@ -9,21 +9,19 @@
 //! recording's (first bad line), then the replay's (no torque or speed column, no displacement), then the output
 //! file's.
 //!
-//! The estimates are written under a temporary name beside the output (`.NAME.PID.tmp`) and renamed to it when
-//! everything is done, so on any error the output path is left as it was and the temporary file is removed. A path
-//! that is there and is not a regular file (`/dev/null`, a pipe, a symbolic link such as `/dev/stdout`) is written
-//! directly.
+//! The estimates are written through a [`Replacement`] (a temporary file beside the output, renamed to it when
+//! everything is done), so on any error the output path is left as it was and the temporary file is removed.
 //!
 //! The replay takes `torque_nm` only if it holds a value somewhere, else the pressures (and `omega_rad_s` before
 //! `theta_rad` likewise). When both are in the header, the file is first read until the column shows a value,
 //! which is the first row as a rule; a column that is empty all the way costs a second pass over the file.
 
-use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::mpsc;
 
 use crate::estimator::{Estimate, Estimator};
+use crate::output::Replacement;
 use crate::plant::PlantModel;
 use crate::recording::{Batch, RecordingError, StreamReader, push_value};
 use crate::replay::{Plan, ReplayError, Replayer};
@@ -238,19 +236,10 @@ fn holds_values(recording: &Path, columns: &[&str]) -> Vec<bool> {
     held
 }
 
-/// Whether the estimates go straight to `out` rather than to a temporary file renamed over it: for anything that
-/// is there and is not a regular file, such as `/dev/null`, a pipe, or a symbolic link (`/dev/stdout` is one, to
-/// whatever standard output is: renaming over it would replace the link).
-fn written_in_place(out: &Path) -> bool {
-    std::fs::symlink_metadata(out).is_ok_and(|m| !m.is_file())
-}
-
-/// The estimates file under construction: a temporary file beside the final path, renamed over it by
-/// [`Output::commit`]. The first write error is kept and reported there.
+/// The estimates file under construction ([`Replacement`]). The first write error is kept and reported by
+/// [`Output::commit`].
 struct Output {
-    file: File,
-    /// The temporary file, or `None` when writing directly to `path` (see [`written_in_place`]) or once renamed.
-    temp: Option<PathBuf>,
+    file: Replacement,
     path: PathBuf,
     error: Option<std::io::Error>,
 }
@@ -258,28 +247,19 @@ struct Output {
 impl Output {
     /// Creates the file and writes the header row.
     fn create(path: &Path) -> Result<Output, EstimateError> {
-        let temp = match path.file_name() {
-            Some(name) if !written_in_place(path) => {
-                let mut temp_name = std::ffi::OsString::from(".");
-                temp_name.push(name);
-                temp_name.push(format!(".{}.tmp", std::process::id()));
-                Some(path.with_file_name(temp_name))
-            }
-            _ => None,
-        };
-        let file = File::create(temp.as_deref().unwrap_or(path)).map_err(|source| EstimateError::Output {
+        let file = Replacement::create(path).map_err(|source| EstimateError::Output {
             action: "creating",
             path: path.display().to_string(),
             source,
         })?;
-        let mut output = Output { file, temp, path: path.to_path_buf(), error: None };
+        let mut output = Output { file, path: path.to_path_buf(), error: None };
         output.write(format!("{}\n", COLUMNS.join(",")).as_bytes());
         Ok(output)
     }
 
     fn write(&mut self, bytes: &[u8]) {
         if self.error.is_none()
-            && let Err(e) = self.file.write_all(bytes)
+            && let Err(e) = self.file.file().write_all(bytes)
         {
             self.error = Some(e);
         }
@@ -287,29 +267,15 @@ impl Output {
 
     /// Renames the temporary file to the final path, or reports the first write error (and removes the file).
     fn commit(mut self) -> Result<(), EstimateError> {
-        let done = match (self.error.take(), &self.temp) {
-            (Some(e), _) => Err(e),
-            (None, Some(temp)) => std::fs::rename(temp, &self.path),
-            (None, None) => Ok(()),
+        let done = match self.error.take() {
+            Some(e) => Err(e),
+            None => self.file.commit(),
         };
-        match done {
-            Ok(()) => {
-                self.temp = None;
-                Ok(())
-            }
-            Err(source) => {
-                Err(EstimateError::Output { action: "writing", path: self.path.display().to_string(), source })
-            }
-        }
-    }
-}
-
-impl Drop for Output {
-    /// Removes the temporary file unless it was renamed into place: on an error, and on a panic.
-    fn drop(&mut self) {
-        if let Some(temp) = self.temp.take() {
-            let _ = std::fs::remove_file(temp);
-        }
+        done.map_err(|source| EstimateError::Output {
+            action: "writing",
+            path: self.path.display().to_string(),
+            source,
+        })
     }
 }
 
@@ -378,6 +344,7 @@ mod tests {
         assert_eq!(files_in(dir.path()), ["est.csv"]);
         assert!(std::fs::read_to_string(&out).expect("output").starts_with("t_s,"));
         // written in place: no temporary file
+        use crate::output::written_in_place;
         assert!(written_in_place(Path::new("/dev/null")) && !written_in_place(&out));
         assert!(!written_in_place(&dir.path().join("not there yet.csv")));
     }

@@ -28,22 +28,33 @@ pub const MIN_TOKEN_CHARS: usize = 16;
 
 /// Starts the poll loops of `settings` and serves HTTP on `listener` until `shutdown` is cancelled.
 pub fn start(listener: TcpListener, settings: &Settings, shutdown: CancellationToken) -> std::io::Result<Server> {
-    let url = format!("http://{}", listener.local_addr()?);
-    if let Some(t) = &settings.http.token
-        && t.chars().count() < MIN_TOKEN_CHARS
-    {
-        tracing::warn!(
-            chars = t.chars().count(),
-            "http.token is short: a right token is never refused, so its \
-            length is what keeps a guesser out; use {MIN_TOKEN_CHARS} random characters or more"
-        );
-    }
+    let addr = listener.local_addr()?;
+    let url = format!("http://{addr}");
+    warn_of_token(settings.http.token.as_deref(), addr.ip().is_loopback());
     let service = service::start(settings, shutdown.clone())?;
     let state = AppState::new(service.state.clone(), &settings.http, shutdown.clone());
     let limits = ConnLimits::from(&settings.http);
     // on the runtime's (lower-priority) workers, not on the thread that started the poll loops
     let http = tokio::spawn(http::serve_with(listener, state, limits));
     Ok(Server { state: service.state.clone(), url, shutdown, service, http })
+}
+
+/// Says at start what the token leaves open: a short one is warned of (louder beyond loopback, where anyone on
+/// the network may guess), and beyond loopback no token is said to disable the write routes.
+fn warn_of_token(token: Option<&str>, loopback: bool) {
+    let reach = if loopback { "loopback" } else { "beyond loopback" };
+    match token {
+        Some(t) if t.chars().count() < MIN_TOKEN_CHARS => tracing::warn!(
+            chars = t.chars().count(),
+            bound = reach,
+            "http.token is short: a right token is never refused, so its length is what keeps a guesser out; use \
+             {MIN_TOKEN_CHARS} random characters or more"
+        ),
+        None if !loopback => {
+            tracing::info!(bound = reach, "http.token is empty: the write routes are disabled (read-only service)");
+        }
+        _ => {}
+    }
 }
 
 impl Server {

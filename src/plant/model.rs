@@ -107,6 +107,15 @@ pub struct PlantModel {
     pub estimator: Option<toml::Table>,
 }
 
+/// The shortest sample period: the real-time simulator steps every sample that is due at each tick of a
+/// 1 ms-resolution timer, so 0.1 ms is ten RK4 steps a tick; far shorter, it cannot keep up (and a period that
+/// rounds to 0 ns is no timer at all).
+pub const MIN_SAMPLE_MS: f64 = 0.1;
+/// The longest sample period (1 Hz).
+pub const MAX_SAMPLE_MS: f64 = 1000.0;
+/// The longest watchdog timeout of the simulated drive.
+pub const MAX_COMM_TIMEOUT_MS: u64 = 3_600_000;
+
 /// The parts a pressure-driven simulation needs, borrowed from a model that has them all.
 #[derive(Debug, Clone, Copy)]
 pub struct HydraulicParts<'a> {
@@ -119,8 +128,9 @@ pub struct HydraulicParts<'a> {
 /// What can be wrong with a model file. Every variant is bad input (exit 2) except `Io`.
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
-    #[error("cannot read model file {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    /// The reason is in the message and not the error's source, so that a chain prints it once.
+    #[error("cannot read model file {path}: {error}")]
+    Io { path: PathBuf, error: std::io::Error },
     #[error("model file {path}: {message}")]
     Syntax { path: String, message: String },
     #[error("model file {path}: key `{key}` {message}")]
@@ -131,7 +141,7 @@ impl ModelError {
     /// True when the user can fix it: by editing the file, or naming one that exists (exit code 2).
     pub fn is_bad_input(&self) -> bool {
         match self {
-            ModelError::Io { source, .. } => source.kind() == std::io::ErrorKind::NotFound,
+            ModelError::Io { error, .. } => crate::error::unreadable_is_bad_input(error),
             _ => true,
         }
     }
@@ -140,7 +150,7 @@ impl ModelError {
 impl PlantModel {
     /// Reads and validates a model file.
     pub fn load(path: &Path) -> Result<PlantModel, ModelError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ModelError::Io { path: path.into(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|error| ModelError::Io { path: path.into(), error })?;
         PlantModel::parse(&text, &path.display().to_string())
     }
 
@@ -212,8 +222,11 @@ impl PlantModel {
             positive("drive.ramp_hz_per_s", d.ramp_hz_per_s)?;
             positive("drive.time_constant_s", d.time_constant_s)?;
             positive("drive.max_hz", d.max_hz)?;
-            if d.comm_timeout_ms == 0 {
-                return Err(KeyError::new("drive.comm_timeout_ms".into(), "must be ≥ 1, got 0".into()));
+            if !(1..=MAX_COMM_TIMEOUT_MS).contains(&d.comm_timeout_ms) {
+                return Err(KeyError::new(
+                    "drive.comm_timeout_ms".into(),
+                    format!("must be 1 ..= {MAX_COMM_TIMEOUT_MS} (one hour), got {}", d.comm_timeout_ms),
+                ));
             }
         }
         if let Some(p) = &self.pump {
@@ -233,11 +246,11 @@ impl PlantModel {
         nonneg("sensors.pressure_noise_bar", self.sensors.pressure_noise_bar)?;
         nonneg("sensors.speed_noise_rad_s", self.sensors.speed_noise_rad_s)?;
         nonneg("sensors.load_noise_nm", self.sensors.load_noise_nm)?;
-        positive("sensors.sample_ms", self.sensors.sample_ms)?;
-        if self.sensors.sample_ms > 1000.0 {
+        let ms = self.sensors.sample_ms;
+        if !(ms.is_finite() && (MIN_SAMPLE_MS..=MAX_SAMPLE_MS).contains(&ms)) {
             return Err(KeyError::new(
                 "sensors.sample_ms".into(),
-                format!("must be ≤ 1000, got {}", self.sensors.sample_ms),
+                format!("must be {MIN_SAMPLE_MS} ..= {MAX_SAMPLE_MS} (10 kHz to 1 Hz), got {ms}"),
             ));
         }
         self.load.validate()?;
@@ -306,6 +319,23 @@ mod tests {
         let text = format!("{REFERENCE_TOML}{}", WORN.replace("growth_per_hour", "growth_per_day"));
         let err = PlantModel::parse(&text, "p.toml").expect_err("unknown key").to_string();
         assert!(err.contains("growth_per_day"), "{err}");
+    }
+
+    #[test]
+    fn rates_and_durations_beyond_what_the_simulator_can_run_are_refused_by_key() {
+        for (from, to, key) in [
+            ("sample_ms = 1.0", "sample_ms = 1e-7", "sensors.sample_ms"),
+            ("sample_ms = 1.0", "sample_ms = 0.09", "sensors.sample_ms"),
+            ("sample_ms = 1.0", "sample_ms = 1001.0", "sensors.sample_ms"),
+            ("sample_ms = 1.0", "sample_ms = nan", "sensors.sample_ms"),
+            ("comm_timeout_ms = 1000", "comm_timeout_ms = 3600001", "drive.comm_timeout_ms"),
+        ] {
+            assert!(REFERENCE_TOML.contains(from), "{from}");
+            let msg = PlantModel::parse(&REFERENCE_TOML.replace(from, to), "p.toml").expect_err(to).to_string();
+            assert!(msg.contains(key) && msg.contains("p.toml"), "{to}: {msg}");
+        }
+        let fast = REFERENCE_TOML.replace("sample_ms = 1.0", "sample_ms = 0.1");
+        assert_eq!(PlantModel::parse(&fast, "p.toml").expect("10 kHz").sample_s(), 1e-4);
     }
 
     #[test]

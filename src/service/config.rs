@@ -17,11 +17,15 @@ use crate::modbus::map::{RegisterMap, RegisterSpec, Table, ValueType, WordOrder}
 use crate::plant::PlantModel;
 use crate::plant::dynamics::Coefficients;
 
-/// What can be wrong with a config. Everything but `Io` is bad input (exit 2).
+/// The longest `stale_ms`: data older than this are stale whatever the config says.
+const MAX_STALE_MS: u64 = 600_000;
+
+/// What can be wrong with a config. Everything is bad input (exit 2) but an `Io` error the user cannot fix.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    #[error("cannot read config {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    /// The reason is in the message and not the error's source, so that a chain prints it once.
+    #[error("cannot read config {path}: {error}")]
+    Io { path: PathBuf, error: std::io::Error },
     #[error("config {path}: {message}")]
     Syntax { path: String, message: String },
     #[error("config {path}: key `{key}` {message}")]
@@ -30,7 +34,10 @@ pub enum ConfigError {
 
 impl ConfigError {
     pub fn is_bad_input(&self) -> bool {
-        !matches!(self, ConfigError::Io { .. })
+        match self {
+            ConfigError::Io { error, .. } => crate::error::unreadable_is_bad_input(error),
+            _ => true,
+        }
     }
 }
 
@@ -390,7 +397,7 @@ impl DriveSettings {
 /// Reads and validates a config file. Relative model paths are tried from the working directory, then from the
 /// config file's directory.
 pub fn load(path: &Path) -> Result<Settings, ConfigError> {
-    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io { path: path.into(), source })?;
+    let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Io { path: path.into(), error })?;
     parse(&text, &path.display().to_string(), path.parent())
 }
 
@@ -806,6 +813,9 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
     if stale_ms < d.poll_ms {
         return Err(KeyError::new(key("stale_ms"), format!("must be ≥ poll_ms ({}), got {stale_ms}", d.poll_ms)));
     }
+    if stale_ms > MAX_STALE_MS {
+        return Err(KeyError::new(key("stale_ms"), format!("must be ≤ {MAX_STALE_MS} (10 min), got {stale_ms}")));
+    }
 
     let c = d.control;
     let min_hz = nonneg(&key("control.min_hz"), c.min_hz)?;
@@ -904,8 +914,11 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
     }
     let comm_timeout_ms =
         d.comm_timeout_ms.unwrap_or_else(|| model.drive.as_ref().map_or(1000, |drive| drive.comm_timeout_ms));
-    if comm_timeout_ms == 0 {
-        return Err(KeyError::new(key("comm_timeout_ms"), "must be ≥ 1".into()));
+    if !(1..=crate::plant::model::MAX_COMM_TIMEOUT_MS).contains(&comm_timeout_ms) {
+        return Err(KeyError::new(
+            key("comm_timeout_ms"),
+            format!("must be 1 ..= {} (one hour), got {comm_timeout_ms}", crate::plant::model::MAX_COMM_TIMEOUT_MS),
+        ));
     }
     if d.watchdog_ms.saturating_mul(3) > comm_timeout_ms {
         return Err(KeyError::new(
@@ -1067,6 +1080,10 @@ address = "127.0.0.1:5020"
         assert!(e.contains("drives[0].control.min_hz"), "{e}");
         let e = err(&format!("{MINIMAL}realtime_priority = 0\n"));
         assert!(e.contains("drives[0].realtime_priority") && e.contains("1 ..= 99"), "{e}");
+        let e = err(&format!("{MINIMAL}stale_ms = 600001\n"));
+        assert!(e.contains("drives[0].stale_ms") && e.contains("600000"), "{e}");
+        let e = err(&format!("{MINIMAL}comm_timeout_ms = 3600001\n"));
+        assert!(e.contains("drives[0].comm_timeout_ms") && e.contains("one hour"), "{e}");
         let e = err(&format!("{MINIMAL}poll_ms = \"fast\"\n"));
         assert!(e.contains("poll_ms"), "{e}");
         let e = err(&format!("{MINIMAL}[drives.registers.inlet_pressure]\naddress = 3\n"));

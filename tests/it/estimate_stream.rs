@@ -210,10 +210,11 @@ fn an_error_leaves_an_existing_output_untouched() {
     assert_eq!(run_estimate(&rec, &out, "kalman").status.code(), Some(2));
     assert_eq!(std::fs::read(&out).expect("output"), before);
     assert_eq!(std::fs::read_dir(dir.path()).expect("dir").count(), 2, "no temporary file left");
-    // the output may be the recording itself: it is read to the end before it is replaced
-    std::fs::write(&rec, "t_s,omega_rad_s,torque_nm\n0,1,2\n0.001,1,2\n").expect("write");
-    assert!(run_estimate(&rec, &rec, "kalman").status.success());
-    assert_eq!(std::fs::read(&rec).expect("output"), before);
+    // the output may not be the recording itself (issue 30): refused before anything is read or written
+    let text = "t_s,omega_rad_s,torque_nm\n0,1,2\n0.001,1,2\n";
+    std::fs::write(&rec, text).expect("write");
+    assert_eq!(run_estimate(&rec, &rec, "kalman").status.code(), Some(2));
+    assert_eq!(std::fs::read_to_string(&rec).expect("recording"), text);
 }
 
 proptest! {
@@ -245,16 +246,16 @@ proptest! {
 }
 
 #[test]
-fn an_output_that_cannot_be_created_is_named_once_with_its_cause() {
+fn an_output_in_a_missing_directory_is_bad_input_named_by_flag_and_path() {
     let dir = tempfile::tempdir().expect("tmp");
     let rec = dir.path().join("r.csv");
     std::fs::write(&rec, "t_s,omega_rad_s,torque_nm\n0,1,2\n0.001,1,2\n").expect("write");
     let out = dir.path().join("no such dir").join("est.csv");
     let o = run_estimate(&rec, &out, "rls-sgd");
     let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert!(err.contains(&format!("creating {}", out.display())), "{err}");
-    assert_eq!(err.matches("os error 2").count(), 1, "the cause once: {err}");
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains(&format!("--out {}", out.display())) && err.contains("does not exist"), "{err}");
+    assert_eq!(err.matches("error").count(), 1, "said once: {err}");
 }
 
 /// A 12 s test-stand recording with `nan` in `f_set_hz` (a column the replay only checks) at row 10 000, which the

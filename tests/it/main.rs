@@ -3,6 +3,7 @@
 mod analysis;
 mod analysis_bad_input;
 mod capacity;
+mod cli_bad_input;
 mod cli_service;
 mod client;
 mod compressed;

@@ -1,0 +1,379 @@
+//! Bad input to the commands, through the real binary (issue 30): bounds that keep `sim` and `simulate` sane, a
+//! panic that stops the process, outputs that never replace an input, unreadable files that exit 2 naming the path,
+//! a stderr without colour codes, and the warnings `serve` gives of a guessable or readable token.
+
+use std::ffi::OsStr;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use crate::support::{bin, root};
+
+/// The binary, running; killed when dropped. Its stderr and stdout are gathered as it writes them.
+struct Running {
+    child: Child,
+    out: Arc<Mutex<String>>,
+}
+
+impl Running {
+    fn start<S: AsRef<OsStr>>(args: &[S], env: &[(&str, &str)]) -> Running {
+        let mut child = Command::new(bin())
+            .args(args)
+            .envs(env.iter().copied())
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("starts");
+        let out = Arc::new(Mutex::new(String::new()));
+        for mut pipe in [
+            Box::new(child.stderr.take().expect("stderr")) as Box<dyn Read + Send>,
+            Box::new(child.stdout.take().expect("stdout")),
+        ] {
+            let out = out.clone();
+            std::thread::spawn(move || {
+                let mut buf = [0u8; 4096];
+                while let Ok(n @ 1..) = pipe.read(&mut buf) {
+                    out.lock().expect("lock").push_str(&String::from_utf8_lossy(&buf[..n]));
+                }
+            });
+        }
+        Running { child, out }
+    }
+
+    fn output(&self) -> String {
+        self.out.lock().expect("lock").clone()
+    }
+
+    /// Waits until the output holds `needle`; false at the deadline or when the process ends first.
+    fn wait_for(&mut self, needle: &str, timeout: Duration) -> bool {
+        let deadline = Instant::now() + timeout;
+        while Instant::now() < deadline {
+            if self.output().contains(needle) {
+                return true;
+            }
+            if self.child.try_wait().expect("wait").is_some() {
+                return self.output().contains(needle);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        false
+    }
+
+    /// Its exit status once it ends, or `None` (and it is killed) at the deadline; with the output.
+    fn finish(mut self, timeout: Duration) -> (Option<ExitStatus>, String) {
+        let deadline = Instant::now() + timeout;
+        let status = loop {
+            if let Some(status) = self.child.try_wait().expect("wait") {
+                break Some(status);
+            }
+            if Instant::now() > deadline {
+                break None;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        // the readers see the pipes close
+        std::thread::sleep(Duration::from_millis(50));
+        (status, self.output())
+    }
+
+    fn sigterm(&self) {
+        let status = Command::new("kill").args(["-TERM", &self.child.id().to_string()]).status().expect("kill");
+        assert!(status.success());
+    }
+}
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Runs the binary to its end (20 s at most) and returns its exit code (`None`: killed or signalled) and output.
+fn run<S: AsRef<OsStr>>(args: &[S]) -> (Option<i32>, String) {
+    let (status, out) = Running::start(args, &[]).finish(Duration::from_secs(20));
+    (status.and_then(|s| s.code()), out)
+}
+
+fn exits_2_naming<S: AsRef<OsStr>>(args: &[S], needles: &[&str]) -> String {
+    let (code, out) = run(args);
+    assert_eq!(code, Some(2), "{needles:?}: {out}");
+    for n in needles {
+        assert!(out.contains(n), "`{n}` not in: {out}");
+    }
+    out
+}
+
+fn reference_model() -> String {
+    std::fs::read_to_string(root().join("config/plant.toml")).expect("model")
+}
+
+/// The reference model with `sample_ms` set, written into `dir`.
+fn model_sampling_at(dir: &Path, sample_ms: &str) -> PathBuf {
+    let path = dir.join(format!("plant_{sample_ms}.toml"));
+    let text = reference_model().replace("sample_ms = 1.0", &format!("sample_ms = {sample_ms}"));
+    std::fs::write(&path, text).expect("write");
+    path
+}
+
+/// A short test-stand recording made by `simulate`.
+fn recording(dir: &Path) -> PathBuf {
+    let rec = dir.join("rec.csv");
+    let (code, out) = run(&[
+        "simulate".as_ref(),
+        "--model".as_ref(),
+        root().join("config/plant.toml").as_os_str(),
+        "--duration".as_ref(),
+        "3".as_ref(),
+        "--out".as_ref(),
+        rec.as_os_str(),
+    ]);
+    assert_eq!(code, Some(0), "{out}");
+    rec
+}
+
+fn files_in(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> =
+        std::fs::read_dir(dir).expect("dir").map(|e| e.expect("entry").file_name().to_string_lossy().into()).collect();
+    names.sort();
+    names
+}
+
+// ---- finding 1: rates and sizes within bounds; a panic stops the process; SIGTERM ends `sim`
+
+#[test]
+fn sim_refuses_a_sample_period_it_cannot_run() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let model = model_sampling_at(dir.path(), "1e-7");
+    let args = ["sim".as_ref(), "--model".as_ref(), model.as_os_str(), "--listen".as_ref(), "127.0.0.1:0".as_ref()];
+    exits_2_naming(&args, &["sensors.sample_ms", "plant_1e-7.toml"]);
+}
+
+#[test]
+fn simulate_refuses_a_run_of_more_rows_than_it_may_write() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("rec.csv");
+    let simulate = |model: &Path, duration: &str| {
+        let (status, out) = Running::start(
+            &["simulate".as_ref(), "--model".as_ref(), model.as_os_str(), "--duration".as_ref(), duration.as_ref()]
+                .into_iter()
+                .chain(["--out".as_ref(), out.as_os_str()])
+                .collect::<Vec<&OsStr>>(),
+            &[],
+        )
+        // refused at once; a run that goes on writes gigabytes, so it is stopped early
+        .finish(Duration::from_secs(5));
+        (status.and_then(|s| s.code()), out)
+    };
+    let (code, msg) = simulate(&model_sampling_at(dir.path(), "1e-9"), "8");
+    assert_eq!(code, Some(2), "{msg}");
+    assert!(msg.contains("sensors.sample_ms"), "{msg}");
+    let (code, msg) = simulate(&root().join("config/plant.toml"), "1000000");
+    assert_eq!(code, Some(2), "{msg}");
+    assert!(msg.contains("--duration") && msg.contains("rows"), "{msg}");
+    assert!(!out.exists(), "nothing written");
+}
+
+#[test]
+fn a_panic_in_any_thread_stops_the_process() {
+    let model = root().join("config/plant.toml");
+    let args = ["sim".as_ref(), "--model".as_ref(), model.as_os_str(), "--listen".as_ref(), "127.0.0.1:0".as_ref()];
+    let running = Running::start(&args, &[("HYDROLENS_DEBUG_PANIC_AFTER_MS", "300")]);
+    let (status, out) = running.finish(Duration::from_secs(15));
+    let status = status.unwrap_or_else(|| panic!("still running 15 s after a thread panicked: {out}"));
+    assert!(!status.success(), "{status:?}: {out}");
+    assert!(out.contains("panicked") && out.contains("the process stops"), "{out}");
+}
+
+#[test]
+fn sigterm_ends_sim() {
+    let model = root().join("config/plant.toml");
+    let args = ["sim".as_ref(), "--model".as_ref(), model.as_os_str(), "--listen".as_ref(), "127.0.0.1:0".as_ref()];
+    let mut running = Running::start(&args, &[]);
+    assert!(running.wait_for("plant simulator on", Duration::from_secs(15)), "{}", running.output());
+    running.sigterm();
+    let (status, out) = running.finish(Duration::from_secs(10));
+    assert_eq!(status.and_then(|s| s.code()), Some(0), "{out}");
+}
+
+// ---- finding 2: outputs checked before any work, never an input, written whole or not at all
+
+#[test]
+fn an_output_that_is_an_input_or_another_output_is_refused_and_nothing_is_lost() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let d = dir.path();
+    let rec = recording(d);
+    let before = std::fs::read(&rec).expect("recording");
+    let model = d.join("plant.toml");
+    std::fs::write(&model, reference_model()).expect("model");
+    let p = |name: &str| d.join(name).into_os_string();
+    let (rec_s, model_s) = (rec.clone().into_os_string(), model.clone().into_os_string());
+    let estimate = |out: &OsStr| {
+        vec!["estimate".into(), rec_s.clone(), "--model".into(), model_s.clone(), "--out".into(), out.into()]
+    };
+    let analyze = |more: &[&OsStr]| {
+        let mut args: Vec<std::ffi::OsString> =
+            vec!["analyze".into(), rec_s.clone(), "--model".into(), model_s.clone()];
+        args.extend(more.iter().map(|a| a.into()));
+        args
+    };
+    exits_2_naming(&estimate(rec.as_os_str()), &["--out", "rec.csv", "input"]);
+    exits_2_naming(&estimate(model.as_os_str()), &["--out", "plant.toml", "input"]);
+    exits_2_naming(&analyze(&["--json".as_ref(), rec.as_os_str()]), &["--json", "rec.csv", "input"]);
+    exits_2_naming(
+        &analyze(&["--json".as_ref(), &p("a.json"), "--report".as_ref(), rec.as_os_str()]),
+        &["--report", "rec.csv", "input"],
+    );
+    exits_2_naming(
+        &analyze(&["--json".as_ref(), &p("out"), "--report".as_ref(), &p("out")]),
+        &["--report", "--json", "out"],
+    );
+    exits_2_naming(
+        &analyze(&["--json".as_ref(), &p("a.json"), "--model-out".as_ref(), model.as_os_str()]),
+        &["--model-out", "plant.toml", "input"],
+    );
+    // a directory that is not there: refused at once, before the analysis
+    let started = Instant::now();
+    exits_2_naming(&analyze(&["--json".as_ref(), &p("nodir/x.json")]), &["--json", "nodir", "does not exist"]);
+    assert!(started.elapsed() < Duration::from_secs(5), "refused only after {:?}", started.elapsed());
+    assert_eq!(std::fs::read(&rec).expect("recording"), before, "the recording is untouched");
+    assert_eq!(std::fs::read_to_string(&model).expect("model"), reference_model(), "the model is untouched");
+    assert_eq!(files_in(d), ["plant.toml", "rec.csv"], "nothing else written");
+}
+
+#[test]
+fn simulate_with_a_bad_model_leaves_the_old_output() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("rec.csv");
+    std::fs::write(&out, "the old recording\n").expect("write");
+    // a model that loads but cannot run (no hydraulics: it fails once the run starts), and one that does not load
+    let no_pump = dir.path().join("no_pump.toml");
+    let torque_only = "[motor]\ninertia_kg_m2 = 0.08\nviscous_nm_s_rad = 0.04\n[load]\nkind = \"none\"\n";
+    std::fs::write(&no_pump, torque_only).expect("write");
+    let negative = dir.path().join("negative.toml");
+    std::fs::write(&negative, reference_model().replace("inertia_kg_m2 = 0.08", "inertia_kg_m2 = -1.0"))
+        .expect("write");
+    for (model, key) in [(&no_pump, "[drive]"), (&negative, "motor.inertia_kg_m2")] {
+        let name = model.file_name().expect("name").to_string_lossy().into_owned();
+        exits_2_naming(
+            &["simulate".as_ref(), "--model".as_ref(), model.as_os_str(), "--duration".as_ref(), "1".as_ref()]
+                .into_iter()
+                .chain(["--out".as_ref(), out.as_os_str()])
+                .collect::<Vec<&OsStr>>(),
+            &[key, &name],
+        );
+        assert_eq!(std::fs::read_to_string(&out).expect("out"), "the old recording\n", "{name}");
+    }
+    assert_eq!(files_in(dir.path()), ["negative.toml", "no_pump.toml", "rec.csv"]);
+}
+
+#[test]
+fn a_killed_runs_temporary_file_is_removed_by_the_next_run() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec = recording(dir.path());
+    // what `estimate` killed by SIGKILL leaves: its pid is beyond any pid Linux hands out
+    let stale = dir.path().join(".est.csv.4294967294.tmp");
+    std::fs::write(&stale, "half an estimate").expect("write");
+    let out = dir.path().join("est.csv");
+    let model = root().join("config/plant.toml");
+    let (code, msg) = run(&[
+        "estimate".as_ref(),
+        rec.as_os_str(),
+        "--model".as_ref(),
+        model.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert_eq!(code, Some(0), "{msg}");
+    assert_eq!(files_in(dir.path()), ["est.csv", "rec.csv"]);
+}
+
+// ---- finding 3: unreadable files exit 2 naming the path (once); no colour codes in a file
+
+#[test]
+fn missing_or_directory_configs_and_a_non_utf8_model_exit_2_naming_the_path_once() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let missing = dir.path().join("missing.toml");
+    let out = exits_2_naming(&["serve".as_ref(), "--config".as_ref(), missing.as_os_str()], &["missing.toml"]);
+    assert_eq!(out.matches("No such file").count(), 1, "the reason once: {out}");
+    exits_2_naming(&["serve".as_ref(), "--config".as_ref(), dir.path().as_os_str()], &[&*dir.path().to_string_lossy()]);
+    let latin1 = dir.path().join("latin1.toml");
+    let mut bytes = reference_model().into_bytes();
+    bytes.extend_from_slice(b"# caf\xe9\n");
+    std::fs::write(&latin1, bytes).expect("write");
+    let out = dir.path().join("rec.csv");
+    exits_2_naming(
+        &["simulate".as_ref(), "--model".as_ref(), latin1.as_os_str(), "--duration".as_ref(), "1".as_ref()]
+            .into_iter()
+            .chain(["--out".as_ref(), out.as_os_str()])
+            .collect::<Vec<&OsStr>>(),
+        &["latin1.toml", "UTF-8"],
+    );
+    // a config whose model cannot be read: the config's key and the model's path
+    let config = dir.path().join("svc.toml");
+    std::fs::write(&config, service_config(dir.path(), "a-token-long-enough-1234", Some(&missing))).expect("write");
+    let out = exits_2_naming(
+        &["serve".as_ref(), "--config".as_ref(), config.as_os_str()],
+        &["estimator.model", "missing.toml"],
+    );
+    assert_eq!(out.matches("No such file").count(), 1, "the reason once: {out}");
+}
+
+/// A service config with one drive that nobody answers, recording into `dir`.
+fn service_config(dir: &Path, token: &str, model: Option<&Path>) -> String {
+    let model = model.map_or_else(|| root().join("config/plant.toml"), Path::to_path_buf);
+    format!(
+        "[http]\nbind = \"127.0.0.1:0\"\ntoken = \"{token}\"\n[recording]\ndir = {:?}\n[[drives]]\nname = \"p\"\n\
+         address = \"127.0.0.1:9\"\n[drives.estimator]\nmodel = {:?}\n",
+        dir.join("rec"),
+        model
+    )
+}
+
+/// `serve` on `http` with `config` (of `mode`), run until it says where its dashboard is; its output.
+fn serve_start(dir: &Path, token: &str, mode: u32, http: &str) -> String {
+    use std::os::unix::fs::PermissionsExt;
+    let config = dir.join("svc.toml");
+    std::fs::write(&config, service_config(dir, token, None)).expect("write");
+    std::fs::set_permissions(&config, std::fs::Permissions::from_mode(mode)).expect("chmod");
+    let args = ["serve".as_ref(), "--config".as_ref(), config.as_os_str(), "--http".as_ref(), http.as_ref()];
+    let mut running = Running::start(&args, &[]);
+    assert!(running.wait_for("dashboard on", Duration::from_secs(20)), "{}", running.output());
+    running.sigterm();
+    let (status, out) = running.finish(Duration::from_secs(20));
+    assert_eq!(status.and_then(|s| s.code()), Some(0), "{out}");
+    out
+}
+
+#[test]
+fn no_colour_codes_reach_a_stderr_that_is_not_a_terminal() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = serve_start(dir.path(), "a-token-long-enough-1234", 0o600, "127.0.0.1:0");
+    assert!(out.contains("INFO"), "the log is there: {out}");
+    assert!(!out.contains('\u{1b}'), "escape codes in: {out:?}");
+    assert!(!out.contains("WARN"), "nothing to warn of: {out}");
+}
+
+// ---- finding 4: warnings of a token that is guessable or readable
+
+#[test]
+fn serve_warns_of_a_short_token_beyond_loopback_and_of_a_config_others_read() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = serve_start(dir.path(), "short", 0o644, "0.0.0.0:0");
+    assert_eq!(out.matches("http.token is short").count(), 1, "one warning: {out}");
+    assert!(out.contains("beyond loopback"), "{out}");
+    assert!(out.contains("svc.toml") && out.contains("chmod 600"), "{out}");
+}
+
+#[test]
+fn serve_beyond_loopback_without_a_token_says_writes_are_disabled() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = serve_start(dir.path(), "", 0o644, "0.0.0.0:0");
+    assert!(out.contains("write routes are disabled"), "{out}");
+    assert!(!out.contains("chmod 600"), "no token, nothing to hide: {out}");
+}
