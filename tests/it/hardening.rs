@@ -539,92 +539,6 @@ fn a_recording_cut_mid_row_at_its_end_is_read_without_that_line_and_a_cut_inside
 
 // ---- item 9: the disk fills ----
 
-/// `hydrolens serve --config <config>` run by `sh -c` after `limits` (shell commands such as `ulimit -f 0`), on
-/// HTTP 127.0.0.1:0; its stderr is drained so that it never blocks on a full pipe, and kept for messages. Killed if
-/// still running when dropped.
-struct ServeProcess {
-    child: std::process::Child,
-    url: String,
-    stderr: Arc<Mutex<Vec<String>>>,
-}
-
-impl ServeProcess {
-    /// Starts it and waits (10 s at most) for the URL it announces.
-    async fn start(limits: &str, config: &std::path::Path) -> ServeProcess {
-        let script = format!(
-            "{limits}; exec {} serve --config {} --http 127.0.0.1:0",
-            crate::support::bin().display(),
-            config.display()
-        );
-        let mut child = std::process::Command::new("sh")
-            .args(["-c", &script])
-            .stderr(std::process::Stdio::piped())
-            .stdout(std::process::Stdio::null())
-            .spawn()
-            .expect("starts");
-        let stderr = child.stderr.take().expect("stderr");
-        let lines = Arc::new(Mutex::new(Vec::new()));
-        let kept = lines.clone();
-        let (tx, rx) = std::sync::mpsc::channel::<String>();
-        std::thread::spawn(move || {
-            use std::io::BufRead;
-            for line in std::io::BufReader::new(stderr).lines().map_while(Result::ok) {
-                if let Some(url) = line.split_whitespace().find(|w| w.starts_with("http://")) {
-                    let _ = tx.send(url.to_string());
-                }
-                kept.lock().expect("lines").push(line);
-            }
-        });
-        let url = tokio::task::spawn_blocking(move || rx.recv_timeout(Duration::from_secs(10))).await.expect("joins");
-        let mut serve = ServeProcess { child, url: String::new(), stderr: lines };
-        match url {
-            Ok(url) => serve.url = url,
-            Err(_) => panic!("serve announces its URL; it said:\n{}", serve.log()),
-        }
-        serve
-    }
-
-    fn pid(&self) -> u32 {
-        self.child.id()
-    }
-
-    /// What it wrote to stderr so far.
-    fn log(&self) -> String {
-        self.stderr.lock().expect("lines").join("\n")
-    }
-
-    /// The drive's entry in /api/status.
-    async fn status(&self) -> serde_json::Value {
-        get_json(format!("{}/api/status", self.url)).await["drives"][0].clone()
-    }
-
-    /// SIGTERM, then waits (10 s at most) for it to exit: its exit status, None if it had to be killed.
-    fn stop(&mut self) -> Option<std::process::ExitStatus> {
-        let _ = std::process::Command::new("kill").args(["-TERM", &self.pid().to_string()]).status();
-        let deadline = std::time::Instant::now() + Duration::from_secs(10);
-        loop {
-            if let Some(code) = self.child.try_wait().expect("wait") {
-                return Some(code);
-            }
-            if std::time::Instant::now() > deadline {
-                let _ = self.child.kill();
-                let _ = self.child.wait();
-                return None;
-            }
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-}
-
-impl Drop for ServeProcess {
-    fn drop(&mut self) {
-        if self.child.try_wait().is_ok_and(|s| s.is_none()) {
-            let _ = self.child.kill();
-            let _ = self.child.wait();
-        }
-    }
-}
-
 /// A config of the drive `pump1` on `modbus`, recording to `rec_dir`, polled every `poll_ms`, written to `dir`.
 fn serve_config(dir: &std::path::Path, rec_dir: &std::path::Path, modbus: SocketAddr, poll_ms: u64) -> PathBuf {
     let config = dir.join("c.toml");
@@ -645,11 +559,11 @@ async fn a_full_disk_shows_in_status_metrics_and_readiness_and_recording_resumes
     let dir = tempfile::tempdir().expect("tmp");
     let rec_dir = dir.path().join("rec");
     let config = serve_config(dir.path(), &rec_dir, modbus, 2);
-    let mut serve = ServeProcess::start("trap '' XFSZ; ulimit -S -f 64", &config).await;
+    let mut serve = crate::support::ServeProcess::start_limited("trap '' XFSZ; ulimit -S -f 64", &config);
     let pid = serve.pid();
     let run = async {
         let url = &serve.url;
-        let status = || serve.status();
+        let status = || serve.drive_status();
         let failing = wait_for(Duration::from_secs(10), || async { status().await["recording"]["ok"] == false }).await;
         assert!(failing.is_some(), "recording trouble shows in /api/status: {}", status().await);
         let s = status().await;
@@ -714,9 +628,9 @@ async fn a_disk_with_no_room_leaves_no_empty_recordings_and_shows_the_rows_lost(
     let dir = tempfile::tempdir().expect("tmp");
     let rec_dir = dir.path().join("rec");
     let config = serve_config(dir.path(), &rec_dir, modbus, 10);
-    let mut serve = ServeProcess::start("ulimit -f 0", &config).await;
+    let mut serve = crate::support::ServeProcess::start_limited("ulimit -f 0", &config);
     let run = async {
-        let status = || serve.status();
+        let status = || serve.drive_status();
         // three tries at a file, a second apart
         let tried = wait_for(Duration::from_secs(15), || async {
             status().await["recording"]["errors"].as_u64().is_some_and(|e| e >= 3)

@@ -231,12 +231,27 @@ pub struct ServeProcess {
 
 impl ServeProcess {
     pub fn start(dir: &std::path::Path, config_text: &str) -> ServeProcess {
-        use std::io::{BufRead, BufReader};
         let config = dir.join("serve.toml");
         std::fs::write(&config, config_text).expect("config");
-        let mut child = std::process::Command::new(bin())
-            .args(["serve", "--config"])
-            .arg(&config)
+        let mut command = std::process::Command::new(bin());
+        command.args(["serve", "--config"]).arg(&config);
+        ServeProcess::spawn(command)
+    }
+
+    /// `serve --config <config> --http 127.0.0.1:0` run by `sh -c` after `limits` (shell commands such as
+    /// `ulimit -f 0`).
+    pub fn start_limited(limits: &str, config: &std::path::Path) -> ServeProcess {
+        let script =
+            format!("{limits}; exec {} serve --config {} --http 127.0.0.1:0", bin().display(), config.display());
+        let mut command = std::process::Command::new("sh");
+        command.args(["-c", &script]);
+        ServeProcess::spawn(command)
+    }
+
+    /// Runs `command` and reads its stderr until it announces its URL (which it must).
+    fn spawn(mut command: std::process::Command) -> ServeProcess {
+        use std::io::{BufRead, BufReader};
+        let mut child = command
             .env("RUST_LOG", "info")
             .env("NO_COLOR", "1")
             .stdout(std::process::Stdio::null())
@@ -246,7 +261,9 @@ impl ServeProcess {
         let mut lines = BufReader::new(child.stderr.take().expect("stderr")).lines();
         let log = Arc::new(std::sync::Mutex::new(String::new()));
         let url = loop {
-            let line = lines.next().expect("serve announces its address").expect("utf-8");
+            let Some(Ok(line)) = lines.next() else {
+                panic!("serve ended without announcing its address:\n{}", log.lock().expect("log"))
+            };
             log.lock().expect("log").push_str(&format!("{line}\n"));
             if let Some(url) = line.split("dashboard on ").nth(1) {
                 break url.trim().trim_end_matches('/').to_string();
@@ -263,6 +280,27 @@ impl ServeProcess {
         });
         let addr = url.trim_start_matches("http://").parse().expect("an address");
         ServeProcess { child, url, addr, log }
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// SIGTERM, then waits (10 s at most) for it to exit: its exit status, None if it had to be killed.
+    pub fn stop(&mut self) -> Option<std::process::ExitStatus> {
+        let _ = std::process::Command::new("kill").args(["-TERM", &self.pid().to_string()]).status();
+        let deadline = std::time::Instant::now() + Duration::from_secs(10);
+        loop {
+            if let Some(code) = self.child.try_wait().expect("wait") {
+                return Some(code);
+            }
+            if std::time::Instant::now() > deadline {
+                let _ = self.child.kill();
+                let _ = self.child.wait();
+                return None;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
 
     /// The log so far (stderr).
@@ -288,6 +326,11 @@ impl ServeProcess {
 
     pub async fn status(&self) -> serde_json::Value {
         reqwest::get(format!("{}/api/status", self.url)).await.expect("GET status").json().await.expect("json")
+    }
+
+    /// The first drive's entry in /api/status.
+    pub async fn drive_status(&self) -> serde_json::Value {
+        self.status().await["drives"][0].clone()
     }
 
     /// `GET /readyz`: its code and body.
