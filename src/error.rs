@@ -26,3 +26,56 @@ pub fn unreadable_is_bad_input(e: &std::io::Error) -> bool {
     use std::io::ErrorKind::{InvalidData, IsADirectory, NotADirectory, NotFound, PermissionDenied};
     matches!(e.kind(), NotFound | PermissionDenied | IsADirectory | NotADirectory | InvalidData)
 }
+
+/// The most a model or config file may hold. The largest real one is a few kB; the cap keeps a wrong path
+/// (`/dev/zero`, a recording) from taking the machine's memory before the parser can say what is wrong.
+pub const TEXT_FILE_CAP: u64 = 1 << 20;
+
+/// Reads a small file whole (a model, a config, a certificate), refusing one larger than [`TEXT_FILE_CAP`] after
+/// reading no more than the cap (InvalidData, so bad input: exit 2). Devices and pipes are read the same way, never
+/// to their end.
+pub fn read_small_file(path: &std::path::Path) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let file = std::fs::File::open(path)?;
+    let mut bytes = Vec::new();
+    file.take(TEXT_FILE_CAP + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > TEXT_FILE_CAP {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "larger than {} kB, the cap for a model, config or certificate file: is it the right file?",
+                TEXT_FILE_CAP >> 10
+            ),
+        ));
+    }
+    Ok(bytes)
+}
+
+/// [`read_small_file`], as UTF-8 text.
+pub fn read_text_file(path: &std::path::Path) -> std::io::Result<String> {
+    String::from_utf8(read_small_file(path)?).map_err(|e| {
+        std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("not UTF-8 text (byte {})", e.utf8_error().valid_up_to()),
+        )
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_text_file_beyond_the_cap_is_refused_after_reading_no_more_than_the_cap() {
+        let err = read_text_file(std::path::Path::new("/dev/zero")).expect_err("refused");
+        assert!(unreadable_is_bad_input(&err));
+        assert!(err.to_string().contains("1024 kB"), "{err}");
+        let dir = tempfile::tempdir().expect("dir");
+        let path = dir.path().join("m.toml");
+        std::fs::write(&path, b"a = 1\n\xff").expect("write");
+        let err = read_text_file(&path).expect_err("not UTF-8");
+        assert!(err.to_string().contains("byte 6"), "{err}");
+        std::fs::write(&path, "a = 1\n").expect("write");
+        assert_eq!(read_text_file(&path).expect("read"), "a = 1\n");
+    }
+}

@@ -150,7 +150,7 @@ impl ModelError {
 impl PlantModel {
     /// Reads and validates a model file.
     pub fn load(path: &Path) -> Result<PlantModel, ModelError> {
-        let text = std::fs::read_to_string(path).map_err(|error| ModelError::Io { path: path.into(), error })?;
+        let text = crate::error::read_text_file(path).map_err(|error| ModelError::Io { path: path.into(), error })?;
         PlantModel::parse(&text, &path.display().to_string())
     }
 

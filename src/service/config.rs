@@ -397,7 +397,7 @@ impl DriveSettings {
 /// Reads and validates a config file. Relative model paths are tried from the working directory, then from the
 /// config file's directory.
 pub fn load(path: &Path) -> Result<Settings, ConfigError> {
-    let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Io { path: path.into(), error })?;
+    let text = crate::error::read_text_file(path).map_err(|error| ConfigError::Io { path: path.into(), error })?;
     parse(&text, &path.display().to_string(), path.parent())
 }
 

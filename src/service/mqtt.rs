@@ -125,7 +125,8 @@ fn parse_url(url: &str) -> Result<(bool, String, u16), String> {
 
 /// The PEM certificates in `path` (read for the key `key`); at least one.
 fn read_certs(key: &str, path: &Path) -> Result<Vec<CertificateDer<'static>>, KeyError> {
-    let pem = std::fs::read(path).map_err(|e| KeyError::new(key.to_string(), format!("{}: {e}", path.display())))?;
+    let pem = crate::error::read_small_file(path)
+        .map_err(|e| KeyError::new(key.to_string(), format!("{}: {e}", path.display())))?;
     let certs = CertificateDer::pem_slice_iter(&pem)
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| KeyError::new(key.to_string(), format!("{}: not PEM certificates: {e}", path.display())))?;
@@ -179,7 +180,7 @@ fn tls_config(ca_file: Option<&Path>, client: Option<(&Path, &Path)>) -> Result<
         None => Ok(builder.with_no_client_auth()),
         Some((cert_path, key_path)) => {
             let chain = read_certs(&k("client_cert_file"), cert_path)?;
-            let key_pem = std::fs::read(key_path)
+            let key_pem = crate::error::read_small_file(key_path)
                 .map_err(|e| KeyError::new(k("client_key_file"), format!("{}: {e}", key_path.display())))?;
             let key = PrivateKeyDer::from_pem_slice(&key_pem).map_err(|e| {
                 KeyError::new(k("client_key_file"), format!("{}: no PEM private key: {e}", key_path.display()))

@@ -324,6 +324,30 @@ fn missing_or_directory_configs_and_a_non_utf8_model_exit_2_naming_the_path_once
     assert_eq!(out.matches("No such file").count(), 1, "the reason once: {out}");
 }
 
+#[test]
+fn a_model_or_config_beyond_the_size_cap_exits_2_without_reading_it_whole() {
+    let dir = tempfile::tempdir().expect("tmp");
+    // /dev/zero never ends: before the cap it grew the process by 1 GB/s
+    exits_2_naming(&["serve", "--config", "/dev/zero"], &["/dev/zero", "1024 kB"]);
+    // a 48 MB model: comments after a valid model, so only its size is wrong (it took 2.4 GB)
+    let big = dir.path().join("big.toml");
+    let mut text = reference_model();
+    let line = format!("# {}\n", "x".repeat(1000));
+    while text.len() < 48 << 20 {
+        text.push_str(&line);
+    }
+    std::fs::write(&big, text).expect("write");
+    let out = dir.path().join("rec.csv");
+    exits_2_naming(
+        &["simulate".as_ref(), "--model".as_ref(), big.as_os_str(), "--duration".as_ref(), "1".as_ref()]
+            .into_iter()
+            .chain(["--out".as_ref(), out.as_os_str()])
+            .collect::<Vec<&OsStr>>(),
+        &["big.toml", "1024 kB"],
+    );
+    assert!(!out.exists(), "nothing written");
+}
+
 /// A service config with one drive that nobody answers, recording into `dir`.
 fn service_config(dir: &Path, token: &str, model: Option<&Path>) -> String {
     let model = model.map_or_else(|| root().join("config/plant.toml"), Path::to_path_buf);
