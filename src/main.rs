@@ -487,14 +487,15 @@ fn analyze(
     let mut model_file = model_out.map(create).transpose()?;
     let mut report_file = report.map(create).transpose()?;
     let rec = analysis_recording(&files, drive)?;
-    let result = analysis::analyze(&rec, &model, &analysis::Options::default(), &mut progress("analyze"))?;
+    let source = rec.source.clone();
+    let result = analysis::analyze_owned(rec, &model, &analysis::Options::default(), &mut progress("analyze"))?;
     if result.load == "unknown" && model.load == plant::LoadSpec::Recorded {
         eprintln!(
             "analyze: note: {} has no `load_nm` although the model's [load] kind is \"recorded\": analysed with the \
              load unknown (the flow balance only: leakage, slip, entrained air, dead time); friction, torque offset, \
              J and B are not determined (see `ambiguities` and `not_identified`). `kind = \"unknown\"` says so \
              without this note",
-            rec.source
+            source
         );
     }
     let text = serde_json::to_string_pretty(&result).context("serialising the analysis")?;
@@ -503,7 +504,7 @@ fn analyze(
     };
     write(&mut json_file, json, &(text + "\n"))?;
     if let (Some(file), Some(path)) = (model_file.as_mut(), model_out) {
-        let header = format!("# Fitted by `hydrolens analyze {}` from {}\n", rec.source, model_path.display());
+        let header = format!("# Fitted by `hydrolens analyze {}` from {}\n", source, model_path.display());
         write(file, path, &(header + &result.improved_model.to_toml()))?;
     }
     if let (Some(file), Some(path)) = (report_file.as_mut(), report) {

@@ -279,6 +279,43 @@ pub fn analyze(
 ) -> Result<Analysis, BadInput> {
     progress(0.0);
     let s = Series::extract(rec, nominal, opts.validation_fraction)?;
+    analyze_series(
+        s,
+        Origin { source: rec.source.clone(), out_of_range: rec.out_of_range.clone() },
+        nominal,
+        opts,
+        progress,
+    )
+}
+
+/// As [`analyze`], the recording given up once the analysis has its series: its columns are not held beside them
+/// (a long recording's are a quarter of the memory).
+pub fn analyze_owned(
+    rec: Recording,
+    nominal: &PlantModel,
+    opts: &Options,
+    progress: &mut dyn FnMut(f64),
+) -> Result<Analysis, BadInput> {
+    progress(0.0);
+    let s = Series::extract(&rec, nominal, opts.validation_fraction)?;
+    let origin = Origin { source: rec.source.clone(), out_of_range: rec.out_of_range.clone() };
+    drop(rec);
+    analyze_series(s, origin, nominal, opts, progress)
+}
+
+/// What the analysis reports of the recording itself, beside its series.
+struct Origin {
+    source: String,
+    out_of_range: Vec<crate::recording::OutOfRange>,
+}
+
+fn analyze_series(
+    s: Series,
+    rec: Origin,
+    nominal: &PlantModel,
+    opts: &Options,
+    progress: &mut dyn FnMut(f64),
+) -> Result<Analysis, BadInput> {
     let family = s.family;
     // The nominal model's effects are part of the nominal model: the search adds to them.
     let mut start = nominal.clone();
@@ -337,6 +374,7 @@ pub fn analyze(
         for (i, &id) in remaining.iter().enumerate() {
             let scored = search::candidate(id, &current.model, current.terms, &s, &std_rows, None)
                 .and_then(|(m, terms)| Scored::evaluate(m, terms, &s).ok())
+                .map(Scored::without_prediction)
                 .map(|sc| {
                     let db = search::delta_bic(
                         current.fit.score(family),
@@ -416,6 +454,8 @@ pub fn analyze(
         let Some(i) = accept else { break };
         let winner = &tried[i];
         let Some((sc, db)) = winner.scored.clone() else { break };
+        // the winner's prediction again (candidates keep only their errors): the findings need it
+        let sc = Scored::evaluate(sc.model, sc.terms, &s)?;
         let id = winner.id;
         let gain_of = |t: &Tried| -> Option<f64> {
             if cv {

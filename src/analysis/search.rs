@@ -19,12 +19,14 @@ pub struct MechTerms {
     pub stribeck: bool,
 }
 
-/// A model under consideration, with its predictions over the whole recording and their errors.
+/// A model under consideration, with its predictions over the whole recording and their errors. The prediction is
+/// shared (clones of the model in force cost nothing) and may be dropped ([`Scored::without_prediction`]): a
+/// candidate needs only its errors, and a long recording's prediction is tens of MB.
 #[derive(Debug, Clone)]
 pub struct Scored {
     pub model: PlantModel,
     pub terms: MechTerms,
-    pub prediction: Prediction,
+    pub prediction: std::sync::Arc<Prediction>,
     /// Errors on the fitting segment (for BIC) and the validation segment (for selection).
     pub fit: Errors,
     pub validation: Errors,
@@ -35,7 +37,12 @@ impl Scored {
         let prediction = predict(&model, s, s.len())?;
         let fit = errors(&prediction, s, 0, s.split);
         let validation = errors(&prediction, s, s.split, s.len());
-        Ok(Scored { model, terms, prediction, fit, validation })
+        Ok(Scored { model, terms, prediction: std::sync::Arc::new(prediction), fit, validation })
+    }
+
+    /// The same scores without the prediction (what a candidate keeps); [`Scored::evaluate`] gives it back.
+    pub fn without_prediction(self) -> Scored {
+        Scored { prediction: Default::default(), ..self }
     }
 }
 

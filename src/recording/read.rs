@@ -134,6 +134,10 @@ fn read_whole<R: Read>(reader: R, origin: &str, keep: impl Fn(&str) -> bool) -> 
             c.extend_from_slice(values);
         }
     }
+    // what the doubling growth left spare goes back (a long recording: up to half the columns' memory)
+    for c in &mut columns {
+        c.shrink_to_fit();
+    }
     let names = std::iter::once(r.t_index).chain(others).map(|i| r.names[i].clone()).collect();
     let mut rec = Recording::from_columns(origin, names, columns);
     rec.out_of_range = r.out_of_range();

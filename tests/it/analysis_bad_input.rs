@@ -301,3 +301,44 @@ fn unknown_text_unreadable_files_fifos_and_pipes() {
         assert!(o.status.success(), "{}", stderr(&o));
     }
 }
+
+/// `analyze` keeps what its fit needs and not much more: a 400 s recording (400 001 rows) analysed under a data
+/// limit (RLIMIT_DATA, which counts every heap allocation, deterministic unlike a sampled RSS) of twice the
+/// series' own size and 20 MB for the process. The code before held the recording beside its series and every
+/// candidate's prediction: it needed ~300 bytes a row, and aborts here.
+#[test]
+fn a_long_recording_is_analysed_in_twice_the_memory_of_its_series() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let rec = tmp.path().join("long.csv");
+    let out = Command::new(support::bin())
+        .args(["simulate", "--duration", "400", "--seed", "2", "--model"])
+        .arg(support::root().join("config/plant.toml"))
+        .arg("--out")
+        .arg(&rec)
+        .output()
+        .expect("simulate runs");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rows: u64 = 400_001;
+    // the series: 15 per-row vectors of f64
+    let series_kb = rows * 15 * 8 / 1024;
+    let limit_kb = 2 * series_kb + 20 * 1024;
+    let json = tmp.path().join("a.json");
+    let script = format!("ulimit -d {limit_kb} && exec \"$0\" analyze \"$1\" --model \"$2\" --json \"$3\"",);
+    let model = support::root().join("config/plant.toml");
+    let mut child = Command::new("sh")
+        .args(["-c", &script])
+        .arg(support::bin())
+        .args([rec.as_os_str(), model.as_os_str(), json.as_os_str()])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("sh");
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while child.try_wait().expect("wait").is_none() {
+        assert!(Instant::now() < deadline, "analyze of 400 s took longer than 120 s");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let o = child.wait_with_output().expect("output");
+    assert!(o.status.success(), "analyze within {limit_kb} kB: {:?} {}", o.status, stderr(&o));
+    assert!(json.exists());
+}
