@@ -250,6 +250,36 @@ impl Validation {
     }
 }
 
+/// How many learnt windows [`Drift`] remembers (two staggered sequences of 1.5 s windows: about 15 s).
+const DRIFT_WINDOWS: usize = 20;
+
+/// The adapted J and B after each of the last [`DRIFT_WINDOWS`] learnt windows. An estimate that moved by Δ over
+/// that horizon is not known better than Δ/2 (one sd: its 2-sd interval holds the values it had), whatever the
+/// RLS's covariance says: a load its nuisance follows only roughly (random, impacts) moves J and B from window to
+/// window by more than the windows' own fits claim. The standard deviations that decide *identified* and that are
+/// reported are at least this; the values that stand are not changed by it.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Drift {
+    values: [(f64, f64); DRIFT_WINDOWS],
+    len: usize,
+    next: usize,
+}
+
+impl Drift {
+    pub fn push(&mut self, j: f64, b: f64) {
+        self.values[self.next] = (j, b);
+        self.next = (self.next + 1) % DRIFT_WINDOWS;
+        self.len = (self.len + 1).min(DRIFT_WINDOWS);
+    }
+
+    /// Half the largest distance of a remembered (J, B) from `(j, b)`, per parameter.
+    pub fn sd_floor(&self, j: f64, b: f64) -> (f64, f64) {
+        self.values[..self.len]
+            .iter()
+            .fold((0.0, 0.0), |(dj, db), &(x, y)| (dj.max(0.5 * (x - j).abs()), db.max(0.5 * (y - b).abs())))
+    }
+}
+
 /// One 0.1 s block of the character's horizon.
 #[derive(Debug, Clone, Copy, Default)]
 struct CharBlock {

@@ -23,12 +23,12 @@
 //!   prior uncertainty back (never silently at a bound). P is the parameter covariance (residuals are weighed by
 //!   the speed noise), so `inertia_sd_kg_m2` is a standard deviation.
 //! - B (reported, and used by the load tracker) is the same windows' B pooled as a random-effects mean
-//!   ([`ViscousPool`]): under a smooth load the windows' B scatter far beyond what each claims, and the pool's
+//!   ([`WindowPool`]): under a smooth load the windows' B scatter far beyond what each claims, and the pool's
 //!   `viscous_sd_nm_s_rad` says so instead of trusting whichever windows came first.
 
 use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
 
-use super::guard::{Character, Identification, Validation};
+use super::guard::{Character, Drift, Identification, Validation};
 use super::kalman::Kalman;
 use super::periodic::PeriodicLoad;
 use super::settings::Resolved;
@@ -155,7 +155,7 @@ pub(crate) enum Verdict {
 /// Informative windows pooled for B.
 const POOL: usize = 40;
 
-/// B from the windows as a random-effects mean (DerSimonian–Laird), robust (Huber). A window's B is biased by
+/// B (and, for its credible standard deviation, J) from the windows as a random-effects mean (DerSimonian–Laird), robust (Huber). A window's B is biased by
 /// whatever part of the load its nuisance did not follow (a sine's curvature over a setpoint change), differently
 /// in each window; so the windows are pooled as studies of one B, each with its own variance plus a between-window
 /// variance τ² learnt from their scatter. Consistent windows (brake steps) give a tight B; scattered ones (sine
@@ -163,7 +163,7 @@ const POOL: usize = 40;
 /// answer of whichever windows came first. The prior (the model's B) is one more, fixed, study; old windows leave
 /// the pool, so a wrong B recovers.
 #[derive(Debug, Clone)]
-struct ViscousPool {
+struct WindowPool {
     prior: (f64, f64),
     windows: [(f64, f64); POOL],
     /// Each window's mean speed: a B that grows with the speed it was measured at is a load that follows the speed.
@@ -175,9 +175,9 @@ struct ViscousPool {
     estimate: (f64, f64),
 }
 
-impl ViscousPool {
-    fn new(b: f64, var: f64, bounds: [f64; 2]) -> ViscousPool {
-        ViscousPool {
+impl WindowPool {
+    fn new(b: f64, var: f64, bounds: [f64; 2]) -> WindowPool {
+        WindowPool {
             prior: (b, var),
             windows: [(0.0, 0.0); POOL],
             speeds: [0.0; POOL],
@@ -308,7 +308,10 @@ pub(crate) struct WindowRls {
     overdispersion: Vector2<f64>,
     /// Windows learnt from, rejected, and with a step found: for diagnostics.
     pub counts: [u64; 4],
-    viscous: ViscousPool,
+    viscous: WindowPool,
+    /// J from the same windows, pooled as B is, rejected windows included: the RLS leaves out the windows that
+    /// contradict it, so its own covariance is surer than the windows are (guard: `RlsSgd::credible`).
+    inertia: WindowPool,
     s: Resolved,
 }
 
@@ -333,11 +336,12 @@ impl WindowRls {
             last_window: [None, None],
             overdispersion: Vector2::new(1.0, 1.0),
             counts: [0; 4],
-            viscous: ViscousPool::new(
+            viscous: WindowPool::new(
                 s.initial_viscous_nm_s_rad,
                 (s.viscous_prior_sd * s.initial_viscous_nm_s_rad.max(b0)).powi(2),
                 s.viscous_bounds_nm_s_rad,
             ),
+            inertia: WindowPool::new(j, (s.inertia_prior_sd * j).powi(2), s.inertia_bounds_kg_m2),
             s,
         }
     }
@@ -541,6 +545,8 @@ impl WindowRls {
                 if (blo - 3.0 * sd_w..=bhi + 3.0 * sd_w).contains(&b_w) {
                     let speed = w.rows.iter().map(|r| r.omega).sum::<f64>() / n as f64;
                     self.viscous.add(b_w, var_w, speed);
+                    let gj = Vector2::new(-self.j0 / (t0 * t0), 0.0);
+                    self.inertia.add(self.j0 / t0, gj.dot(&(c * gj)), speed);
                 }
             }
         }
@@ -729,6 +735,8 @@ pub struct RlsSgd {
     /// J's and B's identification and which adapted values stand: judged when `combined` is refreshed (a window
     /// learnt, a block of the periodic fit), not every sample.
     judged: ((Identification, Identification), (bool, bool)),
+    /// J and B after each recent window: the floor of the standard deviations reported and judged.
+    drift: Drift,
 }
 
 /// How far from the nominal B a B can plausibly be friction (the battery starts its models up to ×3 off).
@@ -760,6 +768,7 @@ impl RlsSgd {
             validation: Validation::default(),
             character: Character::default(),
             judged: ((Identification::TooLittleExcitation, Identification::TooLittleExcitation), (false, false)),
+            drift: Drift::default(),
         };
         est.combined = est.parameters();
         est.judged = est.judge();
@@ -815,6 +824,7 @@ impl RlsSgd {
         let mut changed =
             self.s.periodic_load && self.periodic.push(dt, (w0, t0), (w1, t1), self.s.viscous_bounds_nm_s_rad);
         let length = self.s.rls_period_s;
+        let mut learnt = false;
         let first_age = self.windows[0].rows.last().map(|r| r.s);
         for i in 0..2 {
             let Some(prev) = self.windows[i].rows.last().copied() else {
@@ -840,12 +850,17 @@ impl RlsSgd {
                     self.validation.score(n, a, noise);
                 }
                 changed = true;
+                learnt = true;
                 self.windows[i].rows.clear();
                 self.windows[i].rows.push(Row { s: 0.0, omega: w1, i_torque: 0.0, i_speed: 0.0 });
             }
         }
         if changed {
             self.combined = self.parameters();
+            if learnt {
+                let ((b, _), (j, _)) = self.combined;
+                self.drift.push(j, b);
+            }
             self.judged = self.judge();
         }
     }
@@ -872,16 +887,30 @@ impl RlsSgd {
     }
 
     /// The verdicts and what stands, for [`RlsSgd::judged`].
+    /// What stands is decided on the fit's own standard deviations, as before the credible ones: those only make
+    /// the report less sure, never the estimate different.
     fn judge(&self) -> ((Identification, Identification), (bool, bool)) {
-        let v = self.verdicts();
-        (v, self.standing(v))
+        let ((b, viscous_var), (j, inertia_var)) = self.combined;
+        let fit = self.verdicts((b, j), (inertia_var.sqrt(), viscous_var.sqrt()));
+        let (values, sds) = self.credible();
+        (self.verdicts(values, sds), self.standing(fit))
+    }
+
+    /// The adapted (B, J) and their standard deviations as far as they are credible: the combined fit's, at least
+    /// what the estimate moved lately ([`Drift`]).
+    fn credible(&self) -> ((f64, f64), (f64, f64)) {
+        let ((b, viscous_var), (j, inertia_var)) = self.combined;
+        let (dj, db) = self.drift.sd_floor(j, b);
+        // the windows' own J, pooled with the scatter between them: as sure as they are, and at least as far
+        // from the RLS's J as the two differ
+        let (jp, jp_var) = self.rls.inertia.estimate;
+        let pooled = jp_var.sqrt().max(0.5 * (j - jp).abs());
+        ((b, j), (inertia_var.sqrt().max(dj).max(pooled), viscous_var.sqrt().max(db)))
     }
 
     /// What the data say of J and B now (module doc of `guard.rs`).
-    fn verdicts(&self) -> (Identification, Identification) {
-        let ((b, viscous_var), (j, inertia_var)) = self.combined;
+    fn verdicts(&self, (b, j): (f64, f64), (j_sd, b_sd): (f64, f64)) -> (Identification, Identification) {
         let (j0, b0) = self.nominal_parameters();
-        let (j_sd, b_sd) = (inertia_var.sqrt(), viscous_var.sqrt());
         let in_force = self.validation.in_force;
         let known = |sd: f64, x: f64, limit: f64| sd <= limit * x.abs();
         // identified needs evidence: the windows said the adapted values predict better, or they agree with the
@@ -950,7 +979,7 @@ impl Estimator for RlsSgd {
     }
 
     fn estimate(&self) -> Estimate {
-        let ((b, viscous_var), (j, inertia_var)) = self.combined;
+        let ((b, _), (j, _)) = self.combined;
         let (j0, b0) = self.nominal_parameters();
         let ((inertia, viscous), (j_stands, b_stands)) = self.judged;
         // the load as tracked on the values that stand: the adapted tracker where both do, else the fallback one
@@ -959,8 +988,9 @@ impl Estimator for RlsSgd {
         // a value that stands without the data's backing is the nominal with the prior's uncertainty
         let prior_j_sd = self.s.inertia_prior_sd * j0;
         let prior_b_sd = self.s.viscous_prior_sd * b0.max(self.s.viscous_bounds_nm_s_rad[1] / 5.0);
-        let (j, j_sd) = if j_stands { (j, inertia_var.sqrt()) } else { (j0, prior_j_sd) };
-        let (b, b_sd) = if b_stands { (b, viscous_var.sqrt()) } else { (b0, prior_b_sd) };
+        let (_, (credible_j_sd, credible_b_sd)) = self.credible();
+        let (j, j_sd) = if j_stands { (j, credible_j_sd) } else { (j0, prior_j_sd) };
+        let (b, b_sd) = if b_stands { (b, credible_b_sd) } else { (b0, prior_b_sd) };
         Estimate {
             omega_hat_rad_s: fast.omega_hat_rad_s,
             load_hat_nm: fast.load_hat_nm,
@@ -999,14 +1029,14 @@ mod tests {
     /// scatter says; the prior alone is the prior; a pool full of new windows forgets a wrong start.
     #[test]
     fn the_viscous_pool_is_as_sure_as_the_windows_agree() {
-        let mut agree = ViscousPool::new(0.12, 0.01, [0.0, 0.5]);
+        let mut agree = WindowPool::new(0.12, 0.01, [0.0, 0.5]);
         assert_eq!(agree.estimate, (0.12, 0.01));
         for i in 0..20 {
             agree.add(0.04 + 0.002 * if i % 2 == 0 { 1.0 } else { -1.0 }, 0.002f64.powi(2), 10.0 + i as f64);
         }
         let (b, var) = agree.estimate;
         assert!((b - 0.04).abs() < 1e-3 && var.sqrt() < 1e-3, "{b} ± {}", var.sqrt());
-        let mut scatter = ViscousPool::new(0.12, 0.01, [0.0, 0.5]);
+        let mut scatter = WindowPool::new(0.12, 0.01, [0.0, 0.5]);
         let biases = [0.05, -0.04, 0.03, -0.06, 0.02, -0.03, 0.06, -0.05, 0.04, -0.02];
         for bias in biases.iter().chain(biases.iter()) {
             scatter.add(0.04 + bias, 0.002f64.powi(2), 30.0);
