@@ -200,10 +200,11 @@ impl DriveSim {
     fn refresh_image(&mut self) {
         let s = self.plant.state();
         let back_bar = pa_to_bar(self.plant.coefficients().back_pressure_pa);
-        let p_in = self.faults.inlet_pressure_override_bar.unwrap_or(pa_to_bar(s.p_in_pa) + self.noise.pressure());
+        let reading = self.noise.pressure_reading(pa_to_bar(s.p_in_pa));
+        let p_in = self.faults.inlet_pressure_override_bar.unwrap_or(reading);
         let values = [
             (self.map.inlet_pressure_bar, p_in),
-            (self.map.outlet_pressure_bar, back_bar + self.noise.pressure()),
+            (self.map.outlet_pressure_bar, self.noise.pressure_reading(back_bar)),
             (self.map.shaft_speed_rpm, rad_s_to_rpm(s.omega_rad_s + self.noise.speed())),
             (self.map.drive_frequency_hz, s.f_hz),
             (self.map.status_word, f64::from(self.status_word())),

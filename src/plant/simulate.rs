@@ -70,8 +70,8 @@ pub fn run_into(
             t,
             f_set,
             s.f_hz,
-            p_in_bar + noise.pressure(),
-            back_pressure_bar + noise.pressure(),
+            noise.pressure_reading(p_in_bar),
+            noise.pressure_reading(back_pressure_bar),
             s.omega_rad_s + noise.speed(),
             load + noise.load(),
             s.omega_rad_s,
@@ -118,6 +118,13 @@ impl SensorNoise {
         Self::draw(&mut self.rng, self.pressure)
     }
 
+    /// What a pressure sensor reads of `bar`: with its noise, and never beyond its range (it saturates there), so
+    /// that a simulated recording holds no cell a reader must take as missing.
+    pub fn pressure_reading(&mut self, bar: f64) -> f64 {
+        let (lo, hi) = super::PRESSURE_SENSOR_RANGE_BAR;
+        (bar + self.pressure()).clamp(lo, hi)
+    }
+
     pub fn speed(&mut self) -> f64 {
         Self::draw(&mut self.rng, self.speed)
     }
@@ -130,6 +137,18 @@ impl SensorNoise {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_pressure_sensor_saturates_at_its_range_and_never_reads_beyond_it() {
+        let mut model = PlantModel::reference();
+        model.sensors.pressure_noise_bar = 50.0;
+        let mut noise = SensorNoise::new(&model, 7);
+        let (lo, hi) = crate::plant::PRESSURE_SENSOR_RANGE_BAR;
+        let near_zero: Vec<f64> = (0..1000).map(|_| noise.pressure_reading(0.0)).collect();
+        assert!(near_zero.iter().all(|p| (lo..=hi).contains(p)));
+        assert!(near_zero.contains(&lo), "a vacuum reading saturates at {lo} bar");
+        assert!((0..1000).map(|_| noise.pressure_reading(390.0)).any(|p| p == hi));
+    }
 
     #[test]
     fn a_leak_that_grows_slows_the_motor_as_the_worn_model_does() {

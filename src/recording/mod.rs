@@ -37,7 +37,7 @@ pub const KNOWN_COLUMNS: [&str; 19] = concat(
 );
 
 /// Inlet and outlet pressure a sensor reads (bar, gauge): the service's `[drives.limits]` defaults too.
-pub const PRESSURE_RANGE_BAR: (f64, f64) = (-1.0, 400.0);
+pub const PRESSURE_RANGE_BAR: (f64, f64) = crate::plant::PRESSURE_SENSOR_RANGE_BAR;
 /// The largest shaft speed a tachogenerator reads (rad/s, either way).
 pub const MAX_SPEED_RAD_S: f64 = 1000.0;
 /// The highest drive frequency (Hz); a drive reads back down to −0.5 Hz at standstill.
