@@ -72,8 +72,8 @@ pub const COVERAGE_SIGMAS: f64 = 2.0;
 pub struct GuardVerdict {
     /// T̂_L no worse than the nominal-model Kalman filter's (within [`NOMINAL_RMSE_FACTOR`]).
     pub no_harm: bool,
-    /// Where the final J and B are both identified: T̂_L within [`LOAD_RMSE_FACTOR`] of the Kalman filter told the
-    /// truth. None where they are not.
+    /// Where the final J is identified and B known (identified, or known as friction or a load ∝ ω): T̂_L within
+    /// [`LOAD_RMSE_FACTOR`] of the Kalman filter told the truth. None where they are not.
     pub near_truth_reference: Option<bool>,
     /// Checkpoint values (J and B at each) whose truth lies within [`COVERAGE_SIGMAS`] or that are flagged not
     /// identified, and all checkpoint values.
@@ -141,8 +141,11 @@ impl Run {
         }
         GuardVerdict {
             no_harm: self.nominal_ratio() <= NOMINAL_RMSE_FACTOR,
-            near_truth_reference: (identified(last.inertia_identified) && identified(last.viscous_identified))
-                .then(|| self.load_ratio() <= LOAD_RMSE_FACTOR),
+            // B known as the speed term counts, whether or not it can be called friction (`FrictionOrLoad`)
+            near_truth_reference: (identified(last.inertia_identified)
+                && (identified(last.viscous_identified)
+                    || last.viscous_identified == super::Identification::FrictionOrLoad.code()))
+            .then(|| self.load_ratio() <= LOAD_RMSE_FACTOR),
             covered,
             inertia_sound,
         }

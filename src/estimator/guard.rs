@@ -58,13 +58,17 @@ pub enum Identification {
     NominalPredictsAsWell,
     /// The load follows the speed, so its speed-dependent part cannot be told from friction: the nominal stands.
     LoadFollowsSpeed,
+    /// B (the torque proportional to the speed) differs from the model's beyond its uncertainty: friction that
+    /// changed, or a load proportional to the speed, which no data of speed and drive torque tell apart. The
+    /// adapted value (their sum) may stand; it is not called friction.
+    FrictionOrLoad,
     /// Not estimated: the model's value (kalman, paper-literal).
     FromModel,
 }
 
 impl Identification {
     /// The code in recordings and metrics: 1 identified, 0 too little excitation, −1 the nominal predicts as well,
-    /// −2 not separable from the load, −3 the model's value.
+    /// −2 not separable from the load, −3 the model's value, −4 friction or a load proportional to the speed.
     pub fn code(self) -> f64 {
         match self {
             Identification::Identified => 1.0,
@@ -72,15 +76,17 @@ impl Identification {
             Identification::NominalPredictsAsWell => -1.0,
             Identification::LoadFollowsSpeed => -2.0,
             Identification::FromModel => -3.0,
+            Identification::FrictionOrLoad => -4.0,
         }
     }
 
-    pub const ALL: [Identification; 5] = [
+    pub const ALL: [Identification; 6] = [
         Identification::Identified,
         Identification::TooLittleExcitation,
         Identification::NominalPredictsAsWell,
         Identification::LoadFollowsSpeed,
         Identification::FromModel,
+        Identification::FrictionOrLoad,
     ];
 
     /// The identification of a code (recordings); `FromModel` for anything else.
@@ -96,6 +102,7 @@ impl Identification {
             Identification::NominalPredictsAsWell => "nominal_predicts_as_well",
             Identification::LoadFollowsSpeed => "load_follows_speed",
             Identification::FromModel => "from_model",
+            Identification::FrictionOrLoad => "friction_or_load",
         }
     }
 
@@ -111,6 +118,10 @@ impl Identification {
                 "not identified: the load follows the speed and cannot be told from friction; the nominal stands"
             }
             Identification::FromModel => "not estimated: the model's value",
+            Identification::FrictionOrLoad => {
+                "not identified: differs from the model's, and friction cannot be told from a load proportional to \
+                 the speed; the value is their sum"
+            }
         }
     }
 }

@@ -154,6 +154,9 @@ pub(crate) enum Verdict {
 
 /// Informative windows pooled for B.
 const POOL: usize = 40;
+/// How many times the between-window variance τ² counts in a pool's variance: each sample lies in two windows
+/// (the staggered sequences), so n windows hold about n/2 independent looks at the scatter.
+const OVERLAP: f64 = 2.0;
 
 /// B (and, for its credible standard deviation, J) from the windows as a random-effects mean (DerSimonian–Laird), robust (Huber). A window's B is biased by
 /// whatever part of the load its nuisance did not follow (a sine's curvature over a setpoint change), differently
@@ -171,7 +174,7 @@ struct WindowPool {
     len: usize,
     next: usize,
     bounds: [f64; 2],
-    /// B and its variance.
+    /// The pooled value and its variance.
     estimate: (f64, f64),
 }
 
@@ -257,7 +260,7 @@ impl WindowPool {
         // mean in units of its variance plus the between-window variance τ² (DerSimonian–Laird over the weighted
         // windows), and the prior as one more study.
         let mut tau2 = 0.0;
-        let mut info = 1.0 / pv;
+        let mut honest = 1.0 / pv;
         for _ in 0..6 {
             let h = |x: f64, v: f64, t2: f64| {
                 let z = (x - m).abs() / (v + t2).sqrt();
@@ -277,16 +280,18 @@ impl WindowPool {
                 tau2 = ((q - (sh - 1.0)) / (sw - sw2 / sw)).max(0.0);
             }
             let mut b = pb / pv;
-            info = 1.0 / pv;
+            let mut info = 1.0 / pv;
+            honest = 1.0 / pv;
             for &(x, v) in w {
                 let hw = h(x, v, tau2) / (v + tau2);
                 info += hw;
+                honest += h(x, v, tau2) / (v + OVERLAP * tau2);
                 b += hw * x;
             }
             m = b / info;
         }
         let [lo, hi] = self.bounds;
-        if m < lo || m > hi { (m.clamp(lo, hi), pv) } else { (m, 1.0 / info) }
+        if m < lo || m > hi { (m.clamp(lo, hi), pv) } else { (m, 1.0 / honest) }
     }
 }
 
@@ -892,8 +897,15 @@ impl RlsSgd {
     fn judge(&self) -> ((Identification, Identification), (bool, bool)) {
         let ((b, viscous_var), (j, inertia_var)) = self.combined;
         let fit = self.verdicts((b, j), (inertia_var.sqrt(), viscous_var.sqrt()));
-        let (values, sds) = self.credible();
-        (self.verdicts(values, sds), self.standing(fit))
+        let ((b, j), sds) = self.credible();
+        let (inertia, mut viscous) = self.verdicts((b, j), sds);
+        // a B the data give away from the model's is friction or a load that follows the speed: never called
+        // friction (identified), only their sum
+        let b0 = self.nominal_parameters().1;
+        if viscous == Identification::Identified && (b - b0).abs() > 2.0 * sds.1 {
+            viscous = Identification::FrictionOrLoad;
+        }
+        ((inertia, viscous), self.standing(fit))
     }
 
     /// The adapted (B, J) and their standard deviations as far as they are credible: the combined fit's, at least
