@@ -519,6 +519,24 @@ mod tests {
         assert_eq!(gear.character, LoadCharacter::PeriodicInShaftAngle);
     }
 
+    /// An estimate that moved from 0.10 to 0.08 over the remembered windows is not known better than ±0.01; one
+    /// that held still is not floored at all; the oldest window leaves.
+    #[test]
+    fn an_estimate_is_not_surer_than_it_moved_lately() {
+        let mut d = Drift::default();
+        assert_eq!(d.sd_floor(0.08, 0.04), (0.0, 0.0));
+        for k in 0..=DRIFT_WINDOWS {
+            d.push(0.10 - 0.02 * k as f64 / DRIFT_WINDOWS as f64, 0.04);
+        }
+        let (dj, db) = d.sd_floor(0.08, 0.04);
+        assert!((dj - 0.5 * 0.02 * (DRIFT_WINDOWS - 1) as f64 / DRIFT_WINDOWS as f64).abs() < 1e-12, "{dj}");
+        assert_eq!(db, 0.0);
+        for _ in 0..DRIFT_WINDOWS {
+            d.push(0.08, 0.04);
+        }
+        assert_eq!(d.sd_floor(0.08, 0.04), (0.0, 0.0));
+    }
+
     #[test]
     fn adapted_parameters_come_into_force_only_when_they_predict_better() {
         let run = |scores: &[(f64, f64)]| {
