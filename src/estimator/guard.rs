@@ -428,14 +428,15 @@ fn periodic_peak(x: &[f64]) -> f64 {
     let n = x.len();
     let mean = x.iter().sum::<f64>() / n.max(1) as f64;
     let c: Vec<f64> = x.iter().map(|v| v - mean).collect();
+    // sums of squares of every prefix: each lag's two energies without a pass of their own
+    let mut energy = vec![0.0; n + 1];
+    for (i, v) in c.iter().enumerate() {
+        energy[i + 1] = energy[i] + v * v;
+    }
     let r: Vec<f64> = (0..n * 2 / 3)
         .map(|lag| {
-            let (mut xy, mut xx, mut yy) = (0.0, 0.0, 0.0);
-            for i in 0..n - lag {
-                xy += c[i] * c[i + lag];
-                xx += c[i] * c[i];
-                yy += c[i + lag] * c[i + lag];
-            }
+            let xy: f64 = c[..n - lag].iter().zip(&c[lag..]).map(|(a, b)| a * b).sum();
+            let (xx, yy) = (energy[n - lag], energy[n] - energy[lag]);
             if xx > 0.0 && yy > 0.0 { xy / (xx * yy).sqrt() } else { 0.0 }
         })
         .collect();
@@ -474,8 +475,9 @@ fn stepping_share(x: &[f64]) -> f64 {
     if total <= 0.0 {
         return 0.0;
     }
-    d.sort_by(|a, b| b.total_cmp(a));
+    // the largest tenth in front, in no order (no sort: this runs every 2.5 s on every drive)
     let top = d.len().div_ceil(10);
+    d.select_nth_unstable_by(top - 1, |a, b| b.total_cmp(a));
     d[..top].iter().sum::<f64>() / total
 }
 

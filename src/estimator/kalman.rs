@@ -45,6 +45,13 @@ impl Kalman {
         Matrix2::new(s.speed_noise_rad_s.powi(2), 0.0, 0.0, s.initial_load_sigma_nm.powi(2))
     }
 
+    /// Moves the load estimate by `delta` (N·m): a tracker taking over another's state on other J and B.
+    pub(crate) fn shift_load(&mut self, delta: f64) {
+        if delta.is_finite() {
+            self.x[1] = (self.x[1] + delta).clamp(-self.s.max_load_nm, self.s.max_load_nm);
+        }
+    }
+
     /// The state covariance, for tests and diagnostics.
     pub fn covariance(&self) -> Matrix2<f64> {
         self.p

@@ -698,7 +698,13 @@ pub(crate) fn condition<const N: usize>(
             p[(i, i)] = floor;
         }
     }
-    if p.cholesky().is_some() { p } else { fresh() }
+    if positive_definite(&p) { p } else { fresh() }
+}
+
+/// Whether a symmetric, finite matrix is positive definite: for 2×2 (every update of both trackers) its leading
+/// minors, which is what a Cholesky factorisation checks, without the factorisation.
+fn positive_definite<const N: usize>(p: &nalgebra::SMatrix<f64, N, N>) -> bool {
+    if N == 2 { p[(0, 0)] > 0.0 && p[(0, 0)] * p[(1, 1)] - p[(0, 1)] * p[(1, 0)] > 0.0 } else { p.cholesky().is_some() }
 }
 
 /// A two-sided CUSUM on normalised innovations: says when the load has jumped.
@@ -741,14 +747,21 @@ pub struct RlsSgd {
     /// where the adapted B does not stand), the held-out test of the adapted parameters against the nominal ones,
     /// and the load's character.
     fallback: Kalman,
+    /// Whether `fallback` ran at the last sample rather than `tracker` (it runs where B does not stand).
+    fallback_running: bool,
     validation: Validation,
     character: Character,
     /// J's and B's identification and which adapted values stand: judged when `combined` is refreshed (a window
     /// learnt, a block of the periodic fit), not every sample.
-    judged: ((Identification, Identification), (bool, bool)),
+    judged: Judged,
+    /// J's and B's credible standard deviations ([`RlsSgd::credible`]), refreshed with `judged`.
+    credible_sd: (f64, f64),
     /// J and B after each recent window: the floor of the standard deviations reported and judged.
     drift: Drift,
 }
+
+/// J's and B's identification, and whether the adapted J and B stand.
+type Judged = ((Identification, Identification), (bool, bool));
 
 /// How far from the nominal B a B can plausibly be friction (the battery starts its models up to ×3 off).
 const PLAUSIBLE_VISCOUS_FACTOR: f64 = 4.0;
@@ -776,13 +789,15 @@ impl RlsSgd {
             periodic: PeriodicLoad::default(),
             combined: ((0.0, 0.0), (0.0, 0.0)),
             fallback: Kalman::new(s),
+            fallback_running: false,
             validation: Validation::default(),
             character: Character::default(),
             judged: ((Identification::TooLittleExcitation, Identification::TooLittleExcitation), (false, false)),
             drift: Drift::default(),
+            credible_sd: (0.0, 0.0),
         };
         est.combined = est.parameters();
-        est.judged = est.judge();
+        (est.judged, est.credible_sd) = est.judge();
         est
     }
 
@@ -872,7 +887,7 @@ impl RlsSgd {
                 let ((b, _), (j, _)) = self.combined;
                 self.drift.push(j, b);
             }
-            self.judged = self.judge();
+            (self.judged, self.credible_sd) = self.judge();
         }
     }
 
@@ -897,10 +912,10 @@ impl RlsSgd {
         (j, b)
     }
 
-    /// The verdicts and what stands, for [`RlsSgd::judged`].
-    /// What stands is decided on the fit's own standard deviations, as before the credible ones: those only make
-    /// the report less sure, never the estimate different.
-    fn judge(&self) -> ((Identification, Identification), (bool, bool)) {
+    /// The verdicts and what stands, for [`RlsSgd::judged`], and the credible standard deviations. What stands is
+    /// decided on the fit's own standard deviations: the credible ones only make the report less sure, never the
+    /// estimate different.
+    fn judge(&self) -> (Judged, (f64, f64)) {
         let ((b, viscous_var), (j, inertia_var)) = self.combined;
         let fit = self.verdicts((b, j), (inertia_var.sqrt(), viscous_var.sqrt()));
         let ((b, j), sds) = self.credible();
@@ -911,7 +926,7 @@ impl RlsSgd {
         if viscous == Identification::Identified && (b - b0).abs() > 2.0 * sds.1 {
             viscous = Identification::FrictionOrLoad;
         }
-        ((inertia, viscous), self.standing(fit))
+        (((inertia, viscous), self.standing(fit)), sds)
     }
 
     /// The adapted (B, J) and their standard deviations as far as they are credible: the combined fit's, at least
@@ -979,11 +994,30 @@ impl Estimator for RlsSgd {
         let (j0, b0) = self.nominal_parameters();
         let scale = self.s.eta / PAPER_ETA;
         let (_, (j_stands, b_stands)) = self.judged;
-        let adapted = self.tracker.step_with(m, j, b, scale);
-        let fallback = self.fallback.step_with(m, if j_stands { j } else { j0 }, b0, scale);
+        // One tracker runs at a time, the one in use: where B stands the adapted one, else the fallback on the
+        // nominal B. The one that takes over starts from the other's state, its load moved by the torque the two
+        // B's attribute differently, (B − B₀)·ω̂; the adapted tracker's load, which the character needs, is the
+        // fallback's moved back likewise.
+        let shift = |omega: f64| (b - b0) * omega;
+        if b_stands == self.fallback_running {
+            if b_stands {
+                self.tracker = self.fallback.clone();
+                self.tracker.shift_load(-shift(self.fallback.estimate().omega_hat_rad_s));
+            } else {
+                self.fallback = self.tracker.clone();
+                self.fallback.shift_load(shift(self.tracker.estimate().omega_hat_rad_s));
+            }
+        }
+        self.fallback_running = !b_stands;
+        let (used, adapted_load) = if b_stands {
+            let e = self.tracker.step_with(m, j, b, scale);
+            (e, e.load_hat_nm)
+        } else {
+            let e = self.fallback.step_with(m, if j_stands { j } else { j0 }, b0, scale);
+            (e, e.load_hat_nm - shift(e.omega_hat_rad_s))
+        };
         if let Some(dt) = c.dt_s {
-            let used = if b_stands { adapted } else { fallback };
-            self.character.push(dt, adapted.load_hat_nm, used.load_hat_nm, used.omega_hat_rad_s);
+            self.character.push(dt, adapted_load, used.load_hat_nm, used.omega_hat_rad_s);
         }
         if !self.rls.theta.iter().all(|v| v.is_finite()) {
             // Cannot happen with the guards above; if it does, start over rather than report garbage.
@@ -1006,7 +1040,7 @@ impl Estimator for RlsSgd {
         // a value that stands without the data's backing is the nominal with the prior's uncertainty
         let prior_j_sd = self.s.inertia_prior_sd * j0;
         let prior_b_sd = self.s.viscous_prior_sd * b0.max(self.s.viscous_bounds_nm_s_rad[1] / 5.0);
-        let (_, (credible_j_sd, credible_b_sd)) = self.credible();
+        let (credible_j_sd, credible_b_sd) = self.credible_sd;
         let (j, j_sd) = if j_stands { (j, credible_j_sd) } else { (j0, prior_j_sd) };
         let (b, b_sd) = if b_stands { (b, credible_b_sd) } else { (b0, prior_b_sd) };
         Estimate {
