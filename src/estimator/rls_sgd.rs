@@ -749,6 +749,8 @@ pub struct RlsSgd {
     fallback: Kalman,
     /// Whether `fallback` ran at the last sample rather than `tracker` (it runs where B does not stand).
     fallback_running: bool,
+    /// The B `tracker` last ran on.
+    tracked_b: f64,
     validation: Validation,
     character: Character,
     /// J's and B's identification and which adapted values stand: judged when `combined` is refreshed (a window
@@ -790,6 +792,7 @@ impl RlsSgd {
             combined: ((0.0, 0.0), (0.0, 0.0)),
             fallback: Kalman::new(s),
             fallback_running: false,
+            tracked_b: s.initial_viscous_nm_s_rad,
             validation: Validation::default(),
             character: Character::default(),
             judged: ((Identification::TooLittleExcitation, Identification::TooLittleExcitation), (false, false)),
@@ -913,12 +916,12 @@ impl RlsSgd {
     }
 
     /// The verdicts and what stands, for [`RlsSgd::judged`], and the credible standard deviations. What stands is
-    /// decided on the fit's own standard deviations: the credible ones only make the report less sure, never the
-    /// estimate different.
+    /// decided on J's credible standard deviation and B's own: B's credible one there traded runs that hold on the
+    /// six families for no-harm runs on the new loads (docs/estimator.md), J's cost nothing and gained.
     fn judge(&self) -> (Judged, (f64, f64)) {
-        let ((b, viscous_var), (j, inertia_var)) = self.combined;
-        let fit = self.verdicts((b, j), (inertia_var.sqrt(), viscous_var.sqrt()));
+        let ((_, viscous_var), _) = self.combined;
         let ((b, j), sds) = self.credible();
+        let fit = self.verdicts((b, j), (sds.0, viscous_var.sqrt()));
         let (inertia, mut viscous) = self.verdicts((b, j), sds);
         // a B the data give away from the model's is friction or a load that follows the speed: never called
         // friction (identified), only their sum
@@ -998,23 +1001,25 @@ impl Estimator for RlsSgd {
         // nominal B. The one that takes over starts from the other's state, its load moved by the torque the two
         // B's attribute differently, (B − B₀)·ω̂; the adapted tracker's load, which the character needs, is the
         // fallback's moved back likewise.
-        let shift = |omega: f64| (b - b0) * omega;
+        let shift = |b: f64, omega: f64| (b - b0) * omega;
         if b_stands == self.fallback_running {
             if b_stands {
                 self.tracker = self.fallback.clone();
-                self.tracker.shift_load(-shift(self.fallback.estimate().omega_hat_rad_s));
+                self.tracker.shift_load(-shift(b, self.fallback.estimate().omega_hat_rad_s));
             } else {
+                // the adapted tracker's load goes with the B it last ran on, not the one that just left force
                 self.fallback = self.tracker.clone();
-                self.fallback.shift_load(shift(self.tracker.estimate().omega_hat_rad_s));
+                self.fallback.shift_load(shift(self.tracked_b, self.tracker.estimate().omega_hat_rad_s));
             }
         }
         self.fallback_running = !b_stands;
         let (used, adapted_load) = if b_stands {
             let e = self.tracker.step_with(m, j, b, scale);
+            self.tracked_b = b;
             (e, e.load_hat_nm)
         } else {
             let e = self.fallback.step_with(m, if j_stands { j } else { j0 }, b0, scale);
-            (e, e.load_hat_nm - shift(e.omega_hat_rad_s))
+            (e, e.load_hat_nm - shift(b, e.omega_hat_rad_s))
         };
         if let Some(dt) = c.dt_s {
             self.character.push(dt, adapted_load, used.load_hat_nm, used.omega_hat_rad_s);
