@@ -10,9 +10,29 @@
 
 use nalgebra::{Matrix2, RowVector2, Vector2};
 
-use super::rls_sgd::{JumpTest, condition};
+use super::covariance::condition;
 use super::settings::Resolved;
 use super::{Checked, Estimate, Estimator, Measurement, step_guarded};
+
+/// A two-sided CUSUM on normalised innovations: says when the load has jumped.
+#[derive(Debug, Clone, Copy, Default)]
+struct JumpTest {
+    up: f64,
+    down: f64,
+}
+
+impl JumpTest {
+    /// Feeds one innovation in units of its σ over `dt`; true when a jump is detected (and the test restarts).
+    pub fn feed(&mut self, z: f64, s: &Resolved) -> bool {
+        self.up = (self.up + z - s.jump_drift).max(0.0);
+        self.down = (self.down - z - s.jump_drift).max(0.0);
+        if self.up > s.jump_threshold || self.down > s.jump_threshold {
+            *self = JumpTest::default();
+            return true;
+        }
+        false
+    }
+}
 
 /// The Kalman filter (method `kalman`).
 #[derive(Debug, Clone)]

@@ -9,6 +9,7 @@
 //! docs/estimator.md gives the design, the measured accuracy and the settings.
 
 pub mod battery;
+mod covariance;
 mod guard;
 mod kalman;
 mod paper;

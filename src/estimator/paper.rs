@@ -6,7 +6,7 @@
 
 use nalgebra::{Matrix2, Vector2};
 
-use super::rls_sgd::condition;
+use super::covariance::condition;
 use super::settings::Resolved;
 use super::{Checked, Estimate, Estimator, Measurement, step_guarded};
 

@@ -28,6 +28,7 @@
 
 use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
 
+use super::covariance::condition;
 use super::guard::{Character, Drift, Identification, Validation};
 use super::kalman::Kalman;
 use super::periodic::PeriodicLoad;
@@ -675,58 +676,6 @@ fn bounded(p: Matrix2<f64>, prior: &Matrix2<f64>) -> Matrix2<f64> {
     if p.cholesky().is_some() { p } else { *prior }
 }
 
-/// Keeps a covariance usable: symmetric, trace at most `max_trace`, diagonal at least `floor`, positive definite
-/// (reset to `reset·I` when it is not, or is not finite).
-pub(crate) fn condition<const N: usize>(
-    p: nalgebra::SMatrix<f64, N, N>,
-    max_trace: f64,
-    floor: f64,
-    reset: f64,
-) -> nalgebra::SMatrix<f64, N, N> {
-    let fresh = || nalgebra::SMatrix::<f64, N, N>::identity() * reset.min(max_trace / N as f64);
-    if !p.iter().all(|v| v.is_finite()) {
-        return fresh();
-    }
-    let mut p = (p + p.transpose()) * 0.5;
-    let tr = p.trace();
-    if tr > max_trace {
-        p *= max_trace / tr;
-    }
-    // A floor well below any information the data can give keeps P strictly positive definite.
-    for i in 0..N {
-        if p[(i, i)] < floor {
-            p[(i, i)] = floor;
-        }
-    }
-    if positive_definite(&p) { p } else { fresh() }
-}
-
-/// Whether a symmetric, finite matrix is positive definite: for 2×2 (every update of both trackers) its leading
-/// minors, which is what a Cholesky factorisation checks, without the factorisation.
-fn positive_definite<const N: usize>(p: &nalgebra::SMatrix<f64, N, N>) -> bool {
-    if N == 2 { p[(0, 0)] > 0.0 && p[(0, 0)] * p[(1, 1)] - p[(0, 1)] * p[(1, 0)] > 0.0 } else { p.cholesky().is_some() }
-}
-
-/// A two-sided CUSUM on normalised innovations: says when the load has jumped.
-#[derive(Debug, Clone, Copy, Default)]
-pub(crate) struct JumpTest {
-    up: f64,
-    down: f64,
-}
-
-impl JumpTest {
-    /// Feeds one innovation in units of its σ over `dt`; true when a jump is detected (and the test restarts).
-    pub fn feed(&mut self, z: f64, s: &Resolved) -> bool {
-        self.up = (self.up + z - s.jump_drift).max(0.0);
-        self.down = (self.down - z - s.jump_drift).max(0.0);
-        if self.up > s.jump_threshold || self.down > s.jump_threshold {
-            *self = JumpTest::default();
-            return true;
-        }
-        false
-    }
-}
-
 /// The corrected RLS+SGD estimator (method `rls-sgd`).
 #[derive(Debug, Clone)]
 pub struct RlsSgd {
@@ -1067,19 +1016,6 @@ mod tests {
     use super::*;
     use crate::estimator::EstimatorSettings;
     use crate::plant::PlantModel;
-
-    #[test]
-    fn condition_symmetrises_bounds_and_resets() {
-        let p = nalgebra::Matrix3::new(2.0, 1.0, 0.0, 0.5, 2.0, 0.0, 0.0, 0.0, 1e9);
-        let q = condition(p, 100.0, 1e-10, 10.0);
-        assert_eq!(q, q.transpose());
-        assert!(q.trace() <= 100.0 + 1e-9);
-        assert!(q.cholesky().is_some());
-        let bad = nalgebra::Matrix3::new(1.0, 5.0, 0.0, 5.0, 1.0, 0.0, 0.0, 0.0, 1.0);
-        assert!(condition(bad, 100.0, 1e-10, 10.0).cholesky().is_some());
-        let nan = nalgebra::Matrix3::from_element(f64::NAN);
-        assert!(condition(nan, 100.0, 1e-10, 10.0).iter().all(|v| v.is_finite()));
-    }
 
     /// Windows that agree give a B as tight as their own claims; windows that each claim ±0.002 but scatter by
     /// ±0.05 (a load their nuisance did not follow) give their average with a standard deviation as wide as the
