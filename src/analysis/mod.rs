@@ -279,13 +279,7 @@ pub fn analyze(
 ) -> Result<Analysis, BadInput> {
     progress(0.0);
     let s = Series::extract(rec, nominal, opts.validation_fraction)?;
-    analyze_series(
-        s,
-        Origin { source: rec.source.clone(), out_of_range: rec.out_of_range.clone() },
-        nominal,
-        opts,
-        progress,
-    )
+    analyze_series(s, Origin::of(rec), nominal, opts, progress)
 }
 
 /// As [`analyze`], the recording given up once the analysis has its series: its columns are not held beside them
@@ -298,7 +292,7 @@ pub fn analyze_owned(
 ) -> Result<Analysis, BadInput> {
     progress(0.0);
     let s = Series::extract(&rec, nominal, opts.validation_fraction)?;
-    let origin = Origin { source: rec.source.clone(), out_of_range: rec.out_of_range.clone() };
+    let origin = Origin::of(&rec);
     drop(rec);
     analyze_series(s, origin, nominal, opts, progress)
 }
@@ -307,6 +301,12 @@ pub fn analyze_owned(
 struct Origin {
     source: String,
     out_of_range: Vec<crate::recording::OutOfRange>,
+}
+
+impl Origin {
+    fn of(rec: &Recording) -> Origin {
+        Origin { source: rec.source.clone(), out_of_range: rec.out_of_range.clone() }
+    }
 }
 
 fn analyze_series(

@@ -10,9 +10,14 @@ use super::support;
 
 /// A 4 s test-stand recording of the reference plant (4001 rows) at `dir/name`.
 fn simulated(dir: &Path, name: &str) -> PathBuf {
+    simulated_for(dir, name, "4", "3")
+}
+
+/// A test-stand recording of the reference plant, `duration` seconds at 1 kHz from `seed`, at `dir/name`.
+fn simulated_for(dir: &Path, name: &str, duration: &str, seed: &str) -> PathBuf {
     let path = dir.join(name);
     let out = Command::new(support::bin())
-        .args(["simulate", "--duration", "4", "--seed", "3", "--model"])
+        .args(["simulate", "--duration", duration, "--seed", seed, "--model"])
         .arg(support::root().join("config/plant.toml"))
         .arg("--out")
         .arg(&path)
@@ -42,13 +47,17 @@ fn column(path: &Path, name: &str) -> usize {
 }
 
 fn run(args: &[&std::ffi::OsStr], deadline: Duration) -> Output {
-    let mut child =
-        Command::new(support::bin()).args(args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("runs");
+    run_command(Command::new(support::bin()).args(args), deadline)
+}
+
+/// Runs `command` with its output gathered; it fails the test when it outlives `deadline`.
+fn run_command(command: &mut Command, deadline: Duration) -> Output {
+    let mut child = command.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("runs");
     let start = Instant::now();
     while child.try_wait().expect("wait").is_none() {
         if start.elapsed() > deadline {
             let _ = child.kill();
-            panic!("{args:?} took longer than {deadline:?}");
+            panic!("{command:?} took longer than {deadline:?}");
         }
         std::thread::sleep(Duration::from_millis(20));
     }
@@ -309,36 +318,22 @@ fn unknown_text_unreadable_files_fifos_and_pipes() {
 #[test]
 fn a_long_recording_is_analysed_in_twice_the_memory_of_its_series() {
     let tmp = tempfile::tempdir().expect("tmp");
-    let rec = tmp.path().join("long.csv");
-    let out = Command::new(support::bin())
-        .args(["simulate", "--duration", "400", "--seed", "2", "--model"])
-        .arg(support::root().join("config/plant.toml"))
-        .arg("--out")
-        .arg(&rec)
-        .output()
-        .expect("simulate runs");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rec = simulated_for(tmp.path(), "long.csv", "400", "2");
     let rows: u64 = 400_001;
     // the series: 15 per-row vectors of f64
     let series_kb = rows * 15 * 8 / 1024;
     let limit_kb = 2 * series_kb + 20 * 1024;
     let json = tmp.path().join("a.json");
-    let script = format!("ulimit -d {limit_kb} && exec \"$0\" analyze \"$1\" --model \"$2\" --json \"$3\"",);
+    let script = format!("ulimit -d {limit_kb} && exec \"$0\" analyze \"$1\" --model \"$2\" --json \"$3\"");
     let model = support::root().join("config/plant.toml");
-    let mut child = Command::new("sh")
-        .args(["-c", &script])
-        .arg(support::bin())
-        .args([rec.as_os_str(), model.as_os_str(), json.as_os_str()])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("sh");
-    let deadline = Instant::now() + Duration::from_secs(120);
-    while child.try_wait().expect("wait").is_none() {
-        assert!(Instant::now() < deadline, "analyze of 400 s took longer than 120 s");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    let o = child.wait_with_output().expect("output");
+    let o = run_command(
+        Command::new("sh").args(["-c", &script]).arg(support::bin()).args([
+            rec.as_os_str(),
+            model.as_os_str(),
+            json.as_os_str(),
+        ]),
+        Duration::from_secs(120),
+    );
     assert!(o.status.success(), "analyze within {limit_kb} kB: {:?} {}", o.status, stderr(&o));
     assert!(json.exists());
 }

@@ -109,6 +109,20 @@ fn exits_2_naming<S: AsRef<OsStr>>(args: &[S], needles: &[&str]) -> String {
     out
 }
 
+/// `simulate --model <model> --duration <duration> --out <out>`.
+fn simulate_args<'a>(model: &'a Path, duration: &'a str, out: &'a Path) -> [&'a OsStr; 7] {
+    let flag = |f: &'static str| OsStr::new(f);
+    [
+        flag("simulate"),
+        flag("--model"),
+        model.as_os_str(),
+        flag("--duration"),
+        OsStr::new(duration),
+        flag("--out"),
+        out.as_os_str(),
+    ]
+}
+
 fn reference_model() -> String {
     std::fs::read_to_string(root().join("config/plant.toml")).expect("model")
 }
@@ -124,15 +138,7 @@ fn model_sampling_at(dir: &Path, sample_ms: &str) -> PathBuf {
 /// A short test-stand recording made by `simulate`.
 fn recording(dir: &Path) -> PathBuf {
     let rec = dir.join("rec.csv");
-    let (code, out) = run(&[
-        "simulate".as_ref(),
-        "--model".as_ref(),
-        root().join("config/plant.toml").as_os_str(),
-        "--duration".as_ref(),
-        "3".as_ref(),
-        "--out".as_ref(),
-        rec.as_os_str(),
-    ]);
+    let (code, out) = run(&simulate_args(&root().join("config/plant.toml"), "3", &rec));
     assert_eq!(code, Some(0), "{out}");
     rec
 }
@@ -159,15 +165,9 @@ fn simulate_refuses_a_run_of_more_rows_than_it_may_write() {
     let dir = tempfile::tempdir().expect("tmp");
     let out = dir.path().join("rec.csv");
     let simulate = |model: &Path, duration: &str| {
-        let (status, out) = Running::start(
-            &["simulate".as_ref(), "--model".as_ref(), model.as_os_str(), "--duration".as_ref(), duration.as_ref()]
-                .into_iter()
-                .chain(["--out".as_ref(), out.as_os_str()])
-                .collect::<Vec<&OsStr>>(),
-            &[],
-        )
-        // refused at once; a run that goes on writes gigabytes, so it is stopped early
-        .finish(Duration::from_secs(5));
+        let (status, out) = Running::start(&simulate_args(model, duration, &out), &[])
+            // refused at once; a run that goes on writes gigabytes, so it is stopped early
+            .finish(Duration::from_secs(5));
         (status.and_then(|s| s.code()), out)
     };
     let (code, msg) = simulate(&model_sampling_at(dir.path(), "1e-9"), "8");
@@ -260,13 +260,7 @@ fn simulate_with_a_bad_model_leaves_the_old_output() {
         .expect("write");
     for (model, key) in [(&no_pump, "[drive]"), (&negative, "motor.inertia_kg_m2")] {
         let name = model.file_name().expect("name").to_string_lossy().into_owned();
-        exits_2_naming(
-            &["simulate".as_ref(), "--model".as_ref(), model.as_os_str(), "--duration".as_ref(), "1".as_ref()]
-                .into_iter()
-                .chain(["--out".as_ref(), out.as_os_str()])
-                .collect::<Vec<&OsStr>>(),
-            &[key, &name],
-        );
+        exits_2_naming(&simulate_args(model, "1", &out), &[key, &name]);
         assert_eq!(std::fs::read_to_string(&out).expect("out"), "the old recording\n", "{name}");
     }
     assert_eq!(files_in(dir.path()), ["negative.toml", "no_pump.toml", "rec.csv"]);
@@ -307,13 +301,7 @@ fn missing_or_directory_configs_and_a_non_utf8_model_exit_2_naming_the_path_once
     bytes.extend_from_slice(b"# caf\xe9\n");
     std::fs::write(&latin1, bytes).expect("write");
     let out = dir.path().join("rec.csv");
-    exits_2_naming(
-        &["simulate".as_ref(), "--model".as_ref(), latin1.as_os_str(), "--duration".as_ref(), "1".as_ref()]
-            .into_iter()
-            .chain(["--out".as_ref(), out.as_os_str()])
-            .collect::<Vec<&OsStr>>(),
-        &["latin1.toml", "UTF-8"],
-    );
+    exits_2_naming(&simulate_args(&latin1, "1", &out), &["latin1.toml", "UTF-8"]);
     // a config whose model cannot be read: the config's key and the model's path
     let config = dir.path().join("svc.toml");
     std::fs::write(&config, service_config(dir.path(), "a-token-long-enough-1234", Some(&missing))).expect("write");
@@ -338,13 +326,7 @@ fn a_model_or_config_beyond_the_size_cap_exits_2_without_reading_it_whole() {
     }
     std::fs::write(&big, text).expect("write");
     let out = dir.path().join("rec.csv");
-    exits_2_naming(
-        &["simulate".as_ref(), "--model".as_ref(), big.as_os_str(), "--duration".as_ref(), "1".as_ref()]
-            .into_iter()
-            .chain(["--out".as_ref(), out.as_os_str()])
-            .collect::<Vec<&OsStr>>(),
-        &["big.toml", "1024 kB"],
-    );
+    exits_2_naming(&simulate_args(&big, "1", &out), &["big.toml", "1024 kB"]);
     assert!(!out.exists(), "nothing written");
 }
 
