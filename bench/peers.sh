@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Runs hydrolens side by side with the Python peers a user might reach for, on this machine, and prints one markdown
-# table. Idempotent; every step is bounded by `timeout`. Not part of CI (README "Benchmarks").
+# table. Idempotent; every step is bounded by `timeout`. Not part of CI (docs/performance.md).
 #   (a) Modbus: one read of 6 input registers, tokio-modbus (benches/modbus.rs) vs pymodbus, same `hydrolens sim`
 #   (b) estimation: `hydrolens estimate` vs padasip's RLS on the same 60 s and 10-minute recordings, the peer timed
 #       doing the same job (load, filter, write its estimates with numpy.savetxt) and without the writing; and the
