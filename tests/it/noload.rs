@@ -590,8 +590,9 @@ fn kind_unknown_is_the_load_unknown_and_a_torque_recording_needs_its_load() {
     assert_eq!(m.load, hydrolens::plant::LoadSpec::Unknown);
 }
 
-/// the worked example of docs/commands.md on the service's own recordings, shortened: `demo --plant` on a plant with a hidden leak, stopped by SIGTERM, then
-/// `analyze DIR --drive pump1` against config/plant.toml names the leak with its size. A plant file that does not
+/// The worked example of docs/commands.md on the service's own recordings, shortened: `demo --plant` on a plant
+/// with a hidden leak, stopped by SIGTERM, then `analyze DIR --drive pump1` against config/plant.toml names the
+/// leak with its size. A plant file that does not
 /// exist is bad input (exit 2, naming it).
 #[test]
 fn demo_on_a_leaking_plant_then_analyze_names_the_leak() {
