@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
-use super::freshness::RateLimits;
+use super::freshness::{RateLimits, ValidRanges};
 use crate::control::{FeedForward, Gains, Limits, Mode};
 use crate::estimator::{EstimatorSettings, Method};
 use crate::modbus::client::Endpoint;
@@ -289,17 +289,6 @@ pub struct RecordingSettings {
     pub keep: Option<Duration>,
     /// Closed files are compressed to `<name>.csv.gz`, off the poll loop; readers take either.
     pub compress: bool,
-}
-
-/// Plausible ranges of decoded values; anything outside (or non-finite) is rejected before the estimator.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ValidRanges {
-    pub min_pressure_bar: f64,
-    pub max_pressure_bar: f64,
-    pub max_speed_rad_s: f64,
-    pub max_frequency_hz: f64,
-    /// The largest plausible rates of change between samples.
-    pub rates: RateLimits,
 }
 
 /// How a drive is reached.

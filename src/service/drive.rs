@@ -12,7 +12,8 @@ use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 use super::config::DriveSettings;
-use super::cycle::{DriveCycle, Rejected, Verdict, validate};
+use super::cycle::{DriveCycle, Verdict, validate};
+use super::freshness::Rejected;
 use super::metrics::{DriveLabel, ErrorLabels, Metrics, PASCALS_PER_BAR};
 use super::recorder::Recorder;
 use super::state::{DriveSnapshot, DriveState, Link, Point};
