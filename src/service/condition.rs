@@ -420,21 +420,6 @@ mod tests {
     }
 
     #[test]
-    fn the_service_config_carries_it_and_its_errors_name_the_drives_key() {
-        let base = "[[drives]]\nname = \"pump1\"\naddress = \"127.0.0.1:5020\"\n[drives.condition]\n";
-        let parse = |extra: &str| super::super::config::parse(&format!("{base}{extra}"), "t.toml", None);
-        let s = parse("enabled = true\nevery_s = 60\n").expect("valid");
-        assert!(s.drives[0].condition.enabled);
-        assert_eq!(s.drives[0].condition.every, Duration::from_secs(60));
-        let e = parse("window_s = 0.5\n").expect_err("too short");
-        assert!(e.is_bad_input() && e.to_string().contains("drives[0].condition.window_s"), "{e}");
-        let e = parse("enable = true\n").expect_err("unknown key");
-        assert!(e.is_bad_input() && e.to_string().contains("enable"), "{e}");
-        let e = parse("[drives.condition.limits]\ndead_time = { seconds = 1.0 }\n").expect_err("unknown parameter");
-        assert!(e.to_string().contains("drives[0].condition.limits.dead_time.seconds"), "{e}");
-    }
-
-    #[test]
     fn the_contracts_example_parses() {
         let s = check(
             "enabled = true\nwindow_s = 120\nevery_s = 60\n[limits]\ninternal_leakage = { l_min_per_bar = 0.02 }\n\

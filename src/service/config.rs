@@ -1,5 +1,9 @@
 //! The service config (`config/hydrolens.toml`): parsed raw and strictly (unknown keys are errors), then validated
 //! into typed settings that cannot be invalid. Every error names its key.
+//!
+//! In the service's layout (see [`super`]) it uses [`super::freshness`] (the plausible ranges and rates), and
+//! [`super::condition`] and [`super::mqtt`], whose sections (`[drives.condition]`, `[mqtt]`) they validate
+//! themselves.
 
 use crate::error::KeyError;
 use std::collections::BTreeMap;
@@ -1181,5 +1185,20 @@ address = "127.0.0.1:5020"
         // other ports are other lines
         let other = rtu("c", 3, "poll_ms = 50").replace("ttyUSB0", "ttyUSB1");
         parse(&format!("{two}{other}"), "t", None).expect("a second line");
+    }
+
+    #[test]
+    fn a_drives_condition_is_carried_and_its_errors_name_the_drives_key() {
+        let base = "[[drives]]\nname = \"pump1\"\naddress = \"127.0.0.1:5020\"\n[drives.condition]\n";
+        let parse = |extra: &str| parse(&format!("{base}{extra}"), "t.toml", None);
+        let s = parse("enabled = true\nevery_s = 60\n").expect("valid");
+        assert!(s.drives[0].condition.enabled);
+        assert_eq!(s.drives[0].condition.every, Duration::from_secs(60));
+        let e = parse("window_s = 0.5\n").expect_err("too short");
+        assert!(e.is_bad_input() && e.to_string().contains("drives[0].condition.window_s"), "{e}");
+        let e = parse("enable = true\n").expect_err("unknown key");
+        assert!(e.is_bad_input() && e.to_string().contains("enable"), "{e}");
+        let e = parse("[drives.condition.limits]\ndead_time = { seconds = 1.0 }\n").expect_err("unknown parameter");
+        assert!(e.to_string().contains("drives[0].condition.limits.dead_time.seconds"), "{e}");
     }
 }

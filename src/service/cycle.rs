@@ -8,6 +8,8 @@
 //! also uses (only fresh samples mark the drive fresh). Only fresh data reach the estimator, and only fresh data
 //! lead to a write: on stale data nothing is written, so the drive's own watchdog takes over. A tripped drive is
 //! commanded towards 0 Hz and only re-armed by a reset request from the API.
+//!
+//! In the service's layout (see [`super`]) it uses [`super::freshness`], [`super::state`] and [`super::config`].
 
 use std::time::Duration;
 

@@ -2,6 +2,8 @@
 //! `[drives.limits]`), a sample in range ([`Sample`]) or why one was refused ([`Rejected`]), the sample counter's
 //! verdict (moved, unchanged, or impossible) and the rate-of-change plausibility of the measured values. Pure: fed
 //! counters, samples and Δt.
+//!
+//! At the bottom of the service's layout (see [`super`]): it uses no other module of the service.
 
 /// A decoded sample whose values are in range.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -1,5 +1,19 @@
 //! The monitoring service: one poll loop per drive (modbus → estimator → control → modbus), publishing snapshots,
-//! a history ring, metrics and recordings for the HTTP side.
+//! a history ring, metrics and recordings for the HTTP side. [`start`] starts them and builds the whole service's
+//! shared state, [`ServiceState`], which the HTTP side reads.
+//!
+//! # Layout
+//! The service's modules, floor by floor (a module uses only those listed before it; this file uses them all):
+//! - [`timing`], [`metrics`], [`retention`], [`program`], [`freshness`]: a loop's ticker and timing statistics, the
+//!   metric families and their exposition, the recordings' retention, the demo's target program, and whether a
+//!   decoded sample may be used (PURE); none uses another module of the service.
+//! - [`state`]: one drive's shared state: its snapshot, its history ring of rows, the commands waiting for its loop.
+//! - [`recorder`], [`condition`]: a drive's rows to disk; a drive's condition checks and alarms, and their thread.
+//! - [`mqtt`]: the MQTT publisher, reading the drives' state and conditions.
+//! - [`config`]: the config file, parsed and validated (`[drives.condition]` and `[mqtt]` by [`condition`] and
+//!   [`mqtt`]).
+//! - [`cycle`]: PURE drive cycle: a validated sample and its time → the writes and the row.
+//! - [`drive`]: one drive's poll loop, the I/O around the cycle.
 
 pub mod condition;
 pub mod config;
