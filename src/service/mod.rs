@@ -4,16 +4,16 @@
 //!
 //! # Layout
 //! The service's modules, floor by floor (a module uses only those listed before it; this file uses them all):
-//! - [`timing`], [`metrics`], [`retention`], [`program`], [`freshness`]: a loop's ticker and timing statistics, the
-//!   metric families and their exposition, the recordings' retention, the demo's target program, and whether a
-//!   decoded sample may be used (PURE); none uses another module of the service.
-//! - [`state`]: one drive's shared state: its snapshot, its history ring of rows, the commands waiting for its loop.
-//! - [`recorder`], [`condition`]: a drive's rows to disk; a drive's condition checks and alarms, and their thread.
-//! - [`mqtt`]: the MQTT publisher, reading the drives' state and conditions.
-//! - [`config`]: the config file, parsed and validated (`[drives.condition]` and `[mqtt]` by [`condition`] and
-//!   [`mqtt`]).
-//! - [`cycle`]: PURE drive cycle: a validated sample and its time → the writes and the row.
-//! - [`drive`]: one drive's poll loop, the I/O around the cycle.
+//! - [`timing`], [`metrics`], [`retention`], [`program`], [`freshness`], [`mqtt_config`]: a loop's ticker and
+//!   timing statistics, the metric families and their exposition, the recordings' retention, the demo's target
+//!   program, whether a decoded sample may be used (PURE), and the config's `[mqtt]` section; none uses another
+//!   module of the service.
+//! - [`config`], [`state`]: the config file, parsed and validated; one drive's shared state (its snapshot, its
+//!   history ring of rows, the commands waiting for its loop).
+//! - [`cycle`], [`recorder`], [`condition`]: PURE drive cycle (a validated sample and its time → the writes and the
+//!   row); a drive's rows to disk; a drive's condition checks and alarms, and their thread.
+//! - [`drive`], [`mqtt`]: one drive's poll loop, the I/O around the cycle; the MQTT publisher, an outlet beside the
+//!   HTTP room, reading the drives' state and conditions.
 
 pub mod condition;
 pub mod config;
@@ -22,6 +22,7 @@ pub mod drive;
 pub mod freshness;
 pub mod metrics;
 pub mod mqtt;
+pub mod mqtt_config;
 pub mod program;
 pub mod recorder;
 pub mod retention;
