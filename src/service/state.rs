@@ -1,6 +1,6 @@
-//! What each poll loop publishes and the HTTP side, MQTT, the recorder and the condition checks read: a drive's
-//! snapshot, its history ring of rows ([`Point`], columns [`COLUMNS`]), and the commands (target, reset) waiting
-//! for the loop. The whole service's state ([`super::ServiceState`]) holds one [`DriveState`] per drive.
+//! What each poll loop publishes and the HTTP side, MQTT and the condition checks read: a drive's snapshot, its
+//! history ring of rows ([`Point`], also the recording's, columns [`COLUMNS`]), and the commands (target, reset)
+//! waiting for the loop. The whole service's state ([`super::ServiceState`]) holds one [`DriveState`] per drive.
 //!
 //! In the service's layout (see [`super`]) it uses [`super::timing`] alone.
 
