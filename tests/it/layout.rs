@@ -342,45 +342,47 @@ impl Graph {
         Graph { edges }
     }
 
-    /// The circles: strongly connected groups of more than one node (Tarjan).
+    /// The circles: groups of nodes that each reach all the others.
     fn circles(&self) -> Vec<Vec<String>> {
-        struct Walk<'a> {
-            g: &'a Graph,
-            index: BTreeMap<&'a str, usize>,
-            low: BTreeMap<&'a str, usize>,
-            stack: Vec<&'a str>,
-            out: Vec<Vec<String>>,
-        }
-        fn visit<'a>(w: &mut Walk<'a>, v: &'a str) {
-            let n = w.index.len();
-            w.index.insert(v, n);
-            w.low.insert(v, n);
-            w.stack.push(v);
-            for to in w.g.edges.get(v).into_iter().flat_map(|e| e.keys()) {
-                if !w.index.contains_key(to.as_str()) {
-                    visit(w, to);
-                    let l = w.low[v].min(w.low[to.as_str()]);
-                    w.low.insert(v, l);
-                } else if w.stack.contains(&to.as_str()) {
-                    let l = w.low[v].min(w.index[to.as_str()]);
-                    w.low.insert(v, l);
+        let reach = |from: &str| {
+            let (mut seen, mut todo) = (BTreeSet::new(), vec![from]);
+            while let Some(v) = todo.pop() {
+                for to in self.edges.get(v).into_iter().flat_map(|e| e.keys()) {
+                    if seen.insert(to.as_str()) {
+                        todo.push(to);
+                    }
                 }
             }
-            if w.low[v] == w.index[v] {
-                let at = w.stack.iter().position(|s| *s == v).expect("on the stack");
-                let group: Vec<String> = w.stack.drain(at..).map(str::to_string).collect();
-                if group.len() > 1 {
-                    w.out.push(group);
+            seen
+        };
+        let reaches: BTreeMap<&str, BTreeSet<&str>> = self.edges.keys().map(|v| (v.as_str(), reach(v))).collect();
+        let mut out: Vec<Vec<String>> = Vec::new();
+        for (v, r) in &reaches {
+            if r.contains(v) && !out.iter().flatten().any(|n| n == v) {
+                out.push(
+                    r.iter()
+                        .filter(|u| reaches.get(*u).is_some_and(|back| back.contains(v)))
+                        .map(|u| u.to_string())
+                        .collect(),
+                );
+            }
+        }
+        out
+    }
+
+    /// The graph with each node renamed by `name` (None: left out), the edges between nodes of one name dropped.
+    fn view(&self, name: impl Fn(&str) -> Option<String>) -> Graph {
+        let mut edges: BTreeMap<String, BTreeMap<String, String>> = BTreeMap::new();
+        for (from, e) in &self.edges {
+            let Some(from) = name(from) else { continue };
+            let out = edges.entry(from.clone()).or_default();
+            for (to, at) in e {
+                if let Some(to) = name(to).filter(|t| *t != from) {
+                    out.entry(to).or_insert_with(|| at.clone());
                 }
             }
         }
-        let mut w = Walk { g: self, index: BTreeMap::new(), low: BTreeMap::new(), stack: Vec::new(), out: Vec::new() };
-        for v in self.edges.keys() {
-            if !w.index.contains_key(v.as_str()) {
-                visit(&mut w, v);
-            }
-        }
-        w.out
+        Graph { edges }
     }
 
     /// Each edge inside a group, with where it was seen.
@@ -420,41 +422,21 @@ fn floors(file: &str) -> Vec<Vec<String>> {
     out
 }
 
-/// Checks the edges among `nodes` against `layout`: every node has a floor, and uses only lower floors.
-fn check_floors(g: &Graph, layout: &[Vec<String>], nodes: &BTreeSet<String>, name: &str, errors: &mut Vec<String>) {
+/// Checks a graph against the `# Layout` of `file`: every node has a floor, and uses only nodes on lower floors.
+fn check_floors(g: &Graph, file: &str, errors: &mut Vec<String>) {
+    let layout = floors(file);
     let floor = |n: &str| layout.iter().position(|f| f.iter().any(|r| r == n));
-    for n in nodes {
-        if floor(n).is_none() {
-            errors.push(format!("{n} is not in {name}'s # Layout"));
-        }
-    }
-    for (from, to, at) in g.edges.iter().flat_map(|(f, e)| e.iter().map(move |(t, a)| (f, t, a))) {
-        if !(nodes.contains(from) && nodes.contains(to)) {
-            continue;
-        }
-        if let (Some(a), Some(b)) = (floor(from), floor(to))
-            && b >= a
-        {
-            errors.push(format!("{from} uses {to} ({at}), which {name}'s # Layout lists with it or after it"));
-        }
-    }
-}
-
-/// The graph with the service's modules merged into `service` (the rooms' view).
-fn rooms(g: &Graph) -> Graph {
-    let merge = |n: &str| n.split("::").next().unwrap_or(n).to_string();
-    let mut edges: BTreeMap<String, BTreeMap<String, String>> = BTreeMap::new();
     for (from, e) in &g.edges {
-        let from = merge(from);
-        edges.entry(from.clone()).or_default();
+        let Some(a) = floor(from) else {
+            errors.push(format!("{from} is not in {file}'s # Layout"));
+            continue;
+        };
         for (to, at) in e {
-            let to = merge(to);
-            if to != from {
-                edges.entry(from.clone()).or_default().entry(to).or_insert_with(|| at.clone());
+            if floor(to).is_some_and(|b| b >= a) {
+                errors.push(format!("{from} uses {to} ({at}), which {file}'s # Layout lists with it or after it"));
             }
         }
     }
-    Graph { edges }
 }
 
 #[test]
@@ -465,28 +447,12 @@ fn no_room_reaches_up_and_no_circle_among_rooms_or_service_modules() {
         .iter()
         .map(|group| format!("an import circle among {}:{}", group.join(", "), g.explain(group)))
         .collect();
-    let top = rooms(&g);
-    let room_names: BTreeSet<String> = top.edges.keys().filter(|n| *n != "crate").cloned().collect();
-    check_floors(&top, &floors("src/lib.rs"), &room_names, "src/lib.rs", &mut errors);
-    let service: BTreeSet<String> =
-        g.edges.keys().filter_map(|n| n.strip_prefix("service::")).map(String::from).collect();
-    let unprefixed = Graph {
-        edges: g
-            .edges
-            .iter()
-            .filter_map(|(f, e)| {
-                let f = f.strip_prefix("service::")?;
-                Some((
-                    f.to_string(),
-                    e.iter().filter_map(|(t, a)| Some((t.strip_prefix("service::")?.to_string(), a.clone()))).collect(),
-                ))
-            })
-            .collect(),
-    };
-    check_floors(&unprefixed, &floors("src/service/mod.rs"), &service, "src/service/mod.rs", &mut errors);
+    let rooms = g.view(|n| Some(n.split("::").next().unwrap_or(n).to_string()).filter(|r| r != "crate"));
+    check_floors(&rooms, "src/lib.rs", &mut errors);
+    let service = g.view(|n| n.strip_prefix("service::").map(String::from));
+    check_floors(&service, "src/service/mod.rs", &mut errors);
     assert!(errors.is_empty(), "{}", errors.join("\n"));
 }
-
 #[test]
 fn the_reader_sees_the_paths_a_module_names_and_finds_circles() {
     let src = "//! crate::a in a comment\nuse super::{b::{self, X}, c as d};\nuse crate::e::*;\nuse std::sync::Arc;\n\
