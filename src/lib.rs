@@ -26,7 +26,7 @@
 //! - [`service`]: the poll loops per drive (modbus → estimator → control → modbus) around a PURE drive cycle
 //!   (`service::cycle`: a validated sample and its time → the writes and the row), snapshots, history, recording,
 //!   the low-priority thread that runs each drive's [`condition`] checks on its history, the metrics registry and its
-//!   two expositions, and the MQTT publisher's thread.
+//!   two expositions, and the MQTT publisher's thread; its modules' floors are its own `# Layout`.
 //! - [`http`]: the axum router over the service's shared state; never uses [`modbus`].
 //! - [`server`]: the service and its HTTP front put together (what `serve`, `demo` and the tests run).
 //!

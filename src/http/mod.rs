@@ -19,7 +19,8 @@ use subtle::ConstantTimeEq;
 use tokio_util::sync::CancellationToken;
 
 use crate::control::Mode;
-use crate::service::state::{DriveSnapshot, PointColumns, ServiceState};
+use crate::service::ServiceState;
+use crate::service::state::{DriveSnapshot, PointColumns};
 
 mod condition;
 pub mod conn;

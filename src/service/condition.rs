@@ -1,12 +1,15 @@
-//! Condition monitoring in the service: `[drives.condition]` (parsed and validated here), each drive's checks and
-//! alarms as the HTTP side reads them, their metrics, and the one low-priority thread that runs the checks.
+//! Condition monitoring in the service: each drive's checks and alarms as the HTTP side and MQTT read them, their
+//! metrics, and the one low-priority thread that runs the checks. `[drives.condition]` is read and checked at load
+//! by [`super::config`] ([`ConditionSettings`]).
+//!
+//! In the service's layout (see [`super`]) it uses [`super::config`], [`super::state`] and [`super::metrics`]; the
+//! MQTT publisher and the HTTP side read it.
 //!
 //! The checks run on a thread of their own (`condition`), at nice [`CONDITION_NICE`]: below the poll threads and
 //! the HTTP workers, never on a poll thread and never on the async runtime. The data are the drive's history ring
 //! (kept at least `window_s` long), thinned to at most [`MAX_CHECK_HZ`] samples a second, with the load unknown.
 
-use crate::error::KeyError;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::AtomicU64;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -16,13 +19,12 @@ use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
 use prometheus_client::registry::Registry;
-use serde::Deserialize;
 use tokio_util::sync::CancellationToken;
 
+pub use super::config::ConditionSettings;
 use super::metrics::DriveLabel;
 use super::state::{COLUMNS, DriveState, lock};
-use crate::condition::{self, Check, Limits, Monitor, Store};
-use crate::plant::{LoadSpec, PlantModel};
+use crate::condition::{self, Check, Monitor, Store};
 use crate::recording::Recording;
 
 /// The checking thread's nice value: below the HTTP workers (10), far below the poll threads.
@@ -34,71 +36,6 @@ pub const MAX_CHECK_HZ: f64 = 200.0;
 
 /// A check waits until the ring holds at least this fraction of `window_s`.
 pub const MIN_WINDOW_FRACTION: f64 = 0.5;
-
-/// `[drives.condition]` as written.
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub(crate) struct RawCondition {
-    enabled: bool,
-    window_s: f64,
-    every_s: f64,
-    model: Option<String>,
-    limits: Limits,
-}
-
-impl Default for RawCondition {
-    fn default() -> Self {
-        RawCondition { enabled: false, window_s: 120.0, every_s: 300.0, model: None, limits: Limits::new() }
-    }
-}
-
-/// A drive's condition monitoring, validated.
-#[derive(Debug, Clone)]
-pub struct ConditionSettings {
-    pub enabled: bool,
-    pub window: Duration,
-    pub every: Duration,
-    /// The nominal model the checks compare against (the estimator's unless `model` says otherwise), its load
-    /// set to "recorded": the service's data carry no load, so the load is unknown.
-    pub model: PlantModel,
-    pub limits: Limits,
-}
-
-/// Validates `[drives.condition]`; `key` is its prefix (`drives[0].condition`), `estimator_model` the default model,
-/// `resolve` finds a relative model path. Errors name the key.
-pub(crate) fn validate(
-    raw: RawCondition,
-    key: &str,
-    estimator_model: &PlantModel,
-    resolve: impl Fn(&str) -> PathBuf,
-) -> Result<ConditionSettings, KeyError> {
-    let k = |s: &str| format!("{key}.{s}");
-    if !(raw.window_s.is_finite() && (5.0..=3600.0).contains(&raw.window_s)) {
-        return Err(KeyError::new(k("window_s"), format!("must be 5 ..= 3600 s, got {}", raw.window_s)));
-    }
-    if !(raw.every_s.is_finite() && (1.0..=86_400.0).contains(&raw.every_s)) {
-        return Err(KeyError::new(k("every_s"), format!("must be 1 ..= 86400 s, got {}", raw.every_s)));
-    }
-    let mut model = match raw.model {
-        None => estimator_model.clone(),
-        Some(p) => PlantModel::load(&resolve(&p)).map_err(|e| KeyError::new(k("model"), e.to_string()))?,
-    };
-    if model.motor.displacement_cm3.is_none() || model.hydraulics.is_none() || model.pump.is_none() {
-        return Err(KeyError::new(
-            k("model"),
-            "the model needs [pump], [motor] displacement_cm3 and [hydraulics]".into(),
-        ));
-    }
-    model.load = LoadSpec::Recorded;
-    condition::validate_limits(&raw.limits, &k("limits"))?;
-    Ok(ConditionSettings {
-        enabled: raw.enabled,
-        window: Duration::from_secs_f64(raw.window_s),
-        every: Duration::from_secs_f64(raw.every_s),
-        model,
-        limits: raw.limits,
-    })
-}
 
 /// One drive's checks and alarms, shared by the checking thread and the HTTP side.
 pub struct DriveCondition {
@@ -379,70 +316,5 @@ pub fn lower_priority() {
         if let Err(e) = rustix::process::setpriority_process(Some(tid), CONDITION_NICE) {
             tracing::warn!(error = %e, "cannot lower the condition thread's priority");
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn raw(text: &str) -> RawCondition {
-        toml::from_str(text).expect("parses")
-    }
-
-    fn check(text: &str) -> Result<ConditionSettings, KeyError> {
-        validate(raw(text), "drives[0].condition", &PlantModel::reference(), |p: &str| PathBuf::from(p))
-    }
-
-    #[test]
-    fn defaults_are_off_120_s_every_300_s_on_the_estimators_model_with_the_load_unknown() {
-        let s = check("").expect("valid");
-        assert!(!s.enabled);
-        assert_eq!((s.window, s.every), (Duration::from_secs(120), Duration::from_secs(300)));
-        assert_eq!(s.model.load, LoadSpec::Recorded);
-        assert_eq!(s.model.motor, PlantModel::reference().motor);
-        assert!(s.limits.is_empty());
-    }
-
-    #[test]
-    fn errors_name_the_key() {
-        let key = |text: &str| check(text).expect_err(text).key;
-        assert_eq!(key("window_s = 1.0"), "drives[0].condition.window_s");
-        assert_eq!(key("every_s = -5.0"), "drives[0].condition.every_s");
-        assert_eq!(key("model = \"/no/such/plant.toml\""), "drives[0].condition.model");
-        assert_eq!(key("[limits]\nleak = { l_min_per_bar = 0.02 }"), "drives[0].condition.limits.leak");
-        assert_eq!(
-            key("[limits]\ninternal_leakage = { l_per_bar = 0.02 }"),
-            "drives[0].condition.limits.internal_leakage.l_per_bar"
-        );
-        let unknown = toml::from_str::<RawCondition>("enable = true").expect_err("unknown key").to_string();
-        assert!(unknown.contains("enable"), "{unknown}");
-    }
-
-    #[test]
-    fn the_service_config_carries_it_and_its_errors_name_the_drives_key() {
-        let base = "[[drives]]\nname = \"pump1\"\naddress = \"127.0.0.1:5020\"\n[drives.condition]\n";
-        let parse = |extra: &str| super::super::config::parse(&format!("{base}{extra}"), "t.toml", None);
-        let s = parse("enabled = true\nevery_s = 60\n").expect("valid");
-        assert!(s.drives[0].condition.enabled);
-        assert_eq!(s.drives[0].condition.every, Duration::from_secs(60));
-        let e = parse("window_s = 0.5\n").expect_err("too short");
-        assert!(e.is_bad_input() && e.to_string().contains("drives[0].condition.window_s"), "{e}");
-        let e = parse("enable = true\n").expect_err("unknown key");
-        assert!(e.is_bad_input() && e.to_string().contains("enable"), "{e}");
-        let e = parse("[drives.condition.limits]\ndead_time = { seconds = 1.0 }\n").expect_err("unknown parameter");
-        assert!(e.to_string().contains("drives[0].condition.limits.dead_time.seconds"), "{e}");
-    }
-
-    #[test]
-    fn the_contracts_example_parses() {
-        let s = check(
-            "enabled = true\nwindow_s = 120\nevery_s = 60\n[limits]\ninternal_leakage = { l_min_per_bar = 0.02 }\n\
-             dead_time = { ms = 50.0 }\nentrained_air = { bulk_modulus_bar = 8000.0 }\n",
-        )
-        .expect("valid");
-        assert!(s.enabled);
-        assert_eq!(s.every, Duration::from_secs(60));
-        assert_eq!(s.limits["entrained_air"]["bulk_modulus_bar"], 8000.0);
     }
 }

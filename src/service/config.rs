@@ -1,5 +1,9 @@
 //! The service config (`config/hydrolens.toml`): parsed raw and strictly (unknown keys are errors), then validated
 //! into typed settings that cannot be invalid. Every error names its key.
+//!
+//! In the service's layout (see [`super`]) it uses [`super::freshness`] (the plausible ranges and rates) and
+//! [`super::mqtt_config`] (`[mqtt]`), nothing above them: the condition checks and the MQTT publisher take their
+//! settings from here.
 
 use crate::error::KeyError;
 use std::collections::BTreeMap;
@@ -8,14 +12,15 @@ use std::time::Duration;
 
 use serde::Deserialize;
 
-use super::freshness::RateLimits;
+use super::freshness::{RateLimits, ValidRanges};
+use crate::condition;
 use crate::control::{FeedForward, Gains, Limits, Mode};
 use crate::estimator::{EstimatorSettings, Method};
 use crate::modbus::client::Endpoint;
 use crate::modbus::line::{MAX_LINE_LOAD, Parity, SerialLine, line_load, read_frames, write_frames};
 use crate::modbus::map::{RegisterMap, RegisterSpec, Table, ValueType, WordOrder};
-use crate::plant::PlantModel;
 use crate::plant::dynamics::Coefficients;
+use crate::plant::{LoadSpec, PlantModel};
 
 /// The longest `stale_ms`: data older than this are stale whatever the config says.
 const MAX_STALE_MS: u64 = 600_000;
@@ -51,7 +56,7 @@ struct RawConfig {
     #[serde(default)]
     drives: Vec<RawDrive>,
     /// MQTT publishing (src/service/mqtt.rs); absent: off.
-    mqtt: Option<super::mqtt::RawMqtt>,
+    mqtt: Option<super::mqtt_config::RawMqtt>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -159,7 +164,7 @@ struct RawDrive {
     registers: BTreeMap<String, RawRegister>,
     /// Condition monitoring (src/service/condition.rs).
     #[serde(default)]
-    condition: super::condition::RawCondition,
+    condition: RawCondition,
 }
 
 fn one_u8() -> u8 {
@@ -260,7 +265,7 @@ pub struct Settings {
     pub http: HttpSettings,
     pub recording: RecordingSettings,
     pub drives: Vec<DriveSettings>,
-    pub mqtt: Option<super::mqtt::MqttSettings>,
+    pub mqtt: Option<super::mqtt_config::MqttSettings>,
 }
 
 #[derive(Debug, Clone)]
@@ -289,17 +294,6 @@ pub struct RecordingSettings {
     pub keep: Option<Duration>,
     /// Closed files are compressed to `<name>.csv.gz`, off the poll loop; readers take either.
     pub compress: bool,
-}
-
-/// Plausible ranges of decoded values; anything outside (or non-finite) is rejected before the estimator.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ValidRanges {
-    pub min_pressure_bar: f64,
-    pub max_pressure_bar: f64,
-    pub max_speed_rad_s: f64,
-    pub max_frequency_hz: f64,
-    /// The largest plausible rates of change between samples.
-    pub rates: RateLimits,
 }
 
 /// How a drive is reached.
@@ -361,7 +355,7 @@ pub struct DriveSettings {
     pub model: PlantModel,
     pub ranges: ValidRanges,
     pub registers: RegisterMap,
-    pub condition: super::condition::ConditionSettings,
+    pub condition: ConditionSettings,
 }
 
 impl DriveSettings {
@@ -613,7 +607,7 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
         devices.push(ids);
     }
     check_lines(&drives)?;
-    let mqtt = raw.mqtt.map(|m| super::mqtt::validate(m, |p| resolve(p, base))).transpose()?;
+    let mqtt = raw.mqtt.map(|m| super::mqtt_config::validate(m, |p| resolve(p, base))).transpose()?;
     Ok(Settings { http, recording, drives, mqtt })
 }
 
@@ -897,7 +891,7 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
     }
 
     let registers = apply_overrides(d.registers, &key("registers"))?;
-    let condition = super::condition::validate(d.condition, &key("condition"), &model, |p| resolve(p, base))?;
+    let condition = validate_condition(d.condition, &key("condition"), &model, |p| resolve(p, base))?;
     let setpoint = registers.frequency_setpoint_hz;
     for (k, hz) in [("control.max_hz", max_hz), ("control.fixed_hz", fixed_hz), ("control.min_hz", min_hz)] {
         if setpoint.encode(hz).is_err() {
@@ -962,6 +956,71 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
         ));
     }
     Ok(settings)
+}
+
+/// `[drives.condition]` as written.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RawCondition {
+    enabled: bool,
+    window_s: f64,
+    every_s: f64,
+    model: Option<String>,
+    limits: condition::Limits,
+}
+
+impl Default for RawCondition {
+    fn default() -> Self {
+        RawCondition { enabled: false, window_s: 120.0, every_s: 300.0, model: None, limits: condition::Limits::new() }
+    }
+}
+
+/// A drive's condition monitoring, validated.
+#[derive(Debug, Clone)]
+pub struct ConditionSettings {
+    pub enabled: bool,
+    pub window: Duration,
+    pub every: Duration,
+    /// The nominal model the checks compare against (the estimator's unless `model` says otherwise), its load
+    /// set to "recorded": the service's data carry no load, so the load is unknown.
+    pub model: PlantModel,
+    pub limits: condition::Limits,
+}
+
+/// Validates `[drives.condition]`; `key` is its prefix (`drives[0].condition`), `estimator_model` the default model,
+/// `resolve` finds a relative model path. Errors name the key.
+fn validate_condition(
+    raw: RawCondition,
+    key: &str,
+    estimator_model: &PlantModel,
+    resolve: impl Fn(&str) -> PathBuf,
+) -> Result<ConditionSettings, KeyError> {
+    let k = |s: &str| format!("{key}.{s}");
+    if !(raw.window_s.is_finite() && (5.0..=3600.0).contains(&raw.window_s)) {
+        return Err(KeyError::new(k("window_s"), format!("must be 5 ..= 3600 s, got {}", raw.window_s)));
+    }
+    if !(raw.every_s.is_finite() && (1.0..=86_400.0).contains(&raw.every_s)) {
+        return Err(KeyError::new(k("every_s"), format!("must be 1 ..= 86400 s, got {}", raw.every_s)));
+    }
+    let mut model = match raw.model {
+        None => estimator_model.clone(),
+        Some(p) => PlantModel::load(&resolve(&p)).map_err(|e| KeyError::new(k("model"), e.to_string()))?,
+    };
+    if model.motor.displacement_cm3.is_none() || model.hydraulics.is_none() || model.pump.is_none() {
+        return Err(KeyError::new(
+            k("model"),
+            "the model needs [pump], [motor] displacement_cm3 and [hydraulics]".into(),
+        ));
+    }
+    model.load = LoadSpec::Recorded;
+    condition::validate_limits(&raw.limits, &k("limits"))?;
+    Ok(ConditionSettings {
+        enabled: raw.enabled,
+        window: Duration::from_secs_f64(raw.window_s),
+        every: Duration::from_secs_f64(raw.every_s),
+        model,
+        limits: raw.limits,
+    })
 }
 
 fn resolve(p: &str, base: Option<&Path>) -> PathBuf {
@@ -1192,5 +1251,70 @@ address = "127.0.0.1:5020"
         // other ports are other lines
         let other = rtu("c", 3, "poll_ms = 50").replace("ttyUSB0", "ttyUSB1");
         parse(&format!("{two}{other}"), "t", None).expect("a second line");
+    }
+
+    #[test]
+    fn a_drives_condition_is_carried_and_its_errors_name_the_drives_key() {
+        let base = "[[drives]]\nname = \"pump1\"\naddress = \"127.0.0.1:5020\"\n[drives.condition]\n";
+        let parse = |extra: &str| parse(&format!("{base}{extra}"), "t.toml", None);
+        let s = parse("enabled = true\nevery_s = 60\n").expect("valid");
+        assert!(s.drives[0].condition.enabled);
+        assert_eq!(s.drives[0].condition.every, Duration::from_secs(60));
+        let e = parse("window_s = 0.5\n").expect_err("too short");
+        assert!(e.is_bad_input() && e.to_string().contains("drives[0].condition.window_s"), "{e}");
+        let e = parse("enable = true\n").expect_err("unknown key");
+        assert!(e.is_bad_input() && e.to_string().contains("enable"), "{e}");
+        let e = parse("[drives.condition.limits]\ndead_time = { seconds = 1.0 }\n").expect_err("unknown parameter");
+        assert!(e.to_string().contains("drives[0].condition.limits.dead_time.seconds"), "{e}");
+    }
+
+    /// `[drives.condition]` on its own.
+    mod drives_condition {
+        use super::*;
+
+        fn raw(text: &str) -> RawCondition {
+            toml::from_str(text).expect("parses")
+        }
+
+        fn check(text: &str) -> Result<ConditionSettings, KeyError> {
+            validate_condition(raw(text), "drives[0].condition", &PlantModel::reference(), |p: &str| PathBuf::from(p))
+        }
+
+        #[test]
+        fn defaults_are_off_120_s_every_300_s_on_the_estimators_model_with_the_load_unknown() {
+            let s = check("").expect("valid");
+            assert!(!s.enabled);
+            assert_eq!((s.window, s.every), (Duration::from_secs(120), Duration::from_secs(300)));
+            assert_eq!(s.model.load, LoadSpec::Recorded);
+            assert_eq!(s.model.motor, PlantModel::reference().motor);
+            assert!(s.limits.is_empty());
+        }
+
+        #[test]
+        fn errors_name_the_key() {
+            let key = |text: &str| check(text).expect_err(text).key;
+            assert_eq!(key("window_s = 1.0"), "drives[0].condition.window_s");
+            assert_eq!(key("every_s = -5.0"), "drives[0].condition.every_s");
+            assert_eq!(key("model = \"/no/such/plant.toml\""), "drives[0].condition.model");
+            assert_eq!(key("[limits]\nleak = { l_min_per_bar = 0.02 }"), "drives[0].condition.limits.leak");
+            assert_eq!(
+                key("[limits]\ninternal_leakage = { l_per_bar = 0.02 }"),
+                "drives[0].condition.limits.internal_leakage.l_per_bar"
+            );
+            let unknown = toml::from_str::<RawCondition>("enable = true").expect_err("unknown key").to_string();
+            assert!(unknown.contains("enable"), "{unknown}");
+        }
+
+        #[test]
+        fn the_contracts_example_parses() {
+            let s = check(
+                "enabled = true\nwindow_s = 120\nevery_s = 60\n[limits]\ninternal_leakage = { l_min_per_bar = 0.02 }\n\
+                 dead_time = { ms = 50.0 }\nentrained_air = { bulk_modulus_bar = 8000.0 }\n",
+            )
+            .expect("valid");
+            assert!(s.enabled);
+            assert_eq!(s.every, Duration::from_secs(60));
+            assert_eq!(s.limits["entrained_air"]["bulk_modulus_bar"], 8000.0);
+        }
     }
 }

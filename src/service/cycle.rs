@@ -8,46 +8,20 @@
 //! also uses (only fresh samples mark the drive fresh). Only fresh data reach the estimator, and only fresh data
 //! lead to a write: on stale data nothing is written, so the drive's own watchdog takes over. A tripped drive is
 //! commanded towards 0 Hz and only re-armed by a reset request from the API.
+//!
+//! In the service's layout (see [`super`]) it uses [`super::freshness`], [`super::state`] and [`super::config`].
 
 use std::time::Duration;
 
 use tokio::time::Instant;
 
-use super::config::{DriveSettings, ValidRanges};
-use super::freshness::{CounterCheck, CounterVerdict, implausible_jump};
+use super::config::DriveSettings;
+use super::freshness::{CounterCheck, CounterVerdict, Rejected, Sample, ValidRanges, implausible_jump};
 use super::state::{Commands, DriveStatus, Measured, Point};
 use crate::control::{Inputs, Mode, SpeedLaw};
 use crate::estimator::{Estimate, Estimator, Measurement};
 use crate::modbus::map::{MapError, Reading, RegisterMap, control, plan_writes, status};
 use crate::units::rpm_to_rad_s;
-
-/// A decoded sample whose values are in range.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Sample {
-    pub p_in_bar: f64,
-    pub p_out_bar: f64,
-    pub omega_rad_s: f64,
-    pub f_drive_hz: f64,
-    pub status_word: u16,
-    pub counter: u64,
-}
-
-/// Why a read's values were refused.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum Rejected {
-    #[error("{entry}: {message}")]
-    Decode { entry: &'static str, message: String },
-    #[error("{entry} = {value} is outside the valid range")]
-    Range { entry: &'static str, value: f64 },
-    #[error("{entry} jumped from {from} to {to} ({rate:.0}/s, limit {max_rate}/s)")]
-    Jump { entry: &'static str, from: f64, to: f64, rate: f64, max_rate: f64 },
-}
-
-impl From<crate::modbus::map::DecodeError> for Rejected {
-    fn from(e: crate::modbus::map::DecodeError) -> Rejected {
-        Rejected::Decode { entry: e.entry, message: e.message }
-    }
-}
 
 /// Checks a decoded reading against the valid ranges. Pure.
 pub fn validate(r: &Reading, ranges: &ValidRanges) -> Result<Sample, Rejected> {

@@ -5,6 +5,9 @@
 //!
 //! Each loop runs on an OS thread of its own with a current-thread runtime, paced by a [`Ticker`]: the HTTP side,
 //! other drives and the recorder never share its thread, so they cannot delay its ticks.
+//!
+//! In the service's layout (see [`super`]) it stands on the floors below it: the cycle, the config, a drive's state,
+//! the recorder, the metric families, the sample checks and the ticker.
 
 use std::sync::Arc;
 
@@ -12,7 +15,8 @@ use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 use super::config::DriveSettings;
-use super::cycle::{DriveCycle, Rejected, Verdict, validate};
+use super::cycle::{DriveCycle, Verdict, validate};
+use super::freshness::Rejected;
 use super::metrics::{DriveLabel, ErrorLabels, Metrics, PASCALS_PER_BAR};
 use super::recorder::Recorder;
 use super::state::{DriveSnapshot, DriveState, Link, Point};

@@ -1,8 +1,37 @@
-//! Whether a decoded sample may be used: the sample counter's verdict (moved, unchanged, or impossible) and the
-//! rate-of-change plausibility of the measured values. Pure: fed counters, samples and Δt.
+//! Whether a decoded sample may be used: the plausible ranges and rates of its values ([`ValidRanges`], from
+//! `[drives.limits]`), a sample in range ([`Sample`]) or why one was refused ([`Rejected`]), the sample counter's
+//! verdict (moved, unchanged, or impossible) and the rate-of-change plausibility of the measured values. Pure: fed
+//! counters, samples and Δt.
+//!
+//! At the bottom of the service's layout (see [`super`]): it uses no other module of the service.
 
-use super::config::ValidRanges;
-use super::cycle::{Rejected, Sample};
+/// A decoded sample whose values are in range.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sample {
+    pub p_in_bar: f64,
+    pub p_out_bar: f64,
+    pub omega_rad_s: f64,
+    pub f_drive_hz: f64,
+    pub status_word: u16,
+    pub counter: u64,
+}
+
+/// Why a read's values were refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum Rejected {
+    #[error("{entry}: {message}")]
+    Decode { entry: &'static str, message: String },
+    #[error("{entry} = {value} is outside the valid range")]
+    Range { entry: &'static str, value: f64 },
+    #[error("{entry} jumped from {from} to {to} ({rate:.0}/s, limit {max_rate}/s)")]
+    Jump { entry: &'static str, from: f64, to: f64, rate: f64, max_rate: f64 },
+}
+
+impl From<crate::modbus::map::DecodeError> for Rejected {
+    fn from(e: crate::modbus::map::DecodeError) -> Rejected {
+        Rejected::Decode { entry: e.entry, message: e.message }
+    }
+}
 
 /// Forward steps a counter must make after it ran backwards before its samples count again: a counter alternating
 /// between two values never makes two in a row; a device that restarted (counter back to 0) recovers in a few polls.
@@ -60,6 +89,17 @@ pub struct RateLimits {
     pub pressure_bar_per_s: f64,
     pub speed_rad_per_s2: f64,
     pub frequency_hz_per_s: f64,
+}
+
+/// Plausible ranges of decoded values; anything outside (or non-finite) is rejected before the estimator.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ValidRanges {
+    pub min_pressure_bar: f64,
+    pub max_pressure_bar: f64,
+    pub max_speed_rad_s: f64,
+    pub max_frequency_hz: f64,
+    /// The largest plausible rates of change between samples.
+    pub rates: RateLimits,
 }
 
 /// Rejects `next` when a measured value moved faster than `ranges` allow since `prev`, `dt_s` earlier (the caller

@@ -1,5 +1,19 @@
 //! The monitoring service: one poll loop per drive (modbus → estimator → control → modbus), publishing snapshots,
-//! a history ring, metrics and recordings for the HTTP side.
+//! a history ring, metrics and recordings for the HTTP side. [`start`] starts them and builds the whole service's
+//! shared state, [`ServiceState`], which the HTTP side reads.
+//!
+//! # Layout
+//! The service's modules, floor by floor (a module uses only those listed before it; this file uses them all):
+//! - [`timing`], [`metrics`], [`retention`], [`program`], [`freshness`], [`mqtt_config`]: a loop's ticker and
+//!   timing statistics, the metric families and their exposition, the recordings' retention, the demo's target
+//!   program, whether a decoded sample may be used (PURE), and the config's `[mqtt]` section; none uses another
+//!   module of the service.
+//! - [`config`], [`state`]: the config file, parsed and validated; one drive's shared state (its snapshot, its
+//!   history ring of rows, the commands waiting for its loop).
+//! - [`cycle`], [`recorder`], [`condition`]: PURE drive cycle (a validated sample and its time → the writes and the
+//!   row); a drive's rows to disk; a drive's condition checks and alarms, and their thread.
+//! - [`drive`], [`mqtt`]: one drive's poll loop, the I/O around the cycle; the MQTT publisher, an outlet beside the
+//!   HTTP room, reading the drives' state and conditions.
 
 pub mod condition;
 pub mod config;
@@ -8,19 +22,21 @@ pub mod drive;
 pub mod freshness;
 pub mod metrics;
 pub mod mqtt;
+pub mod mqtt_config;
 pub mod program;
 pub mod recorder;
 pub mod retention;
 pub mod state;
 pub mod timing;
 
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 pub use config::{ConfigError, DriveSettings, Settings};
-pub use state::{DriveSnapshot, DriveState, Measured, Point, ServiceState};
+pub use state::{DriveSnapshot, DriveState, Measured, Point};
 
 use crate::modbus::bus::{Bus, Connection};
 use crate::modbus::client::DriveClient;
@@ -34,6 +50,46 @@ use timing::{TimingStats, use_realtime_priority};
 pub struct Service {
     pub state: Arc<ServiceState>,
     threads: Vec<std::thread::JoinHandle<()>>,
+}
+
+/// The whole service's shared state.
+pub struct ServiceState {
+    pub drives: Vec<Arc<DriveState>>,
+    /// Each drive's condition checks and alarms, in `drives` order.
+    pub conditions: Vec<Arc<condition::DriveCondition>>,
+    pub metrics: Metrics,
+    pub registry: prometheus_client::registry::Registry,
+    /// The MQTT publisher's health; None when `[mqtt]` is not configured.
+    pub mqtt: Option<Arc<mqtt::MqttHealth>>,
+    /// Where recordings are written; None when recording is off.
+    pub recording_dir: Option<PathBuf>,
+    /// The exclusive lock on the recordings directory (`recorder::lock_dir`), held while the service lives.
+    pub recording_lock: Option<Arc<recorder::DirLock>>,
+    pub started: Instant,
+}
+
+impl ServiceState {
+    pub fn drive(&self, name: &str) -> Option<&Arc<DriveState>> {
+        self.drives.iter().find(|d| d.name == name)
+    }
+
+    pub fn condition(&self, name: &str) -> Option<&Arc<condition::DriveCondition>> {
+        self.conditions.iter().find(|c| c.drive == name)
+    }
+
+    /// Ready when every drive is connected and fresh.
+    pub fn ready(&self) -> bool {
+        self.drives.iter().all(|d| d.ready())
+    }
+
+    pub fn snapshots(&self) -> Vec<DriveSnapshot> {
+        self.drives.iter().map(|d| d.snapshot()).collect()
+    }
+
+    /// The metrics exposition in `format` (OpenMetrics or the Prometheus text format).
+    pub fn metrics_text(&self, format: metrics::Format) -> String {
+        metrics::encode(&self.registry, format)
+    }
 }
 
 /// Starts one poll loop per drive, each on a thread of its own (named `poll-<drive>`), and one bus task per RTU

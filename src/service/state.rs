@@ -1,16 +1,17 @@
-//! What the poll loops publish and the HTTP side reads: per-drive snapshots, the history ring, the commands
-//! (target, reset) waiting for the loop, and the metrics registry.
+//! What each poll loop publishes and the HTTP side, MQTT and the condition checks read: a drive's snapshot, its
+//! history ring of rows ([`Point`], also the recording's, columns [`COLUMNS`]), and the commands (target, reset)
+//! waiting for the loop. The whole service's state ([`super::ServiceState`]) holds one [`DriveState`] per drive.
+//!
+//! In the service's layout (see [`super`]) it uses [`super::timing`] alone.
 
 use std::collections::VecDeque;
-use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::{Mutex, MutexGuard};
 use std::time::Duration;
 
 use serde::Serialize;
 use tokio::time::Instant;
 
-use super::metrics::Metrics;
 use super::timing::TimingStats;
 use crate::control::Mode;
 use crate::estimator::Estimate;
@@ -305,46 +306,6 @@ impl DriveState {
         let out = *c;
         c.reset_requested = false;
         Some(out)
-    }
-}
-
-/// The whole service's shared state.
-pub struct ServiceState {
-    pub drives: Vec<Arc<DriveState>>,
-    /// Each drive's condition checks and alarms, in `drives` order.
-    pub conditions: Vec<Arc<super::condition::DriveCondition>>,
-    pub metrics: Metrics,
-    pub registry: prometheus_client::registry::Registry,
-    /// The MQTT publisher's health; None when `[mqtt]` is not configured.
-    pub mqtt: Option<Arc<super::mqtt::MqttHealth>>,
-    /// Where recordings are written; None when recording is off.
-    pub recording_dir: Option<PathBuf>,
-    /// The exclusive lock on the recordings directory (`recorder::lock_dir`), held while the service lives.
-    pub recording_lock: Option<Arc<super::recorder::DirLock>>,
-    pub started: Instant,
-}
-
-impl ServiceState {
-    pub fn drive(&self, name: &str) -> Option<&Arc<DriveState>> {
-        self.drives.iter().find(|d| d.name == name)
-    }
-
-    pub fn condition(&self, name: &str) -> Option<&Arc<super::condition::DriveCondition>> {
-        self.conditions.iter().find(|c| c.drive == name)
-    }
-
-    /// Ready when every drive is connected and fresh.
-    pub fn ready(&self) -> bool {
-        self.drives.iter().all(|d| d.ready())
-    }
-
-    pub fn snapshots(&self) -> Vec<DriveSnapshot> {
-        self.drives.iter().map(|d| d.snapshot()).collect()
-    }
-
-    /// The metrics exposition in `format` (OpenMetrics or the Prometheus text format).
-    pub fn metrics_text(&self, format: super::metrics::Format) -> String {
-        super::metrics::encode(&self.registry, format)
     }
 }
 

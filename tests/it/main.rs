@@ -15,6 +15,7 @@ mod estimator;
 mod faults;
 mod hardening;
 mod http;
+mod layout;
 mod link_faults;
 mod loud;
 mod mqtt;
