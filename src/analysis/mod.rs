@@ -67,6 +67,10 @@ pub struct Options {
     /// much, well inside a unit's tolerance (and taken as given here), moves the flow balance as far. It decides
     /// when the model's own leakage is small or zero.
     pub leak_min_flow_share: f64,
+    /// A fitted B more than this factor from the model's is implausible as friction: with a dry-friction term left
+    /// out, the viscous term takes its torque (2 N·m over 2–19 rad/s looks like 0.2·ω). A dry-friction candidate
+    /// that brings B back within the factor is kept when it improves BIC and the out-of-fold error at all.
+    pub viscous_plausible_factor: f64,
 }
 
 impl Default for Options {
@@ -83,6 +87,7 @@ impl Default for Options {
             air_max_modulus_ratio: 0.8,
             leak_min_ratio: 0.2,
             leak_min_flow_share: 0.003,
+            viscous_plausible_factor: 2.0,
         }
     }
 }
@@ -419,14 +424,16 @@ fn analyze_series(
             if !resolved(t.id, &sc.model, &current.model, &s, opts) {
                 return false;
             }
+            let restores_b = restores_viscous(t.id, &sc.model, &current.model, nominal, opts);
             if cv {
                 let (Some(c), Some(b)) = (&t.cv, cv_before) else { return false };
                 let drop = 1.0 - (c.score / b).sqrt();
                 drop >= opts.min_relative_drop
                     || (c.score < b && c.regime.as_ref().is_some_and(|r| r.drop >= opts.min_relative_drop))
+                    || (c.score < b && restores_b)
             } else {
                 let after = t.scored.as_ref().map_or(f64::INFINITY, |x| x.0.validation.score(family));
-                1.0 - (after / before).sqrt() >= opts.min_relative_drop
+                1.0 - (after / before).sqrt() >= opts.min_relative_drop || (after < before && restores_b)
             }
         };
         let lowest = tried.iter().filter_map(rank).fold(f64::INFINITY, f64::min);
@@ -451,7 +458,57 @@ fn analyze_series(
                 kept: accept == Some(i),
             });
         }
-        let Some(i) = accept else { break };
+        let Some(i) = accept else {
+            // No effect earns its place alone: two that do together, each adding to the other (an effect that shows
+            // once another is modelled: a dead time behind a dry friction the viscous term had taken).
+            let pair = if cv {
+                joint_pair(&tried, &current, cv_before, &fold_current, &folds, &s, &std_rows, opts, n_bic)
+            } else {
+                None
+            };
+            let Some(p) = pair else { break };
+            let (a, b) = (&tried[p.first], &tried[p.second]);
+            let (Some((first, first_db)), Some(first_cv)) = (a.scored.clone(), a.cv.as_ref()) else { break };
+            let first = Scored::evaluate(first.model, first.terms, &s)?;
+            let pair_sc = Scored::evaluate(p.scored.model, p.scored.terms, &s)?;
+            for c in candidates.iter_mut().rev().take(tried.len()) {
+                c.kept |= c.effect == a.id || c.effect == b.id;
+            }
+            let jointly = |other: &str| format!("jointly with {other}: out-of-fold free runs of all {n_folds} blocks");
+            kept.push(Kept {
+                id: a.id,
+                before: current.clone(),
+                after: first.clone(),
+                delta_bic: first_db,
+                cv_before,
+                cv_after: Some(first_cv.score),
+                validated_on: jointly(b.id),
+            });
+            kept.push(Kept {
+                id: b.id,
+                before: first.clone(),
+                after: pair_sc.clone(),
+                delta_bic: search::delta_bic(
+                    first.fit.score(family),
+                    pair_sc.fit.score(family),
+                    search::parameter_count(b.id),
+                    n_bic,
+                ),
+                cv_before: Some(first_cv.score),
+                cv_after: Some(p.cv.score),
+                validated_on: jointly(a.id),
+            });
+            fold_current = p.cv.models;
+            cv_before = Some(p.cv.score);
+            current = pair_sc;
+            refit_named(&mut current, &mut fold_current, &folds, &s, &std_rows, (nominal, opts))?;
+            let (ia, ib) = (a.id, b.id);
+            remaining.retain(|r| *r != ia && *r != ib);
+            if remaining.is_empty() {
+                break;
+            }
+            continue;
+        };
         let winner = &tried[i];
         let Some((sc, db)) = winner.scored.clone() else { break };
         // the winner's prediction again (candidates keep only their errors): the findings need it
@@ -495,6 +552,7 @@ fn analyze_series(
             cv_before = Some(c.score);
         }
         current = sc;
+        refit_named(&mut current, &mut fold_current, &folds, &s, &std_rows, (nominal, opts))?;
         remaining.retain(|r| *r != id);
         if remaining.is_empty() {
             break;
@@ -657,6 +715,107 @@ struct Kept {
     validated_on: String,
 }
 
+/// The backward half of the search: after an addition, where B is still beyond `viscous_plausible_factor` of the
+/// nominal model's with both dry terms named, the Coulomb level is split out of the breakaway again beside what
+/// came since, on the standard rows and on every fold's, and kept where the free run fits better. A Coulomb level
+/// found before a dead time was in was fitted against a free run the dead time distorted.
+fn refit_named(
+    current: &mut Scored,
+    fold_current: &mut [Option<(PlantModel, MechTerms)>],
+    folds: &[Rows],
+    s: &Series,
+    rows: &Rows,
+    (nominal, opts): (&PlantModel, &Options),
+) -> Result<(), BadInput> {
+    let b0 = nominal.motor.viscous_nm_s_rad;
+    let f = opts.viscous_plausible_factor;
+    let again = |m: &PlantModel, t: MechTerms, r: &Rows| -> Option<(PlantModel, MechTerms)> {
+        m.effects.coulomb_friction.and(m.effects.stribeck_friction)?;
+        if (b0 / f..=b0 * f).contains(&m.motor.viscous_nm_s_rad) {
+            return None;
+        }
+        let mut stripped = m.clone();
+        stripped.effects.coulomb_friction = None;
+        search::coulomb_beside_stribeck("coulomb_friction", &stripped, t, s, r).map(|n| (n, t))
+    };
+    if let Some((m, t)) = again(&current.model, current.terms, rows) {
+        let refitted = Scored::evaluate(m, t, s)?;
+        let cost = |x: &Scored| rows.search_cost(&x.model, s);
+        if cost(&refitted) < cost(current) {
+            *current = refitted;
+        }
+    }
+    for (f, r) in fold_current.iter_mut().zip(folds) {
+        if let Some((m, t)) = f.as_ref()
+            && let Some(n) = again(m, *t, r)
+            && r.search_cost(&n.0, s) < r.search_cost(m, s)
+        {
+            *f = Some(n);
+        }
+    }
+    Ok(())
+}
+
+/// Two candidates of a round kept together: the first as tried alone, the second fitted on top of it.
+struct Pair {
+    first: usize,
+    second: usize,
+    scored: Scored,
+    cv: CrossValidated,
+}
+
+/// The pair of this round's cross-validated candidates that passes the rule together where neither did alone: ΔBIC
+/// of the two over the current model at least the margin, the out-of-fold error down by `min_relative_drop`, and
+/// each of the two lowering it below what the other alone reaches. The lowest out-of-fold score wins.
+#[allow(clippy::too_many_arguments)]
+fn joint_pair(
+    tried: &[Tried],
+    current: &Scored,
+    cv_before: Option<f64>,
+    fold_current: &[Option<(PlantModel, MechTerms)>],
+    folds: &[Rows],
+    s: &Series,
+    rows: &Rows,
+    opts: &Options,
+    n_bic: f64,
+) -> Option<Pair> {
+    let before = cv_before?;
+    let family = s.family;
+    let open: Vec<usize> = (0..tried.len())
+        .filter(|&i| {
+            let (Some((sc, db)), Some(c)) = (&tried[i].scored, &tried[i].cv) else { return false };
+            *db >= opts.min_delta_bic && c.score < before && resolved(tried[i].id, &sc.model, &current.model, s, opts)
+        })
+        .collect();
+    let _ = fold_current;
+    let mut best: Option<Pair> = None;
+    for &i in &open {
+        for &k in &open {
+            let (a, b) = (&tried[i], &tried[k]);
+            let (Some((first, _)), Some(a_cv), Some(b_cv)) = (&a.scored, &a.cv, &b.cv) else { continue };
+            if i == k {
+                continue;
+            }
+            let Some((m, t)) = search::candidate(b.id, &first.model, first.terms, s, rows, None) else { continue };
+            let Ok(pair) = Scored::evaluate(m, t, s).map(Scored::without_prediction) else { continue };
+            let params = search::parameter_count(a.id) + search::parameter_count(b.id);
+            let db = search::delta_bic(current.fit.score(family), pair.fit.score(family), params, n_bic);
+            if db < opts.min_delta_bic || !resolved(b.id, &pair.model, &first.model, s, opts) {
+                continue;
+            }
+            let Some(c) = cross_validate(b.id, &pair, &a_cv.models, folds, s, opts) else { continue };
+            let each = c.score < a_cv.score && c.score < b_cv.score;
+            if each
+                && 1.0 - (c.score / before).sqrt() >= opts.min_relative_drop
+                && best.as_ref().is_none_or(|p| c.score < p.cv.score)
+            {
+                best = Some(Pair { first: i, second: k, scored: pair, cv: c });
+            }
+        }
+    }
+    best
+}
+
 /// A candidate fitted on every fold.
 struct CrossValidated {
     /// Each fold's model (the fold's previous model where the effect could not be fitted on it).
@@ -706,6 +865,26 @@ fn resolved(id: &str, candidate: &PlantModel, current: &PlantModel, s: &Series, 
         }
         _ => true,
     }
+}
+
+/// Whether dry-friction candidate `id` brings the viscous friction back within `viscous_plausible_factor` of the
+/// nominal model's, from beyond it in `current`: the sign that the dry term was missing (`Options`). Never with
+/// `min_relative_drop` infinite (nothing is to be named).
+fn restores_viscous(
+    id: &str,
+    candidate: &PlantModel,
+    current: &PlantModel,
+    nominal: &PlantModel,
+    opts: &Options,
+) -> bool {
+    let b0 = nominal.motor.viscous_nm_s_rad;
+    let f = opts.viscous_plausible_factor;
+    let plausible = |m: &PlantModel| (b0 / f..=b0 * f).contains(&m.motor.viscous_nm_s_rad);
+    ["coulomb_friction", "stribeck_friction"].contains(&id)
+        && b0 > 0.0
+        && opts.min_relative_drop.is_finite()
+        && !plausible(current)
+        && plausible(candidate)
 }
 
 /// The motor's mean flow over the recording's mean |ΔP| (L/min/bar): the leakage coefficient that would take the
@@ -780,6 +959,25 @@ fn regime_score(p: &Prediction, s: &Series, rows: &[bool]) -> f64 {
     }
 }
 
+/// A dead time acts while the drive follows a setpoint move: the rows up to this many dead times after the
+/// setpoint changed, and at least `DEAD_TIME_REGIME_MIN_S`.
+const DEAD_TIME_REGIME_LAGS: f64 = 8.0;
+const DEAD_TIME_REGIME_MIN_S: f64 = 0.25;
+
+/// The rows at most `after_s` after the setpoint last changed (a step, or any sample of a ramp).
+fn moving(setpoint: &[f64], after_s: f64, sample_hz: f64) -> Vec<bool> {
+    let span = (after_s * sample_hz).round() as usize;
+    let mut last_move: Option<usize> = None;
+    (0..setpoint.len())
+        .map(|k| {
+            if k > 0 && (setpoint[k] - setpoint[k - 1]).abs() > 1e-9 {
+                last_move = Some(k);
+            }
+            last_move.is_some_and(|m| k - m <= span)
+        })
+        .collect()
+}
+
 /// Fits candidate `id` on every fold (on top of that fold's current model) and scores the blocks out of fold.
 fn cross_validate(
     id: &str,
@@ -803,24 +1001,34 @@ fn cross_validate(
         return None;
     }
     // the regime where the effect acts, from the standard fit
-    let regime = match (id, standard.model.effects.stribeck_friction) {
-        ("stribeck_friction", Some(st)) => {
-            let rows: Vec<bool> = s.omega_f.iter().map(|w| w.abs() < 2.0 * st.speed_rad_s).collect();
-            let seconds = rows.iter().filter(|r| **r).count() as f64 / s.sample_hz;
-            if seconds >= opts.regime_min_s {
-                let before = out_of_fold(fold_current, folds, s).map(|q| regime_score(&q, s, &rows));
-                let after = regime_score(&p, s, &rows);
-                before.filter(|b| *b > 0.0 && after.is_finite()).map(|b| Regime {
-                    name: format!("low speed (|ω| < {:.2} rad/s)", 2.0 * st.speed_rad_s),
-                    seconds,
-                    drop: 1.0 - (after / b).sqrt(),
-                })
-            } else {
-                None
-            }
+    let e = &standard.model.effects;
+    let acts: Option<(String, Vec<bool>)> = match (id, e.stribeck_friction, e.dead_time, &s.setpoint_hz) {
+        ("stribeck_friction", Some(st), _, _) => Some((
+            format!("low speed (|ω| < {:.2} rad/s)", 2.0 * st.speed_rad_s),
+            s.omega_f.iter().map(|w| w.abs() < 2.0 * st.speed_rad_s).collect(),
+        )),
+        ("dead_time", _, Some(d), Some(sp)) => {
+            let after_s = (DEAD_TIME_REGIME_LAGS * d.ms / 1e3).max(DEAD_TIME_REGIME_MIN_S);
+            Some((
+                format!("setpoint moves (up to {after_s:.2} s after the setpoint changed)"),
+                moving(sp, after_s, s.sample_hz),
+            ))
         }
         _ => None,
     };
+    let regime = acts.and_then(|(name, rows)| {
+        let seconds = rows.iter().filter(|r| **r).count() as f64 / s.sample_hz;
+        if seconds < opts.regime_min_s {
+            return None;
+        }
+        let before = out_of_fold(fold_current, folds, s).map(|q| regime_score(&q, s, &rows));
+        let after = regime_score(&p, s, &rows);
+        before.filter(|b| *b > 0.0 && after.is_finite()).map(|b| Regime {
+            name,
+            seconds,
+            drop: 1.0 - (after / b).sqrt(),
+        })
+    });
     Some(CrossValidated { models, score, regime })
 }
 

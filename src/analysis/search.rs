@@ -167,8 +167,24 @@ pub fn fit_mechanics_on(
     terms: MechTerms,
     ranges: &[(usize, usize)],
 ) -> Option<PlantModel> {
+    fit_mechanics_holding(base, s, terms, ranges, None)
+}
+
+/// [`fit_mechanics_on`], with dry friction held as a known torque (`held`: Coulomb N·m, the Stribeck excess over it
+/// N·m, ω_s): J, B and the terms of `terms` are fitted beside it, not through it.
+fn fit_mechanics_holding(
+    base: &PlantModel,
+    s: &Series,
+    terms: MechTerms,
+    ranges: &[(usize, usize)],
+    held: Option<(f64, f64, f64)>,
+) -> Option<PlantModel> {
     let rows = ls_rows(s, ranges);
-    let y: Vec<f64> = rows.iter().map(|&k| s.drive_torque_f[k] - s.load_f[k]).collect();
+    let dry = |k: usize, (tc, excess, ws): (f64, f64, f64)| {
+        (tc + excess * (-(s.omega_f[k] / ws).powi(2)).exp()) * s.sign(s.omega_f[k])
+    };
+    let y: Vec<f64> =
+        rows.iter().map(|&k| s.drive_torque_f[k] - s.load_f[k] - held.map_or(0.0, |h| dry(k, h))).collect();
     let mut cols =
         vec![rows.iter().map(|&k| s.alpha_f[k]).collect::<Vec<f64>>(), rows.iter().map(|&k| s.omega_f[k]).collect()];
     if terms.coulomb {
@@ -371,8 +387,62 @@ pub fn candidate(
         };
         return Some((refine_stribeck(fitted, s, rows, wide, 2), terms));
     }
-    let fitted = fit_mechanics_on(current, s, terms, &rows.ls)?;
-    Some((fitted, terms))
+    if let Some(fitted) = fit_mechanics_on(current, s, terms, &rows.ls) {
+        return Some((fitted, terms));
+    }
+    coulomb_beside_stribeck(id, current, terms, s, rows).map(|m| (m, terms))
+}
+
+/// [`coulomb_beside_stribeck`] names no Coulomb level below this share of the breakaway.
+const MIN_COULOMB_SHARE: f64 = 0.1;
+/// Rounds of [`coulomb_beside_stribeck`]'s coordinate descent.
+const COULOMB_PASSES: usize = 3;
+
+/// Coulomb friction beside a Stribeck friction already named. Least squares on the filtered speed may share the two
+/// badly (a negative dry level or excess), yet a constant and a bump at low speed are told apart by the free run
+/// over a spread of speeds. So the breakaway the Stribeck fit found (the whole friction at standstill) is kept and
+/// split: the dry level is searched on the free run, with J and B fitted by least squares for each level and both
+/// dry terms held; then the excess and ω_s are refined. Each dry term is evaluated whatever the other's state.
+pub fn coulomb_beside_stribeck(
+    id: &str,
+    current: &PlantModel,
+    terms: MechTerms,
+    s: &Series,
+    rows: &Rows,
+) -> Option<PlantModel> {
+    if id != "coulomb_friction" || s.family != Family::Hydraulic {
+        return None;
+    }
+    let free = MechTerms { coulomb: false, stribeck: false, ..terms };
+    let mut m = current.clone();
+    let mut grid: Vec<f64> = vec![0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 0.9];
+    // coordinate descent: the dry level at the breakaway found so far, then the excess and ω_s at that level
+    for _ in 0..COULOMB_PASSES {
+        let st = m.effects.stribeck_friction?;
+        let with_coulomb = |tc: f64| -> Option<PlantModel> {
+            let excess = (st.breakaway_nm - tc).max(1e-3);
+            let mut m = fit_mechanics_holding(current, s, free, &rows.ls, Some((tc, excess, st.speed_rad_s)))?;
+            m.effects.coulomb_friction = Some(CoulombFriction { torque_nm: tc });
+            m.effects.stribeck_friction = Some(StribeckFriction { breakaway_nm: tc + excess, ..st });
+            m.validate().ok().map(|()| m)
+        };
+        let levels: Vec<f64> = grid.iter().map(|f| f * st.breakaway_nm).collect();
+        let mut cost = |tc: f64| with_coulomb(tc).map_or(f64::INFINITY, |m| rows.search_cost(&m, s));
+        let (tc, best) = minimize_1d(&mut cost, &levels, 8);
+        if !best.is_finite() {
+            return None;
+        }
+        if tc < MIN_COULOMB_SHARE * st.breakaway_nm {
+            // a level this small is what refitting the Stribeck term alone moves, not a dry friction of its own
+            return None;
+        }
+        m = refine_stribeck(with_coulomb(tc)?, s, rows, false, 1);
+        // the next pass looks around this level
+        let f = tc / st.breakaway_nm;
+        grid = [0.6, 0.8, 1.0, 1.25, 1.6].iter().map(|x| (x * f).min(0.95)).collect();
+        grid.dedup();
+    }
+    Some(m)
 }
 
 /// Low-speed friction shows in brief transients, where the low-passed speed of the torque balance smears it; the

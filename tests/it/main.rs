@@ -27,5 +27,6 @@ mod proxy;
 mod rtu;
 mod service;
 mod simulator;
+mod slow_programs;
 mod soak;
 mod support;
