@@ -461,11 +461,8 @@ fn analyze_series(
         let Some(i) = accept else {
             // No effect earns its place alone: two that do together, each adding to the other (an effect that shows
             // once another is modelled: a dead time behind a dry friction the viscous term had taken).
-            let pair = if cv {
-                joint_pair(&tried, &current, cv_before, &fold_current, &folds, &s, &std_rows, opts, n_bic)
-            } else {
-                None
-            };
+            let pair =
+                if cv { joint_pair(&tried, &current, cv_before, &folds, &s, &std_rows, opts, n_bic) } else { None };
             let Some(p) = pair else { break };
             let (a, b) = (&tried[p.first], &tried[p.second]);
             let (Some((first, first_db)), Some(first_cv)) = (a.scored.clone(), a.cv.as_ref()) else { break };
@@ -772,7 +769,6 @@ fn joint_pair(
     tried: &[Tried],
     current: &Scored,
     cv_before: Option<f64>,
-    fold_current: &[Option<(PlantModel, MechTerms)>],
     folds: &[Rows],
     s: &Series,
     rows: &Rows,
@@ -787,7 +783,6 @@ fn joint_pair(
             *db >= opts.min_delta_bic && c.score < before && resolved(tried[i].id, &sc.model, &current.model, s, opts)
         })
         .collect();
-    let _ = fold_current;
     let mut best: Option<Pair> = None;
     for &i in &open {
         for &k in &open {
