@@ -498,7 +498,9 @@ fn analyze_series(
             fold_current = p.cv.models;
             cv_before = Some(p.cv.score);
             current = pair_sc;
-            refit_named(&mut current, &mut fold_current, &folds, &s, &std_rows, (nominal, opts))?;
+            if refit_named(&mut current, &mut fold_current, &folds, &s, &std_rows, (nominal, opts))? {
+                cv_before = out_of_fold_score(&fold_current, &folds, &s);
+            }
             let (ia, ib) = (a.id, b.id);
             remaining.retain(|r| *r != ia && *r != ib);
             if remaining.is_empty() {
@@ -549,7 +551,9 @@ fn analyze_series(
             cv_before = Some(c.score);
         }
         current = sc;
-        refit_named(&mut current, &mut fold_current, &folds, &s, &std_rows, (nominal, opts))?;
+        if refit_named(&mut current, &mut fold_current, &folds, &s, &std_rows, (nominal, opts))? && cv {
+            cv_before = out_of_fold_score(&fold_current, &folds, &s);
+        }
         remaining.retain(|r| *r != id);
         if remaining.is_empty() {
             break;
@@ -715,7 +719,8 @@ struct Kept {
 /// The backward half of the search: after an addition, where B is still beyond `viscous_plausible_factor` of the
 /// nominal model's with both dry terms named, the Coulomb level is split out of the breakaway again beside what
 /// came since, on the standard rows and on every fold's, and kept where the free run fits better. A Coulomb level
-/// found before a dead time was in was fitted against a free run the dead time distorted.
+/// found before a dead time was in was fitted against a free run the dead time distorted. True when a fold model
+/// changed (the out-of-fold score must then be taken again).
 fn refit_named(
     current: &mut Scored,
     fold_current: &mut [Option<(PlantModel, MechTerms)>],
@@ -723,7 +728,7 @@ fn refit_named(
     s: &Series,
     rows: &Rows,
     (nominal, opts): (&PlantModel, &Options),
-) -> Result<(), BadInput> {
+) -> Result<bool, BadInput> {
     let b0 = nominal.motor.viscous_nm_s_rad;
     let f = opts.viscous_plausible_factor;
     let again = |m: &PlantModel, t: MechTerms, r: &Rows| -> Option<(PlantModel, MechTerms)> {
@@ -742,15 +747,17 @@ fn refit_named(
             *current = refitted;
         }
     }
-    for (f, r) in fold_current.iter_mut().zip(folds) {
-        if let Some((m, t)) = f.as_ref()
+    let mut folds_changed = false;
+    for (fold, r) in fold_current.iter_mut().zip(folds) {
+        if let Some((m, t)) = fold.as_ref()
             && let Some(n) = again(m, *t, r)
             && r.search_cost(&n.0, s) < r.search_cost(m, s)
         {
-            *f = Some(n);
+            *fold = Some(n);
+            folds_changed = true;
         }
     }
-    Ok(())
+    Ok(folds_changed)
 }
 
 /// Two candidates of a round kept together: the first as tried alone, the second fitted on top of it.
