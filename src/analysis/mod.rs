@@ -729,16 +729,14 @@ fn refit_named(
     rows: &Rows,
     (nominal, opts): (&PlantModel, &Options),
 ) -> Result<bool, BadInput> {
-    let b0 = nominal.motor.viscous_nm_s_rad;
-    let f = opts.viscous_plausible_factor;
     let again = |m: &PlantModel, t: MechTerms, r: &Rows| -> Option<(PlantModel, MechTerms)> {
         m.effects.coulomb_friction.and(m.effects.stribeck_friction)?;
-        if (b0 / f..=b0 * f).contains(&m.motor.viscous_nm_s_rad) {
+        if viscous_plausible(m, nominal, opts) {
             return None;
         }
         let mut stripped = m.clone();
         stripped.effects.coulomb_friction = None;
-        search::coulomb_beside_stribeck("coulomb_friction", &stripped, t, s, r).map(|n| (n, t))
+        search::coulomb_beside_stribeck(&stripped, t, s, r).map(|n| (n, t))
     };
     if let Some((m, t)) = again(&current.model, current.terms, rows) {
         let refitted = Scored::evaluate(m, t, s)?;
@@ -793,11 +791,11 @@ fn joint_pair(
     let mut best: Option<Pair> = None;
     for &i in &open {
         for &k in &open {
-            let (a, b) = (&tried[i], &tried[k]);
-            let (Some((first, _)), Some(a_cv), Some(b_cv)) = (&a.scored, &a.cv, &b.cv) else { continue };
             if i == k {
                 continue;
             }
+            let (a, b) = (&tried[i], &tried[k]);
+            let (Some((first, _)), Some(a_cv), Some(b_cv)) = (&a.scored, &a.cv, &b.cv) else { continue };
             let Some((m, t)) = search::candidate(b.id, &first.model, first.terms, s, rows, None) else { continue };
             let Ok(pair) = Scored::evaluate(m, t, s).map(Scored::without_prediction) else { continue };
             let params = search::parameter_count(a.id) + search::parameter_count(b.id);
@@ -879,14 +877,17 @@ fn restores_viscous(
     nominal: &PlantModel,
     opts: &Options,
 ) -> bool {
-    let b0 = nominal.motor.viscous_nm_s_rad;
-    let f = opts.viscous_plausible_factor;
-    let plausible = |m: &PlantModel| (b0 / f..=b0 * f).contains(&m.motor.viscous_nm_s_rad);
     ["coulomb_friction", "stribeck_friction"].contains(&id)
-        && b0 > 0.0
+        && nominal.motor.viscous_nm_s_rad > 0.0
         && opts.min_relative_drop.is_finite()
-        && !plausible(current)
-        && plausible(candidate)
+        && !viscous_plausible(current, nominal, opts)
+        && viscous_plausible(candidate, nominal, opts)
+}
+
+/// Whether `m`'s B lies within `viscous_plausible_factor` of the nominal model's.
+fn viscous_plausible(m: &PlantModel, nominal: &PlantModel, opts: &Options) -> bool {
+    let (b0, f) = (nominal.motor.viscous_nm_s_rad, opts.viscous_plausible_factor);
+    (b0 / f..=b0 * f).contains(&m.motor.viscous_nm_s_rad)
 }
 
 /// The motor's mean flow over the recording's mean |ΔP| (L/min/bar): the leakage coefficient that would take the

@@ -3,11 +3,12 @@
 
 use crate::BadInput;
 use crate::plant::PlantModel;
+use crate::plant::dynamics::Mechanics;
 use crate::plant::effects::{
     CoulombFriction, DeadTime, EFFECT_IDS, EntrainedAir, InternalLeakage, MotorSlip, StribeckFriction, TorqueOffset,
 };
 
-use super::predict::{Errors, Prediction, errors, predict, predict_rows};
+use super::predict::{Errors, Prediction, errors, extra_torque_nm, predict, predict_rows};
 use super::series::{Family, Series};
 use super::signal::{least_squares, minimize_1d};
 
@@ -170,21 +171,20 @@ pub fn fit_mechanics_on(
     fit_mechanics_holding(base, s, terms, ranges, None)
 }
 
-/// [`fit_mechanics_on`], with dry friction held as a known torque (`held`: Coulomb N·m, the Stribeck excess over it
-/// N·m, ω_s): J, B and the terms of `terms` are fitted beside it, not through it.
+/// [`fit_mechanics_on`], with the friction and offset terms of `held` taken as a known torque: J, B and the terms
+/// of `terms` are fitted beside them, not through them.
 fn fit_mechanics_holding(
     base: &PlantModel,
     s: &Series,
     terms: MechTerms,
     ranges: &[(usize, usize)],
-    held: Option<(f64, f64, f64)>,
+    held: Option<&Mechanics>,
 ) -> Option<PlantModel> {
     let rows = ls_rows(s, ranges);
-    let dry = |k: usize, (tc, excess, ws): (f64, f64, f64)| {
-        (tc + excess * (-(s.omega_f[k] / ws).powi(2)).exp()) * s.sign(s.omega_f[k])
-    };
-    let y: Vec<f64> =
-        rows.iter().map(|&k| s.drive_torque_f[k] - s.load_f[k] - held.map_or(0.0, |h| dry(k, h))).collect();
+    let y: Vec<f64> = rows
+        .iter()
+        .map(|&k| s.drive_torque_f[k] - s.load_f[k] - held.map_or(0.0, |h| extra_torque_nm(h, s, s.omega_f[k])))
+        .collect();
     let mut cols =
         vec![rows.iter().map(|&k| s.alpha_f[k]).collect::<Vec<f64>>(), rows.iter().map(|&k| s.omega_f[k]).collect()];
     if terms.coulomb {
@@ -390,7 +390,10 @@ pub fn candidate(
     if let Some(fitted) = fit_mechanics_on(current, s, terms, &rows.ls) {
         return Some((fitted, terms));
     }
-    coulomb_beside_stribeck(id, current, terms, s, rows).map(|m| (m, terms))
+    if id != "coulomb_friction" {
+        return None;
+    }
+    coulomb_beside_stribeck(current, terms, s, rows).map(|m| (m, terms))
 }
 
 /// [`coulomb_beside_stribeck`] names no Coulomb level below this share of the breakaway.
@@ -403,14 +406,8 @@ const COULOMB_PASSES: usize = 3;
 /// over a spread of speeds. So the breakaway the Stribeck fit found (the whole friction at standstill) is kept and
 /// split: the dry level is searched on the free run, with J and B fitted by least squares for each level and both
 /// dry terms held; then the excess and ω_s are refined. Each dry term is evaluated whatever the other's state.
-pub fn coulomb_beside_stribeck(
-    id: &str,
-    current: &PlantModel,
-    terms: MechTerms,
-    s: &Series,
-    rows: &Rows,
-) -> Option<PlantModel> {
-    if id != "coulomb_friction" || s.family != Family::Hydraulic {
+pub fn coulomb_beside_stribeck(current: &PlantModel, terms: MechTerms, s: &Series, rows: &Rows) -> Option<PlantModel> {
+    if s.family != Family::Hydraulic {
         return None;
     }
     let free = MechTerms { coulomb: false, stribeck: false, ..terms };
@@ -420,10 +417,17 @@ pub fn coulomb_beside_stribeck(
     for _ in 0..COULOMB_PASSES {
         let st = m.effects.stribeck_friction?;
         let with_coulomb = |tc: f64| -> Option<PlantModel> {
-            let excess = (st.breakaway_nm - tc).max(1e-3);
-            let mut m = fit_mechanics_holding(current, s, free, &rows.ls, Some((tc, excess, st.speed_rad_s)))?;
+            let breakaway = tc + (st.breakaway_nm - tc).max(1e-3);
+            let held = Mechanics {
+                inertia_kg_m2: 0.0,
+                viscous_nm_s_rad: 0.0,
+                coulomb_nm: tc,
+                stribeck: Some((breakaway, st.speed_rad_s)),
+                offset_nm: 0.0,
+            };
+            let mut m = fit_mechanics_holding(current, s, free, &rows.ls, Some(&held))?;
             m.effects.coulomb_friction = Some(CoulombFriction { torque_nm: tc });
-            m.effects.stribeck_friction = Some(StribeckFriction { breakaway_nm: tc + excess, ..st });
+            m.effects.stribeck_friction = Some(StribeckFriction { breakaway_nm: breakaway, ..st });
             m.validate().ok().map(|()| m)
         };
         let levels: Vec<f64> = grid.iter().map(|f| f * st.breakaway_nm).collect();
