@@ -10,7 +10,7 @@ use crate::plant::effects::{
 
 use super::predict::{Errors, Prediction, errors, extra_torque_nm, predict, predict_rows};
 use super::series::{Family, Series};
-use super::signal::{least_squares, minimize_1d};
+use super::signal::{instrumental_least_squares, least_squares, minimize_1d};
 
 /// Which torque-balance terms the least-squares fit includes besides J and B.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -161,54 +161,139 @@ pub fn fit_mechanics(base: &PlantModel, s: &Series, terms: MechTerms) -> Option<
     fit_mechanics_on(base, s, terms, &[(0, s.split)])
 }
 
-/// [`fit_mechanics`] on the rows of `ranges`.
+/// [`fit_mechanics`] on the rows of `ranges`. On the hydraulic family the least-squares fit is refined by IDIM-IV
+/// ([`IV_PASSES`] passes): the sensors' noise in the filtered acceleration attenuates J by least squares (errors in
+/// the variables), and what J no longer explains goes to B and the dry terms. The instruments are the regressors of
+/// the fitted model's own free run, which move with the true ones but not with the noise.
 pub fn fit_mechanics_on(
     base: &PlantModel,
     s: &Series,
     terms: MechTerms,
     ranges: &[(usize, usize)],
 ) -> Option<PlantModel> {
-    fit_mechanics_holding(base, s, terms, ranges, None)
+    let fit = |z: Option<&Instruments>| fit_mechanics_holding(base, s, terms, ranges, None, z);
+    instrumented(fit, base, s)
 }
 
-/// [`fit_mechanics_on`], with the friction and offset terms of `held` taken as a known torque: J, B and the terms
-/// of `terms` are fitted beside them, not through them.
+/// IDIM-IV from the least-squares fit of `fit`, or, where the noise's bias makes least squares unphysical (a
+/// negative dry level), from `base`'s free run. `None` when neither gives a fit.
+fn instrumented(
+    fit: impl Fn(Option<&Instruments>) -> Option<PlantModel>,
+    base: &PlantModel,
+    s: &Series,
+) -> Option<PlantModel> {
+    match fit(None) {
+        Some(ls) => Some(refine_by_instruments(ls, |z| fit(Some(z)), s)),
+        None if s.family == Family::Hydraulic => {
+            let first = fit(Some(&Instruments::of(base, s)?))?;
+            Some(refine_by_instruments(first, |z| fit(Some(z)), s))
+        }
+        None => None,
+    }
+}
+
+/// Passes of IDIM-IV after the least-squares start: each simulates the last fit and fits again on its regressors.
+pub const IV_PASSES: usize = 2;
+
+/// The IDIM-IV passes from the least-squares fit `ls`; the last fit that succeeds (`ls` when none does).
+fn refine_by_instruments(ls: PlantModel, fit: impl Fn(&Instruments) -> Option<PlantModel>, s: &Series) -> PlantModel {
+    if s.family != Family::Hydraulic {
+        return ls;
+    }
+    let mut m = ls;
+    for _ in 0..IV_PASSES {
+        let Some(next) = Instruments::of(&m, s).and_then(|z| fit(&z)) else { break };
+        m = next;
+    }
+    m
+}
+
+/// The instruments of IDIM-IV: the acceleration of a model's free run, through the recording's low-pass.
+pub struct Instruments {
+    alpha_f: Vec<f64>,
+}
+
+impl Instruments {
+    /// `model`'s free run over the recording; `None` when it cannot run or does not stay finite.
+    pub fn of(model: &PlantModel, s: &Series) -> Option<Instruments> {
+        let p = predict(model, s, s.len()).ok()?;
+        if p.omega_rad_s.iter().any(|w| !w.is_finite()) {
+            return None;
+        }
+        let omega_f = super::signal::filtfilt_butter4(&p.omega_rad_s, s.cutoff_hz, s.sample_hz);
+        let alpha_f = super::signal::derivative(&omega_f, &s.t_s);
+        Some(Instruments { alpha_f })
+    }
+
+    /// The instruments for the regressor columns `x` (as [`balance_columns`] builds them) at `rows`: the free run's
+    /// acceleration for the measured one, whose noise attenuates J; every other column is its own instrument (the
+    /// speed's noise is small beside its spread, and the dry terms' columns are taken off standstill, where the
+    /// noise would smear the sign). Instrumenting those too from a model not yet right at low speed was worse on the
+    /// slow programs (B about twice the truth).
+    fn columns(&self, x: &[Vec<f64>], rows: &[usize]) -> Vec<Vec<f64>> {
+        let mut z = x.to_vec();
+        z[0] = rows.iter().map(|&k| self.alpha_f[k]).collect();
+        z
+    }
+}
+
+/// The torque balance's regressors at `rows` for speed `w` and acceleration `a`: α, ω, then sign(ω), 1 and the
+/// Stribeck shape at `stribeck_speed`, as `terms` asks.
+fn balance_columns(
+    s: &Series,
+    (w, a): (&[f64], &[f64]),
+    rows: &[usize],
+    terms: MechTerms,
+    stribeck_speed: Option<f64>,
+) -> Vec<Vec<f64>> {
+    let mut cols = vec![rows.iter().map(|&k| a[k]).collect::<Vec<f64>>(), rows.iter().map(|&k| w[k]).collect()];
+    if terms.coulomb {
+        cols.push(rows.iter().map(|&k| s.sign(w[k])).collect());
+    }
+    if terms.offset {
+        cols.push(vec![1.0; rows.len()]);
+    }
+    if let Some(ws) = stribeck_speed {
+        cols.push(rows.iter().map(|&k| (-(w[k] / ws).powi(2)).exp() * s.sign(w[k])).collect());
+    }
+    cols
+}
+
+/// [`fit_mechanics_on`]'s one fit, with the friction and offset terms of `held` taken as a known torque: J, B and
+/// the terms of `terms` are fitted beside them, not through them. By least squares, or with `instruments` by
+/// IDIM-IV.
 fn fit_mechanics_holding(
     base: &PlantModel,
     s: &Series,
     terms: MechTerms,
     ranges: &[(usize, usize)],
     held: Option<&Mechanics>,
+    instruments: Option<&Instruments>,
 ) -> Option<PlantModel> {
-    let rows = ls_rows(s, ranges);
+    let mut rows = ls_rows(s, ranges);
+    if s.family == Family::Hydraulic && (terms.coulomb || terms.stribeck || held.is_some()) {
+        // at standstill dry friction holds whatever torque is below the breakaway, and the tachogenerator's noise
+        // smears the sign: those rows carry no friction law (kept, they read as a steep viscous term: B high, the
+        // dry level low). A speed from a position encoder (the torque family, EMPS) keeps them, as IDIM-LS does
+        let still = s.standstill_speed();
+        rows.retain(|&k| s.omega_f[k].abs() > still);
+    }
     let y: Vec<f64> = rows
         .iter()
         .map(|&k| s.drive_torque_f[k] - s.load_f[k] - held.map_or(0.0, |h| extra_torque_nm(h, s, s.omega_f[k])))
         .collect();
-    let mut cols =
-        vec![rows.iter().map(|&k| s.alpha_f[k]).collect::<Vec<f64>>(), rows.iter().map(|&k| s.omega_f[k]).collect()];
-    if terms.coulomb {
-        cols.push(rows.iter().map(|&k| s.sign(s.omega_f[k])).collect());
-    }
-    if terms.offset {
-        cols.push(vec![1.0; rows.len()]);
-    }
+    let solve = |ws: Option<f64>| -> Option<(Vec<f64>, f64)> {
+        let x = balance_columns(s, (&s.omega_f, &s.alpha_f), &rows, terms, ws);
+        let theta = match instruments {
+            Some(z) => instrumental_least_squares(&x, &z.columns(&x, &rows), &y)?,
+            None => least_squares(&x, &y)?,
+        };
+        let rss = (0..y.len()).map(|i| (y[i] - x.iter().zip(&theta).map(|(c, t)| c[i] * t).sum::<f64>()).powi(2)).sum();
+        Some((theta, rss))
+    };
     let (theta, stribeck_speed) = if terms.stribeck {
-        // ω_s enters nonlinearly: grid, then golden section on the least-squares residual, in log ω_s
-        let with = |ws: f64| {
-            let mut c = cols.clone();
-            c.push(rows.iter().map(|&k| (-(s.omega_f[k] / ws).powi(2)).exp() * s.sign(s.omega_f[k])).collect());
-            c
-        };
-        let mut rss = |log_ws: f64| {
-            let c = with(log_ws.exp());
-            match least_squares(&c, &y) {
-                Some(th) => (0..y.len())
-                    .map(|i| (y[i] - c.iter().zip(&th).map(|(col, t)| col[i] * t).sum::<f64>()).powi(2))
-                    .sum(),
-                None => f64::INFINITY,
-            }
-        };
+        // ω_s enters nonlinearly: grid, then golden section on the residual, in log ω_s
+        let mut rss = |log_ws: f64| solve(Some(log_ws.exp())).map_or(f64::INFINITY, |(_, r)| r);
         let scale = s.speed_scale();
         // a Stribeck speed inside the sign band would only reshape the sign function
         let grid: Vec<f64> =
@@ -221,9 +306,9 @@ fn fit_mechanics_holding(
             return None;
         }
         let ws = log_ws.exp();
-        (least_squares(&with(ws), &y)?, Some(ws))
+        (solve(Some(ws))?.0, Some(ws))
     } else {
-        (least_squares(&cols, &y)?, None)
+        (solve(None)?.0, None)
     };
     let mut m = base.clone();
     let mut it = theta.into_iter();
@@ -401,52 +486,51 @@ const MIN_COULOMB_SHARE: f64 = 0.1;
 /// Rounds of [`coulomb_beside_stribeck`]'s coordinate descent.
 const COULOMB_PASSES: usize = 3;
 
-/// Coulomb friction beside a Stribeck friction already named. Least squares on the filtered speed may share the two
-/// badly (a negative dry level or excess), yet a constant and a bump at low speed are told apart by the free run
-/// over a spread of speeds. So the breakaway the Stribeck fit found (the whole friction at standstill) is kept and
-/// split: the dry level is searched on the free run, with J and B fitted by least squares for each level and both
-/// dry terms held; then the excess and ω_s are refined. Each dry term is evaluated whatever the other's state.
+/// Coulomb friction beside a Stribeck friction already named. Least squares with both dry terms free shares them
+/// badly on the filtered speed (a negative dry level or excess), and the free run barely tells a Coulomb level from
+/// viscous friction (a constant and a line through the origin over the same speeds trade along a ridge). So the two
+/// are split by coordinate descent: J, B and the Coulomb level by least squares (IDIM-IV) with the Stribeck excess
+/// above it held, then the excess and ω_s on the free run at that level. Over a spread of speeds above ω_s, the
+/// torque balance tells the constant from the line; the low-speed bump is what the free run sees. Each dry term is
+/// evaluated whatever the other's state.
 pub fn coulomb_beside_stribeck(current: &PlantModel, terms: MechTerms, s: &Series, rows: &Rows) -> Option<PlantModel> {
     if s.family != Family::Hydraulic {
         return None;
     }
-    let free = MechTerms { coulomb: false, stribeck: false, ..terms };
+    let dry = MechTerms { coulomb: true, stribeck: false, ..terms };
     let mut m = current.clone();
-    let mut grid: Vec<f64> = vec![0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 0.9];
-    // coordinate descent: the dry level at the breakaway found so far, then the excess and ω_s at that level
+    let first = current.effects.stribeck_friction?;
+    // the excess over the Coulomb level: at first the whole breakaway the Stribeck fit found
+    let mut excess = first.breakaway_nm - current.effects.coulomb_friction.map_or(0.0, |c| c.torque_nm);
+    let mut best: Option<(f64, PlantModel)> = None;
     for _ in 0..COULOMB_PASSES {
         let st = m.effects.stribeck_friction?;
-        let with_coulomb = |tc: f64| -> Option<PlantModel> {
-            let breakaway = tc + (st.breakaway_nm - tc).max(1e-3);
-            let held = Mechanics {
-                inertia_kg_m2: 0.0,
-                viscous_nm_s_rad: 0.0,
-                coulomb_nm: tc,
-                stribeck: Some((breakaway, st.speed_rad_s)),
-                offset_nm: 0.0,
-            };
-            let mut m = fit_mechanics_holding(current, s, free, &rows.ls, Some(&held))?;
-            m.effects.coulomb_friction = Some(CoulombFriction { torque_nm: tc });
-            m.effects.stribeck_friction = Some(StribeckFriction { breakaway_nm: breakaway, ..st });
-            m.validate().ok().map(|()| m)
+        let held = Mechanics {
+            inertia_kg_m2: 0.0,
+            viscous_nm_s_rad: 0.0,
+            coulomb_nm: 0.0,
+            stribeck: Some((excess.max(1e-3), st.speed_rad_s)),
+            offset_nm: 0.0,
         };
-        let levels: Vec<f64> = grid.iter().map(|f| f * st.breakaway_nm).collect();
-        let mut cost = |tc: f64| with_coulomb(tc).map_or(f64::INFINITY, |m| rows.search_cost(&m, s));
-        let (tc, best) = minimize_1d(&mut cost, &levels, 8);
-        if !best.is_finite() {
-            return None;
+        let fit = |z: Option<&Instruments>| fit_mechanics_holding(current, s, dry, &rows.ls, Some(&held), z);
+        let fitted = instrumented(fit, &m, s)?;
+        let tc = fitted.effects.coulomb_friction.map_or(0.0, |c| c.torque_nm);
+        let mut next = fitted;
+        next.effects.stribeck_friction = Some(StribeckFriction { breakaway_nm: tc + excess.max(1e-3), ..st });
+        next.validate().ok()?;
+        m = refine_stribeck(next, s, rows, false, 1);
+        excess = m.effects.stribeck_friction.map_or(excess, |st| st.breakaway_nm - tc);
+        let cost = rows.search_cost(&m, s);
+        if best.as_ref().is_none_or(|(c, _)| cost < *c) {
+            best = Some((cost, m.clone()));
         }
-        if tc < MIN_COULOMB_SHARE * st.breakaway_nm {
-            // a level this small is what refitting the Stribeck term alone moves, not a dry friction of its own
-            return None;
-        }
-        m = refine_stribeck(with_coulomb(tc)?, s, rows, false, 1);
-        // the next pass looks around this level
-        let f = tc / st.breakaway_nm;
-        grid = [0.6, 0.8, 1.0, 1.25, 1.6].iter().map(|x| (x * f).min(0.95)).collect();
-        grid.dedup();
     }
-    Some(m)
+    // the two steps can walk along the ridge between the dry level and the excess: the pass the free run prefers
+    let (_, m) = best?;
+    let tc = m.effects.coulomb_friction.map_or(0.0, |c| c.torque_nm);
+    let breakaway = m.effects.stribeck_friction.map_or(tc, |st| st.breakaway_nm);
+    // a level this small is what refitting the Stribeck term alone moves, not a dry friction of its own
+    (tc >= MIN_COULOMB_SHARE * breakaway).then_some(m)
 }
 
 /// Low-speed friction shows in brief transients, where the low-passed speed of the torque balance smears it; the

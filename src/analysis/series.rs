@@ -312,6 +312,17 @@ impl Series {
         (omega / self.sign_speed).tanh()
     }
 
+    /// Below this filtered speed (rad/s) the motor is taken as standing still: ten sign bands, or four standard
+    /// deviations of the speed sensor's noise through the regressors' low-pass (estimated from the measured speed
+    /// against its filtered self), whichever is larger.
+    pub fn standstill_speed(&self) -> f64 {
+        let d: Vec<f64> =
+            self.omega_rad_s.iter().zip(&self.omega_f).map(|(w, f)| (w - f).abs()).filter(|d| d.is_finite()).collect();
+        let raw = 1.4826 * percentile(&d, 0.5);
+        let through_filter = raw * (2.0 * self.cutoff_hz / self.sample_hz).sqrt();
+        (10.0 * self.sign_speed).max(4.0 * through_filter)
+    }
+
     pub fn len(&self) -> usize {
         self.t_s.len()
     }

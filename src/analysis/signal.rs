@@ -229,6 +229,24 @@ mod tests {
     use super::*;
 
     #[test]
+    fn instruments_undo_the_attenuation_that_noise_in_a_regressor_gives_least_squares() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(33);
+        let noise = Normal::new(0.0, 1.0).expect("σ > 0");
+        // y = 2·x + 1, x seen with noise as large as its own spread; the instrument is x without the noise
+        let x: Vec<f64> = (0..20_000).map(|k| (k as f64 * 0.01).sin()).collect();
+        let y: Vec<f64> = x.iter().map(|v| 2.0 * v + 1.0 + 0.1 * noise.sample(&mut rng)).collect();
+        let seen: Vec<f64> = x.iter().map(|v| v + 0.7 * noise.sample(&mut rng)).collect();
+        let ones = vec![1.0; x.len()];
+        let ls = least_squares(&[seen.clone(), ones.clone()], &y).expect("determined");
+        let iv = instrumental_least_squares(&[seen, ones.clone()], &[x, ones], &y).expect("determined");
+        // least squares: 2·var(x)/(var(x) + 0.49) = 2·0.5/0.99 ≈ 1.01; the instruments: 2
+        assert!((ls[0] - 1.01).abs() < 0.05, "{ls:?}");
+        assert!((iv[0] - 2.0).abs() < 0.05 && (iv[1] - 1.0).abs() < 0.02, "{iv:?}");
+    }
+
+    #[test]
     fn spikes_go_and_steps_stay() {
         // noise on a step and a ramp, with two lone spikes
         let mut x: Vec<f64> = (0..2000)
@@ -268,4 +286,32 @@ mod tests {
         let (x, _) = minimize_1d(&mut |x| (x - 0.37).powi(2), &[0.0, 0.25, 0.5, 0.75, 1.0], 30);
         assert!((x - 0.37).abs() < 1e-5, "{x}");
     }
+}
+
+/// Instrumental-variable least squares: θ from `Zᵀ A θ = Zᵀ y`, with instruments `z` (one column per regressor
+/// column of `a`) that move with the regressors but not with their noise. `None` when `Zᵀ A` does not determine θ.
+pub fn instrumental_least_squares(a: &[Vec<f64>], z: &[Vec<f64>], y: &[f64]) -> Option<Vec<f64>> {
+    let p = a.len();
+    let n = y.len();
+    if p == 0 || z.len() != p || n < p || a.iter().chain(z).any(|c| c.len() != n) {
+        return None;
+    }
+    // columns scaled to unit norm, so that the rank test is meaningful whatever the units
+    let norm = |c: &Vec<f64>| c.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let (na, nz): (Vec<f64>, Vec<f64>) = (a.iter().map(norm).collect(), z.iter().map(norm).collect());
+    if na.iter().chain(&nz).any(|&s| !(s > 0.0 && s.is_finite())) {
+        return None;
+    }
+    let dot = |u: &[f64], v: &[f64]| u.iter().zip(v).map(|(x, y)| x * y).sum::<f64>();
+    let zta = DMatrix::from_fn(p, p, |i, j| dot(&z[i], &a[j]) / (nz[i] * na[j]));
+    let zty = DVector::from_fn(p, |i, _| dot(&z[i], y) / nz[i]);
+    let svd = zta.svd(true, true);
+    let smax = svd.singular_values.max();
+    let smin = svd.singular_values.min();
+    if smin.is_nan() || smin <= 1e-9 * smax {
+        return None;
+    }
+    let theta = svd.solve(&zty, 1e-12).ok()?;
+    let out: Vec<f64> = theta.iter().zip(&na).map(|(t, s)| t / s).collect();
+    out.iter().all(|v| v.is_finite()).then_some(out)
 }
