@@ -224,6 +224,34 @@ pub fn minimize_1d(f: &mut dyn FnMut(f64) -> f64, grid: &[f64], refine_iters: us
     best
 }
 
+/// Instrumental-variable least squares: θ from `Zᵀ A θ = Zᵀ y`, with instruments `z` (one column per regressor
+/// column of `a`) that move with the regressors but not with their noise. `None` when `Zᵀ A` does not determine θ.
+pub fn instrumental_least_squares(a: &[Vec<f64>], z: &[Vec<f64>], y: &[f64]) -> Option<Vec<f64>> {
+    let p = a.len();
+    let n = y.len();
+    if p == 0 || z.len() != p || n < p || a.iter().chain(z).any(|c| c.len() != n) {
+        return None;
+    }
+    // columns scaled to unit norm, so that the rank test is meaningful whatever the units
+    let norm = |c: &Vec<f64>| c.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let (na, nz): (Vec<f64>, Vec<f64>) = (a.iter().map(norm).collect(), z.iter().map(norm).collect());
+    if na.iter().chain(&nz).any(|&s| !(s > 0.0 && s.is_finite())) {
+        return None;
+    }
+    let dot = |u: &[f64], v: &[f64]| u.iter().zip(v).map(|(x, y)| x * y).sum::<f64>();
+    let zta = DMatrix::from_fn(p, p, |i, j| dot(&z[i], &a[j]) / (nz[i] * na[j]));
+    let zty = DVector::from_fn(p, |i, _| dot(&z[i], y) / nz[i]);
+    let svd = zta.svd(true, true);
+    let smax = svd.singular_values.max();
+    let smin = svd.singular_values.min();
+    if smin.is_nan() || smin <= 1e-9 * smax {
+        return None;
+    }
+    let theta = svd.solve(&zty, 1e-12).ok()?;
+    let out: Vec<f64> = theta.iter().zip(&na).map(|(t, s)| t / s).collect();
+    out.iter().all(|v| v.is_finite()).then_some(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -286,32 +314,4 @@ mod tests {
         let (x, _) = minimize_1d(&mut |x| (x - 0.37).powi(2), &[0.0, 0.25, 0.5, 0.75, 1.0], 30);
         assert!((x - 0.37).abs() < 1e-5, "{x}");
     }
-}
-
-/// Instrumental-variable least squares: θ from `Zᵀ A θ = Zᵀ y`, with instruments `z` (one column per regressor
-/// column of `a`) that move with the regressors but not with their noise. `None` when `Zᵀ A` does not determine θ.
-pub fn instrumental_least_squares(a: &[Vec<f64>], z: &[Vec<f64>], y: &[f64]) -> Option<Vec<f64>> {
-    let p = a.len();
-    let n = y.len();
-    if p == 0 || z.len() != p || n < p || a.iter().chain(z).any(|c| c.len() != n) {
-        return None;
-    }
-    // columns scaled to unit norm, so that the rank test is meaningful whatever the units
-    let norm = |c: &Vec<f64>| c.iter().map(|v| v * v).sum::<f64>().sqrt();
-    let (na, nz): (Vec<f64>, Vec<f64>) = (a.iter().map(norm).collect(), z.iter().map(norm).collect());
-    if na.iter().chain(&nz).any(|&s| !(s > 0.0 && s.is_finite())) {
-        return None;
-    }
-    let dot = |u: &[f64], v: &[f64]| u.iter().zip(v).map(|(x, y)| x * y).sum::<f64>();
-    let zta = DMatrix::from_fn(p, p, |i, j| dot(&z[i], &a[j]) / (nz[i] * na[j]));
-    let zty = DVector::from_fn(p, |i, _| dot(&z[i], y) / nz[i]);
-    let svd = zta.svd(true, true);
-    let smax = svd.singular_values.max();
-    let smin = svd.singular_values.min();
-    if smin.is_nan() || smin <= 1e-9 * smax {
-        return None;
-    }
-    let theta = svd.solve(&zty, 1e-12).ok()?;
-    let out: Vec<f64> = theta.iter().zip(&na).map(|(t, s)| t / s).collect();
-    out.iter().all(|v| v.is_finite()).then_some(out)
 }
