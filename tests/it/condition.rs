@@ -434,3 +434,71 @@ async fn over_tcp_a_drive_without_new_data_is_not_checked_again() {
     };
     tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
 }
+
+// ---- time to limit (src/condition/trend.rs) on the wearing plant and on a clean one ----
+
+/// The leak grows from 0 at 0.2 l/min/bar an hour: it reaches the limit 0.05 at 900 s.
+const WEAR_PER_HOUR: f64 = 0.2;
+const WEAR_LIMIT: f64 = 0.05;
+const WEAR_RUN_S: f64 = 840.0;
+
+/// The checks of a run, each followed by the tracked leak's trend: (check time, trend), the checks' wall times set
+/// to their service times (the offline run takes seconds).
+fn projections(growth_per_hour: f64, seed: u64) -> Vec<(f64, hydrolens::condition::Tracked)> {
+    let truth = plant(growth_per_hour);
+    let rec = hydrolens::recording::simulated::test_stand(&truth, WEAR_RUN_S, seed, &mut |_| {}).expect("simulable");
+    let rec = as_the_service_records(&rec, POLL_MS, seed);
+    let mut m = Monitor::with_nominal(leak_limit(WEAR_LIMIT), &PlantModel::reference());
+    let mut out = Vec::new();
+    let mut t = WINDOW_S;
+    while t <= WEAR_RUN_S + 1e-9 {
+        let mut c =
+            condition::check(&window(&rec, t - WINDOW_S, t), &PlantModel::reference(), t, WINDOW_S).expect("check");
+        c.unix_s = t;
+        m.push(c);
+        out.push((t, m.tracked().remove(0)));
+        t += EVERY_S;
+    }
+    out
+}
+
+#[test]
+fn a_growing_leaks_projected_crossing_is_within_20_percent_once_a_third_of_the_way_there() {
+    let true_crossing_s = WEAR_LIMIT / WEAR_PER_HOUR * 3600.0;
+    let mut failures = Vec::new();
+    eprintln!("true crossing {true_crossing_s} s; check t, leak, state, projected crossing [95 % interval], error");
+    for (t, tr) in projections(WEAR_PER_HOUR, 3) {
+        let at = |s: Option<f64>| s.map(|s| t + s);
+        let (x, lo, hi) =
+            (at(tr.trend.seconds_to_limit), at(tr.trend.seconds_to_limit_low), at(tr.trend.seconds_to_limit_high));
+        let err = x.map(|x| (x - true_crossing_s) / true_crossing_s);
+        eprintln!(
+            "  {t:>5.0} s  {:>7.4}  {:<15} {:>7.0} [{:>5.0} … {:>5.0}]  {:>6.1} %",
+            tr.value.unwrap_or(f64::NAN),
+            format!("{:?}", tr.trend.state),
+            x.unwrap_or(f64::NAN),
+            lo.unwrap_or(f64::NAN),
+            hi.unwrap_or(f64::INFINITY),
+            100.0 * err.unwrap_or(f64::NAN)
+        );
+        if t >= true_crossing_s / 3.0 && !err.is_some_and(|e| e.abs() <= 0.2) {
+            failures.push(format!("at {t} s: {:?} projected {x:?}", tr.trend.state));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+#[test]
+fn a_clean_plant_is_not_rising_over_the_same_time() {
+    for (t, tr) in projections(0.0, 3) {
+        assert!(
+            matches!(
+                tr.trend.state,
+                hydrolens::condition::trend::TrendState::NotRising
+                    | hydrolens::condition::trend::TrendState::TooFewChecks
+            ),
+            "at {t} s: {tr:?}"
+        );
+        assert!(!tr.found && !tr.alarm, "at {t} s: {tr:?}");
+    }
+}
