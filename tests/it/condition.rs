@@ -114,6 +114,12 @@ async fn condition_json(url: &str, drive: &str) -> (reqwest::StatusCode, serde_j
     (status, r.json().await.expect("json"))
 }
 
+async fn drive_status(url: &str) -> serde_json::Value {
+    let r = reqwest::get(format!("{url}/api/status")).await.expect("GET status");
+    let v: serde_json::Value = r.json().await.expect("json");
+    v["drives"][0].clone()
+}
+
 fn leaks(v: &serde_json::Value) -> Vec<Option<f64>> {
     v["checks"]
         .as_array()
@@ -181,6 +187,23 @@ async fn over_tcp_a_growing_leak_shows_rising_across_checks_and_raises_its_alarm
         assert_eq!(param, Some(last));
         let took = support::metric(&metrics, "hydrolens_condition_check_duration_seconds{drive=\"pump1\"}");
         assert!(took.is_some_and(|s| s > 0.0 && s < 5.0), "{took:?}");
+        // the power budget and the trend, in /api/status and /metrics
+        let d = drive_status(&stack.url).await;
+        let e = &d["energy"];
+        assert!(e["power_w"]["input_w"].as_f64().is_some_and(|w| w > 0.0), "{e}");
+        assert!(e["energy_j"]["internal_leakage_w"].as_f64().is_some_and(|j| j > 0.0), "{e}");
+        assert!(e["effects"].as_array().is_some_and(|a| a.iter().any(|c| c["effect"] == "internal_leakage")), "{e}");
+        let eta = e["volumetric_efficiency"].as_f64().expect("volumetric efficiency");
+        assert!(eta > 0.5 && eta < 1.0, "{eta}");
+        let tracked = &d["condition"][0];
+        assert_eq!(tracked["effect"], "internal_leakage");
+        assert_eq!(tracked["found"], true, "{tracked}");
+        assert!(["rising", "past_limit", "too_few_checks"].contains(&tracked["trend"]["state"].as_str().unwrap_or("")));
+        let watts = support::metric(&metrics, "hydrolens_power_watts{drive=\"pump1\",flow=\"input\"}");
+        assert!(watts.is_some_and(|w| w > 0.0), "{metrics}");
+        assert!(metrics.contains("hydrolens_energy_joules{drive=\"pump1\",flow=\"internal_leakage\"}"), "{metrics}");
+        assert!(metrics.contains("hydrolens_efficiency_ratio{drive=\"pump1\",kind=\"volumetric\"}"), "{metrics}");
+        assert!(metrics.contains("hydrolens_effect_power_loss_watts{drive=\"pump1\",effect=\"internal_leakage\"}"));
         let (status, _) = condition_json(&stack.url, "pump9").await;
         assert_eq!(status, 404);
         assert!(!stack.sim.lock().truth().tripped);
@@ -212,6 +235,13 @@ async fn over_tcp_a_clean_plant_gives_no_finding_and_no_alarm() {
         let alarm = support::metric(&metrics, "hydrolens_condition_alarm{drive=\"pump1\",effect=\"internal_leakage\"}");
         assert_eq!(alarm, Some(0.0), "{metrics}");
         assert!(!metrics.contains("hydrolens_condition_parameter{"), "no fitted parameter: {metrics}");
+        assert!(!metrics.contains("hydrolens_condition_time_to_limit_seconds{"), "not rising: {metrics}");
+        let d = drive_status(&stack.url).await;
+        let tracked = &d["condition"][0];
+        assert_eq!((tracked["found"].as_bool(), tracked["value"].as_f64()), (Some(false), Some(0.0)), "{tracked}");
+        assert!(["not_rising", "too_few_checks"].contains(&tracked["trend"]["state"].as_str().unwrap_or("")), "{d}");
+        assert_eq!(d["energy"]["effects"], serde_json::json!([]), "nothing above the nominal model: {d}");
+        assert!(d["energy"]["power_w"]["load_w"].as_f64().is_some(), "{d}");
         stack.stop().await;
     };
     tokio::time::timeout(Duration::from_secs(70), run).await.expect("bounded");
