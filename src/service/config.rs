@@ -1317,6 +1317,7 @@ address = "127.0.0.1:5020"
                 key("[limits]\ninternal_leakage = { l_per_bar = 0.02 }"),
                 "drives[0].condition.limits.internal_leakage.l_per_bar"
             );
+            assert_eq!(key("energy_price_per_kwh = -0.1"), "drives[0].condition.energy_price_per_kwh");
             let unknown = toml::from_str::<RawCondition>("enable = true").expect_err("unknown key").to_string();
             assert!(unknown.contains("enable"), "{unknown}");
         }
