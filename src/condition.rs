@@ -262,6 +262,7 @@ impl Monitor {
                     parameter: parameter.clone(),
                     value: last.and_then(value_of),
                     found: last.is_some_and(|c| c.value(effect, parameter).is_some()),
+                    nominal,
                     limit,
                     alarms_below: below,
                     alarm: alarms.iter().any(|a| &a.effect == effect && &a.parameter == parameter),
@@ -310,6 +311,8 @@ pub struct Tracked {
     pub value: Option<f64>,
     /// True when the last check named the effect; false: checked, nothing found.
     pub found: bool,
+    /// The value a check that does not name the effect stands for (the nominal model's; null when there is none).
+    pub nominal: Option<f64>,
     pub limit: f64,
     pub alarms_below: bool,
     pub alarm: bool,

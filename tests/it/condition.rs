@@ -532,3 +532,110 @@ fn a_clean_plant_is_not_rising_over_the_same_time() {
         assert!(!tr.found && !tr.alarm, "at {t} s: {tr:?}");
     }
 }
+
+/// The condition panel in headless chromium on the checks of a real run (the offline wearing run of
+/// [`projections`], or the clean one, kept in the history file as the service writes it) and a live service on the
+/// same plant over TCP: human titles, the trend's state and projected crossing, "checked, nothing found" drawn as
+/// points at the nominal value (the bulk modulus at 15 000 bar), and the power bar's shares. The rendered page is
+/// checked, not only its JSON; `HYDROLENS_DOCS_SCREENSHOTS=1` writes the two screenshots to
+/// docs/condition_clean.png and docs/condition_wearing.png.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_dashboard_draws_each_tracked_effect_its_trend_and_where_the_power_goes() {
+    use crate::dashboard::{attr_after, run_chromium};
+    for (name, growth) in [("clean", 0.0), ("wearing", WEAR_PER_HOUR)] {
+        let dir = tempfile::tempdir().expect("tmp");
+        let store = condition::Store::new(dir.path(), "pump1");
+        let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).expect("clock").as_secs_f64();
+        let truth = plant(growth);
+        let rec = hydrolens::recording::simulated::test_stand(&truth, 480.0, 3, &mut |_| {}).expect("simulable");
+        let rec = as_the_service_records(&rec, POLL_MS, 3);
+        let mut t = WINDOW_S;
+        while t <= 480.0 + 1e-9 {
+            let mut c =
+                condition::check(&window(&rec, t - WINDOW_S, t), &PlantModel::reference(), t, WINDOW_S).expect("check");
+            c.unix_s = now - (480.0 - t);
+            store.append(&c).expect("append");
+            t += EVERY_S;
+        }
+        // the live plant goes on from where the run ended (its leak, and its wear)
+        let (_sim, addr, sim_stop, sim_task) = support::start_sim(truth.at(480.0), 0).await;
+        let text = support::config_text(
+            addr,
+            dir.path(),
+            5,
+            "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 40.0\nmax_hz = 50.0\nramp_hz_per_s = 20.0\n\n\
+             [drives.condition]\nenabled = true\nevery_s = 3600.0\nenergy_price_per_kwh = 0.25\n\
+             [drives.condition.limits]\ninternal_leakage = { l_min_per_bar = 0.05 }\n\
+             entrained_air = { bulk_modulus_bar = 8000.0 }\n",
+        );
+        let svc = support::start_service(&text).await;
+        let stop = tokio_util::sync::CancellationToken::new();
+        tokio::spawn(move_targets(svc.state.drives[0].clone(), stop.clone()));
+        let url = svc.url.clone();
+        let energy = wait_for(Duration::from_secs(20), || async {
+            drive_status(&url).await["energy"]["span_s"].as_f64().is_some_and(|s| s > 3.0)
+        })
+        .await;
+        assert!(energy.is_some(), "{name}: no energy report within 20 s");
+        let page = format!("{url}/?close_after=5");
+        let dom = tokio::task::spawn_blocking(move || {
+            run_chromium(&page, &["--virtual-time-budget=5000", "--dump-dom"], Duration::from_secs(60))
+        })
+        .await
+        .expect("joins");
+        let leak = "data-parameter=\"internal_leakage.l_min_per_bar\"";
+        let air = "data-parameter=\"entrained_air.bulk_modulus_bar\"";
+        assert!(dom.contains("Internal leakage (l/min/bar)"), "{name}: a human title: {dom:.4000}");
+        assert!(dom.contains("Entrained air: effective bulk modulus (bar)"), "{name}: {dom:.4000}");
+        assert!(!dom.contains(">entrained_air.bulk_modulus_bar<"), "{name}: no raw key as a title");
+        assert_eq!(attr_after(&dom, air, "data-nothing-found"), Some("7"), "{name}: the checks found no air");
+        // the axis is drawn on a canvas: its labels as the page made them
+        let ticks = attr_after(&dom, air, "data-y-ticks").unwrap_or_default().to_string();
+        let values: Vec<f64> = ticks.split('|').filter_map(|t| t.replace('\u{2009}', "").parse().ok()).collect();
+        assert!(
+            !values.is_empty() && values.len() == ticks.split('|').count(),
+            "{name}: every axis label a whole number: {ticks:?}"
+        );
+        assert!(values.iter().any(|v| *v >= 14_000.0), "{name}: the bulk modulus axis in full: {ticks:?}");
+        let share: f64 =
+            attr_after(&dom, "data-flow=\"load\"", "data-share").and_then(|s| s.parse().ok()).expect("share");
+        assert!(share > 0.3 && share < 1.0, "{name}: the load's share of the input {share}");
+        match name {
+            "clean" => {
+                assert_eq!(attr_after(&dom, leak, "data-nothing-found"), Some("7"));
+                assert_eq!(attr_after(&dom, leak, "data-state"), Some("not_rising"));
+                assert!(dom.contains("checked, nothing found"), "{dom:.4000}");
+            }
+            _ => {
+                assert_eq!(attr_after(&dom, leak, "data-state"), Some("rising"));
+                let crossing: f64 =
+                    attr_after(&dom, leak, "data-crossing-unix-s").and_then(|s| s.parse().ok()).expect("a crossing");
+                // the run's t = 0 is now − 480 s; the leak reaches 0.05 at t = 900 s
+                let err = (crossing - (now - 480.0) - 900.0) / 900.0;
+                assert!(err.abs() < 0.2, "{name}: the projected crossing {err:+.3} off");
+                assert!(dom.contains("rising: reaches the limit in"), "{dom:.4000}");
+            }
+        }
+        let shots = tempfile::tempdir().expect("tmp");
+        let shot = shots.path().join(format!("condition_{name}.png"));
+        let (page, arg) = (format!("{url}/?close_after=5"), format!("--screenshot={}", shot.display()));
+        tokio::task::spawn_blocking(move || {
+            run_chromium(
+                &page,
+                &["--virtual-time-budget=5000", "--window-size=1280,1500", &arg],
+                Duration::from_secs(60),
+            )
+        })
+        .await
+        .expect("joins");
+        let png = std::fs::read(&shot).expect("a screenshot");
+        assert!(png.starts_with(b"\x89PNG") && png.len() > 10_000, "{} bytes", png.len());
+        if std::env::var_os("HYDROLENS_DOCS_SCREENSHOTS").is_some() {
+            std::fs::copy(&shot, support::root().join("docs").join(format!("condition_{name}.png"))).expect("copy");
+        }
+        stop.cancel();
+        support::stop_service(svc).await;
+        sim_stop.cancel();
+        let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await.expect("simulator stops");
+    }
+}
