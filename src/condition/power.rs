@@ -276,7 +276,8 @@ impl Ledger {
                 self.last_t_s = Some(x.t_s);
                 continue;
             };
-            if !(x.t_s > prev) {
+            // older or the same (or NaN): taken already
+            if x.t_s.partial_cmp(&prev) != Some(std::cmp::Ordering::Greater) {
                 continue;
             }
             self.last_t_s = Some(x.t_s);
