@@ -11,7 +11,13 @@
 //! - [`Store`] appends each check as one JSON line beside the drive's recordings and reads them back, so that a
 //!   restart keeps the history (and the alarms, which are the checks replayed).
 //!
+//! - [`power`] turns the model, the estimates and the fitted effects into a power budget and its energies;
+//!   [`trend`] fits a line through a parameter's history and projects when it reaches its limit.
+//!
 //! Pure but for [`Store`]; the service decides when and on which thread a check runs.
+
+pub mod power;
+pub mod trend;
 
 use crate::error::KeyError;
 use std::collections::BTreeMap;
@@ -147,11 +153,27 @@ pub struct Monitor {
     /// Beside each check: the effects in alarm once it was counted (derived, so replayed rather than stored).
     alarmed: std::collections::VecDeque<Vec<String>>,
     alarms: BTreeMap<(String, String), Alarm>,
+    /// Each limited parameter's value when a check does not name its effect (the nominal model's); a parameter
+    /// with none (a Stribeck speed of an effect that is off) takes only the checks that name it.
+    nominal: BTreeMap<(String, String), f64>,
 }
 
 impl Monitor {
     pub fn new(limits: Limits) -> Monitor {
         Monitor { limits, ..Monitor::default() }
+    }
+
+    /// As [`Monitor::new`], with the nominal model that says what an unnamed effect's parameter is.
+    pub fn with_nominal(limits: Limits, nominal: &PlantModel) -> Monitor {
+        let mut values = BTreeMap::new();
+        for (effect, params) in &limits {
+            for parameter in params.keys() {
+                if let Some(v) = nominal_value(nominal, effect, parameter) {
+                    values.insert((effect.clone(), parameter.clone()), v);
+                }
+            }
+        }
+        Monitor { limits, nominal: values, ..Monitor::default() }
     }
 
     /// Adds a check (the newest) and updates the alarms from it.
@@ -213,9 +235,50 @@ impl Monitor {
         &self.limits
     }
 
+    /// Every effect with a limit: its last value, limit, alarm, and its [`trend`] over the checks kept. Times are
+    /// the checks' wall-clock times when every check has one (they survive restarts), else their service times.
+    pub fn tracked(&self) -> Vec<Tracked> {
+        let wall = self.checks.iter().all(|c| c.unix_s > 0.0);
+        let time = |c: &Check| if wall { c.unix_s } else { c.t_s };
+        let alarms = self.alarms();
+        let mut out = Vec::new();
+        for (effect, params) in &self.limits {
+            for (parameter, &limit) in params {
+                let nominal = self.nominal.get(&(effect.clone(), parameter.clone())).copied();
+                let value_of = |c: &Check| c.value(effect, parameter).or(nominal);
+                let points: Vec<trend::Point> = self
+                    .checks
+                    .iter()
+                    .filter_map(|c| value_of(c).map(|v| trend::Point { t_s: time(c) - c.window_s / 2.0, value: v }))
+                    .collect();
+                let last = self.checks.back();
+                let window_s = last.map_or(0.0, |c| c.window_s);
+                let now_s = last.map_or(0.0, time);
+                let below = alarms_below(parameter);
+                let tr = trend::trend(&points, limit, below, window_s, now_s);
+                let crossing = |s: Option<f64>| s.zip(last).map(|(s, c)| c.unix_s + s);
+                out.push(Tracked {
+                    effect: effect.clone(),
+                    parameter: parameter.clone(),
+                    value: last.and_then(value_of),
+                    found: last.is_some_and(|c| c.value(effect, parameter).is_some()),
+                    nominal,
+                    limit,
+                    alarms_below: below,
+                    alarm: alarms.iter().any(|a| &a.effect == effect && &a.parameter == parameter),
+                    crossing_unix_s: crossing(tr.seconds_to_limit),
+                    crossing_unix_s_low: crossing(tr.seconds_to_limit_low),
+                    crossing_unix_s_high: crossing(tr.seconds_to_limit_high),
+                    trend: tr,
+                });
+            }
+        }
+        out
+    }
+
     /// The condition JSON of `GET /api/drives/{name}/condition`: the contract's `drive`, `checks` (oldest first)
-    /// and `alarms`; beyond it, each check's `alarms` (the effects in alarm after it, for the dashboard's marks)
-    /// and the `limits`.
+    /// and `alarms`; beyond it, each check's `alarms` (the effects in alarm after it, for the dashboard's marks),
+    /// the `limits`, and `tracked` ([`Monitor::tracked`]).
     pub fn to_json(&self, drive: &str) -> serde_json::Value {
         let checks: Vec<serde_json::Value> = self
             .checks
@@ -234,7 +297,45 @@ impl Monitor {
             "checks": checks,
             "alarms": self.alarms(),
             "limits": self.limits,
+            "tracked": self.tracked(),
         })
+    }
+}
+
+/// An effect with a limit, as `/api/status` (`condition[]`), the condition JSON and the dashboard show it.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Tracked {
+    pub effect: String,
+    pub parameter: String,
+    /// The last check's value (the nominal one when it did not name the effect); null before the first check.
+    pub value: Option<f64>,
+    /// True when the last check named the effect; false: checked, nothing found.
+    pub found: bool,
+    /// The value a check that does not name the effect stands for (the nominal model's; null when there is none).
+    pub nominal: Option<f64>,
+    pub limit: f64,
+    pub alarms_below: bool,
+    pub alarm: bool,
+    pub trend: trend::Trend,
+    /// The projected crossing and its 95 % interval as wall-clock time (s since the Unix epoch).
+    pub crossing_unix_s: Option<f64>,
+    pub crossing_unix_s_low: Option<f64>,
+    pub crossing_unix_s_high: Option<f64>,
+}
+
+/// What `parameter` of `effect` is in `model`: its value when the effect is on; when it is off, the value that
+/// means "nothing" (0 for a leak, a friction, an offset, a dead time, a slip; the model's bulk modulus for
+/// entrained air); None where "off" has no value (a Stribeck speed).
+pub fn nominal_value(model: &PlantModel, effect: &str, parameter: &str) -> Option<f64> {
+    let on = serde_json::to_value(model.effects).ok()?;
+    if let Some(v) = on.get(effect).and_then(|e| e.get(parameter)).and_then(serde_json::Value::as_f64) {
+        return Some(v);
+    }
+    match (effect, parameter) {
+        ("entrained_air", "bulk_modulus_bar") => model.hydraulics.as_ref().map(|h| h.bulk_modulus_bar),
+        ("stribeck_friction", "speed_rad_s") => None,
+        ("stribeck_friction", "breakaway_nm") => Some(model.effects.coulomb_friction.map_or(0.0, |c| c.torque_nm)),
+        _ => Some(0.0),
     }
 }
 
@@ -363,6 +464,29 @@ mod tests {
             .collect();
         assert_eq!(marks, [0, 0, 1, 1, 0], "each check says which effects were in alarm after it");
         assert_eq!(json["checks"][0]["t_s"], 60.0, "oldest first");
+    }
+
+    #[test]
+    fn tracked_effects_say_nothing_found_as_the_nominal_value_and_project_a_rising_leak() {
+        let mut m = Monitor::with_nominal(leak_limit(0.05), &PlantModel::reference());
+        m.push(check_with(120.0, None));
+        let t = &m.tracked()[0];
+        assert_eq!((t.value, t.found, t.alarm), (Some(0.0), false, false), "checked, nothing found: the nominal 0");
+        assert_eq!(t.trend.state, trend::TrendState::TooFewChecks);
+        // the leak grows 1e-4 per s from t = 0 (each check's value is its window's mean, at t − 60 s)
+        for k in 1..5 {
+            let t = 120.0 + 60.0 * k as f64;
+            m.push(check_with(t, Some(1e-4 * (t - 60.0))));
+        }
+        let t = &m.tracked()[0];
+        assert_eq!(t.trend.state, trend::TrendState::Rising, "{t:?}");
+        let last = m.last().expect("checks");
+        // true crossing at 500 s; the first check's 0 pulls the line a little
+        let at = last.t_s + t.trend.seconds_to_limit.expect("crossing");
+        assert!((at - 500.0).abs() < 50.0, "{at}");
+        let json = m.to_json("pump1");
+        assert_eq!(json["tracked"][0]["trend"]["state"], "rising");
+        assert!(json["tracked"][0]["crossing_unix_s"].as_f64().is_some());
     }
 
     #[test]

@@ -98,7 +98,9 @@ function finite(v) {
   return Number.isFinite(v) ? v : null;
 }
 
-/// Fills the charts with the last minute from the in-memory history ring: its columns are the charts' columns.
+/// Fills the charts with the last minute from the in-memory history ring: its columns are the charts' columns. The
+/// ring does not keep the speed target, so the target line starts with the live points: a constant drawn over the
+/// history would show the program's target flat while it moved.
 async function loadHistory(entry, name) {
   const r = await fetch(`/api/history?drive=${encodeURIComponent(name)}&seconds=${WINDOW_S}&max_points=600`);
   if (!r.ok) return;
@@ -107,7 +109,7 @@ async function loadHistory(entry, name) {
   if (n === 0) return;
   for (const c of Object.values(entry.charts)) {
     c.data = [h.t_s.slice(), ...c.columns.map(col =>
-      col === "target" ? new Array(n).fill(entry.target) : h[col].map(finite))];
+      col === "target" ? new Array(n).fill(null) : h[col].map(finite))];
   }
   entry.lastT = h.t_s[n - 1];
   redraw(entry);

@@ -1,19 +1,72 @@
 // hydrolens dashboard, condition panel: per drive with condition checks enabled, the trend of each fitted effect
 // parameter across checks (/api/drives/{name}/condition), its limit, the checks after which the effect was in alarm
 // marked in red, the alarms raised now, and when the last check ran. Refreshed every REFRESH_MS.
+// Each tracked effect (one with a limit) is drawn in its own units under a human title, with its limit, the
+// least-squares trend line and the projected crossing (/api/status drives[].condition[].trend), and a check that
+// found nothing drawn as a grey point at the nominal value ("checked, nothing found"). Above the charts, where the
+// power goes since the start (drives[].energy): load, friction, leakage and slip as shares of the input power.
 // Test hooks: each panel carries data-drive, data-checks (checks shown) and data-alarms (alarms raised); each chart
-// box data-parameter ("effect.parameter"), data-points and data-alarm-marks (checks marked); .last-check carries
-// data-t-s (the last check's service time).
+// box data-parameter ("effect.parameter"), data-points (checks that named it), data-nothing-found (checks that did
+// not), data-alarm-marks (checks marked), data-y-ticks (the value axis's labels, "|" apart), data-state (the trend's state) and data-crossing-unix-s; .last-check
+// carries data-t-s (the last check's service time); each .flow of the power bar data-flow and data-share.
 "use strict";
 
 (function () {
-  const REFRESH_MS = 10000;
+  const REFRESH_MS = 2000;
   const panels = new Map(); // drive -> { section, charts: Map(key -> {box, plot}) }
 
   function fmtNum(v) {
     if (v === null || v === undefined || !Number.isFinite(v)) return "–";
     const a = Math.abs(v);
     return a !== 0 && (a < 0.01 || a >= 1e5) ? v.toExponential(3) : v.toPrecision(4);
+  }
+
+  /// Axis numbers in full, thousands apart by a thin space (15 000 bar, not a cut "5,000"), small ones as fmtNum.
+  function fmtAxis(v) {
+    if (v === null || !Number.isFinite(v)) return "";
+    const a = Math.abs(v);
+    if (a >= 1000) return Math.round(v).toString().replace(/\B(?=(\d{3})+(?!\d))/g, "\u2009");
+    return a !== 0 && a < 0.01 ? v.toExponential(1) : String(+v.toPrecision(3));
+  }
+
+  // Each catalogue parameter: a title a user reads, and its unit.
+  const TITLES = {
+    "internal_leakage.l_min_per_bar": ["Internal leakage", "l/min/bar"],
+    "entrained_air.bulk_modulus_bar": ["Entrained air: effective bulk modulus", "bar"],
+    "dead_time.ms": ["Dead time", "ms"],
+    "coulomb_friction.torque_nm": ["Dry (Coulomb) friction", "N·m"],
+    "stribeck_friction.breakaway_nm": ["Stribeck friction: breakaway torque", "N·m"],
+    "stribeck_friction.speed_rad_s": ["Stribeck friction: speed", "rad/s"],
+    "torque_offset.torque_nm": ["Torque offset", "N·m"],
+    "motor_slip.rpm_per_nm": ["Motor slip", "rpm/N·m"],
+  };
+
+  function title(key) {
+    const t = TITLES[key];
+    return t ? `${t[0]} (${t[1]})` : key;
+  }
+
+  function fmtDuration(s) {
+    if (!Number.isFinite(s)) return "open";
+    if (s < 120) return `${s.toFixed(0)} s`;
+    if (s < 7200) return `${(s / 60).toFixed(0)} min`;
+    if (s < 2 * 86400) return `${(s / 3600).toFixed(1)} h`;
+    return `${(s / 86400).toFixed(1)} days`;
+  }
+
+  /// The trend's state in words, with the projected crossing and its interval.
+  function trendText(t) {
+    if (!t) return "";
+    const tr = t.trend;
+    switch (tr.state) {
+      case "rising":
+        return `rising: reaches the limit in ${fmtDuration(tr.seconds_to_limit)} ` +
+          `(95 %: ${fmtDuration(tr.seconds_to_limit_low)} … ${fmtDuration(tr.seconds_to_limit_high ?? Infinity)}), ` +
+          `${fmtTime(t.crossing_unix_s)}`;
+      case "past_limit": return "past the limit";
+      case "not_rising": return "not rising";
+      default: return "too few checks for a trend (4 needed)";
+    }
   }
 
   function fmtTime(unixS) {
@@ -52,18 +105,30 @@
     box.dataset.points = "0";
     box.dataset.alarmMarks = "0";
     panel.section.querySelector(".chart-row").appendChild(box);
-    const w = Math.max(320, Math.min(560, (document.body.clientWidth - 80) / 3));
+    const w = Math.max(360, Math.min(560, (document.body.clientWidth - 80) / 3));
+    const none = () => null;
     const opts = {
-      title: key, width: Math.floor(w), height: 200,
+      title: title(key), width: Math.floor(w), height: 220,
       scales: { x: { time: true } },
+      axes: [{}, { size: 64, values: (u, vals) => {
+        const labels = vals.map(fmtAxis);
+        box.dataset.yTicks = labels.join("|");
+        return labels;
+      } }],
       series: [
         {},
         { label: "fitted", stroke: "#1565c0", width: 1.5, points: { show: true, size: 5 } },
-        { label: "limit", stroke: "#c62828", width: 1, dash: [6, 4], points: { show: false } },
-        { label: "in alarm", stroke: "#c62828", width: 0, paths: () => null, points: { show: true, size: 9, fill: "#c62828" } },
+        { label: "limit", stroke: "#c62828", width: 1, dash: [6, 4], points: { show: false }, spanGaps: true },
+        { label: "in alarm", stroke: "#c62828", width: 0, paths: none, points: { show: true, size: 9, fill: "#c62828" } },
+        { label: "checked, nothing found", stroke: "#8a929e", width: 0, paths: none, points: { show: true, size: 6, fill: "#fff" } },
+        { label: "trend", stroke: "#ef6c00", width: 1.5, dash: [3, 3], points: { show: false }, spanGaps: true },
+        { label: "projected crossing", stroke: "#ef6c00", width: 0, paths: none, points: { show: true, size: 11, fill: "#ef6c00" } },
       ],
     };
-    c = { box, plot: new uPlot(opts, [[], [], [], []], box) };
+    const caption = document.createElement("p");
+    caption.className = "trend muted";
+    c = { box, caption, plot: new uPlot(opts, [[], [], [], [], [], [], []], box) };
+    box.appendChild(caption);
     panel.charts.set(key, c);
     return c;
   }
@@ -88,31 +153,112 @@
       li.textContent = `ALARM ${a.effect}: ${a.parameter} = ${fmtNum(a.value)} (limit ${fmtNum(a.limit)}) since ${fmtTime(a.since_unix_s)}`;
       return li;
     }));
+    const tracked = new Map((c.tracked || []).map(t => [`${t.effect}.${t.parameter}`, t]));
     for (const [effect, parameter] of parameters(c)) {
-      const chart = chartFor(panel, effect, parameter);
-      const limit = c.limits && c.limits[effect] ? c.limits[effect][parameter] : undefined;
-      const xs = [], ys = [], lim = [], marks = [];
-      for (const ch of checks) {
-        const f = (ch.findings || []).find(f => f.effect === effect);
-        const v = f && f.parameters ? f.parameters[parameter] : undefined;
-        xs.push(ch.unix_s);
-        ys.push(Number.isFinite(v) ? v : null);
-        lim.push(Number.isFinite(limit) ? limit : null);
-        marks.push((ch.alarms || []).includes(effect) && Number.isFinite(v) ? v : null);
-      }
-      chart.plot.setData([xs, ys, lim, marks]);
-      chart.box.dataset.points = String(ys.filter(v => v !== null).length);
-      chart.box.dataset.alarmMarks = String(marks.filter(v => v !== null).length);
+      drawParameter(panel, checks, c, effect, parameter, tracked.get(`${effect}.${parameter}`));
     }
   }
 
+  /// One parameter's chart: the checks at their windows' centres, the limit, the trend line from the first check to
+  /// the projected crossing (or the last check), and the crossing itself.
+  function drawParameter(panel, checks, c, effect, parameter, t) {
+    const chart = chartFor(panel, effect, parameter);
+    const limit = c.limits && c.limits[effect] ? c.limits[effect][parameter] : undefined;
+    const nominal = t ? t.nominal : null;
+    const rows = [];
+    for (const ch of checks) {
+      const f = (ch.findings || []).find(f => f.effect === effect);
+      const v = f && f.parameters ? f.parameters[parameter] : undefined;
+      const found = Number.isFinite(v);
+      rows.push([ch.unix_s - ch.window_s / 2, found ? v : null, !found && Number.isFinite(nominal) ? nominal : null,
+        (ch.alarms || []).includes(effect) && found ? v : null]);
+    }
+    const last = checks[checks.length - 1];
+    const tr = t && t.trend;
+    const line = x => tr && Number.isFinite(tr.value_now) && last
+      ? tr.value_now + tr.slope_per_day / 86400 * (x - last.unix_s) : null;
+    const crossing = t && Number.isFinite(t.crossing_unix_s) && tr.state === "rising" ? t.crossing_unix_s : null;
+    if (crossing !== null) rows.push([crossing, null, null, null]);
+    rows.sort((a, b) => a[0] - b[0]);
+    const drawsTrend = tr && (tr.state === "rising" || tr.state === "past_limit" || tr.state === "not_rising");
+    const xs = rows.map(r => r[0]);
+    chart.plot.setData([
+      xs,
+      rows.map(r => r[1]),
+      xs.map(() => (Number.isFinite(limit) ? limit : null)),
+      rows.map(r => r[3]),
+      rows.map(r => r[2]),
+      xs.map(x => (drawsTrend ? line(x) : null)),
+      xs.map(x => (x === crossing ? limit : null)),
+    ]);
+    chart.box.dataset.points = String(rows.filter(r => r[1] !== null).length);
+    chart.box.dataset.nothingFound = String(rows.filter(r => r[2] !== null).length);
+    chart.box.dataset.alarmMarks = String(rows.filter(r => r[3] !== null).length);
+    chart.box.dataset.state = tr ? tr.state : "";
+    chart.box.dataset.crossingUnixS = crossing !== null ? String(crossing) : "";
+    const now = t && !t.found && last ? "checked, nothing found · " : "";
+    chart.caption.textContent = `${now}limit ${fmtNum(limit)} · ${trendText(t)}`;
+  }
+
+  // The power bar: each flow as a share of the input power, since the start.
+  const FLOWS = [
+    ["load_w", "load", "#2e7d32"],
+    ["viscous_w", "viscous friction", "#f9a825"],
+    ["dry_friction_w", "dry friction", "#ef6c00"],
+    ["leakage_w", "leakage (nominal)", "#64b5f6"],
+    ["internal_leakage_w", "internal leakage", "#1565c0"],
+    ["slip_w", "motor slip", "#8e24aa"],
+  ];
+
+  function drawEnergy(panel, e) {
+    let box = panel.section.querySelector(".power-flow");
+    if (!box) {
+      box = document.createElement("div");
+      box.className = "power-flow";
+      box.innerHTML = `<h4>Where the power goes</h4><div class="bar"></div><p class="muted legend"></p>`;
+      panel.section.insertBefore(box, panel.section.querySelector(".chart-row"));
+    }
+    const input = e.energy_j.input_w;
+    const bar = box.querySelector(".bar");
+    const parts = FLOWS.map(([k, label, color]) => {
+      const share = input > 0 ? Math.max(0, e.energy_j[k]) / input : 0;
+      const d = document.createElement("span");
+      d.className = "flow";
+      d.dataset.flow = k.replace(/_w$/, "");
+      d.dataset.share = share.toFixed(4);
+      d.style.width = `${(100 * share).toFixed(2)}%`;
+      d.style.background = color;
+      d.title = `${label}: ${(100 * share).toFixed(1)} %`;
+      d.textContent = share > 0.06 ? `${label} ${(100 * share).toFixed(0)} %` : "";
+      d.style.paddingLeft = share > 0.06 ? "0.3em" : "0";
+      return d;
+    });
+    bar.replaceChildren(...parts);
+    const eff = v => (Number.isFinite(v) ? `${(100 * v).toFixed(1)} %` : "–");
+    const cost = (e.effects || []).map(x => `${x.effect.replace(/_/g, " ")} ${fmtNum(x.power_w)} W, ` +
+      `${fmtNum(x.kwh_per_day)} kWh/day` + (Number.isFinite(x.cost_per_year) ? `, ${fmtNum(x.cost_per_year)} a year` : ""));
+    box.querySelector(".legend").textContent =
+      `input ${fmtNum(e.power_w.input_w)} W now, ${fmtNum(input / 3.6e6)} kWh over ${fmtDuration(e.span_s)} · ` +
+      `volumetric efficiency ${eff(e.volumetric_efficiency)}, mechanical ${eff(e.mechanical_efficiency)}` +
+      (cost.length ? ` · above the nominal model: ${cost.join("; ")}` : " · nothing above the nominal model");
+  }
+
   async function refresh(names) {
+    let energy = new Map();
+    try {
+      const status = await (await fetch("/api/status")).json();
+      energy = new Map(status.drives.map(d => [d.name, d.energy]));
+    } catch (err) {
+      console.error(err);
+    }
     for (const name of names) {
       try {
         const r = await fetch(`/api/drives/${encodeURIComponent(name)}/condition`);
         if (!r.ok) continue;
         const c = await r.json();
         if (c.enabled || c.checks.length > 0) render(c);
+        const e = energy.get(name);
+        if (e && panels.has(name)) drawEnergy(panels.get(name), e);
       } catch (err) {
         console.error(err);
       }

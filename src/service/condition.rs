@@ -23,7 +23,8 @@ use tokio_util::sync::CancellationToken;
 
 pub use super::config::ConditionSettings;
 use super::metrics::DriveLabel;
-use super::state::{COLUMNS, DriveState, lock};
+use super::state::{COLUMNS, DriveState, Point, lock};
+use crate::condition::power::{EnergyReport, Flows, Ledger, Operating, PowerModel, effects_of_findings};
 use crate::condition::{self, Check, Monitor, Store};
 use crate::recording::Recording;
 
@@ -37,6 +38,9 @@ pub const MAX_CHECK_HZ: f64 = 200.0;
 /// A check waits until the ring holds at least this fraction of `window_s`.
 pub const MIN_WINDOW_FRACTION: f64 = 0.5;
 
+/// How often the condition thread integrates each drive's power budget (the ring's new rows since the last time).
+pub const ENERGY_EVERY: Duration = Duration::from_secs(1);
+
 /// One drive's checks and alarms, shared by the checking thread and the HTTP side.
 pub struct DriveCondition {
     pub drive: String,
@@ -44,6 +48,10 @@ pub struct DriveCondition {
     monitor: Mutex<Monitor>,
     /// Why the last check failed (cleared by a check that succeeds).
     last_error: Mutex<Option<String>>,
+    /// [`Monitor::tracked`] as of the last check (the trends change only with the checks).
+    tracked: Mutex<Vec<condition::Tracked>>,
+    /// The power budget's report as of the last integration.
+    energy: Mutex<Option<EnergyReport>>,
 }
 
 impl DriveCondition {
@@ -51,9 +59,36 @@ impl DriveCondition {
         DriveCondition {
             drive: drive.to_string(),
             enabled: settings.enabled,
-            monitor: Mutex::new(Monitor::new(settings.limits.clone())),
+            monitor: Mutex::new(Monitor::with_nominal(settings.limits.clone(), &settings.model)),
             last_error: Mutex::new(None),
+            tracked: Mutex::new(Vec::new()),
+            energy: Mutex::new(None),
         }
+    }
+
+    /// Puts the drive's `energy` and `condition` (the tracked effects) into its snapshot.
+    pub fn fill(&self, snapshot: &mut super::state::DriveSnapshot) {
+        if !self.enabled {
+            return;
+        }
+        snapshot.energy = lock(&self.energy).clone();
+        snapshot.condition = lock(&self.tracked).clone();
+    }
+
+    /// The tracked effects as of the last check.
+    pub fn tracked(&self) -> Vec<condition::Tracked> {
+        lock(&self.tracked).clone()
+    }
+
+    /// The power budget's last report.
+    pub fn energy(&self) -> Option<EnergyReport> {
+        lock(&self.energy).clone()
+    }
+
+    /// Brings [`DriveCondition::tracked`] up to date with the monitor.
+    fn refresh(&self) {
+        let t = lock(&self.monitor).tracked();
+        *lock(&self.tracked) = t;
     }
 
     /// The body of `GET /api/drives/{name}/condition` (CONTRACT.md "Extensions"), plus `enabled`, `limits`,
@@ -70,6 +105,7 @@ impl DriveCondition {
     pub fn push(&self, check: Check) {
         lock(&self.monitor).push(check);
         *lock(&self.last_error) = None;
+        self.refresh();
     }
 
     pub fn monitor(&self) -> std::sync::MutexGuard<'_, Monitor> {
@@ -90,6 +126,21 @@ pub struct EffectLabels {
     pub effect: String,
 }
 
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct FlowLabels {
+    pub drive: String,
+    /// A flow of the power budget (`input`, `slip`, `pump_hydraulic`, `leakage`, `internal_leakage`,
+    /// `motor_hydraulic`, `viscous`, `dry_friction`, `load`).
+    pub flow: String,
+}
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct EfficiencyLabels {
+    pub drive: String,
+    /// `volumetric` or `mechanical`.
+    pub kind: String,
+}
+
 type GaugeF = Gauge<f64, AtomicU64>;
 
 /// The condition families (CONTRACT.md "Extensions"), in the service's registry.
@@ -102,6 +153,15 @@ pub struct ConditionMetrics {
     pub duration: Family<DriveLabel, GaugeF>,
     pub checks: Family<DriveLabel, Counter>,
     pub failures: Family<DriveLabel, Counter>,
+    /// Seconds from the last check to the projected crossing of the limit; no series while not rising.
+    pub time_to_limit: Family<ParameterLabels, GaugeF>,
+    /// The power budget's mean power by flow over the last integration (about a second).
+    pub power: Family<FlowLabels, GaugeF>,
+    /// The energy of each flow since the service started: a gauge, as an overrunning load runs backwards.
+    pub energy: Family<FlowLabels, GaugeF>,
+    /// Mean power lost to each effect above the nominal model since the start.
+    pub effect_loss: Family<EffectLabels, GaugeF>,
+    pub efficiency: Family<EfficiencyLabels, GaugeF>,
 }
 
 impl ConditionMetrics {
@@ -112,6 +172,11 @@ impl ConditionMetrics {
             duration: Family::default(),
             checks: Family::default(),
             failures: Family::default(),
+            time_to_limit: Family::default(),
+            power: Family::default(),
+            energy: Family::default(),
+            effect_loss: Family::default(),
+            efficiency: Family::default(),
         };
         r.register(
             "condition_parameter",
@@ -122,7 +187,59 @@ impl ConditionMetrics {
         r.register("condition_check_duration_seconds", "Wall time of the last condition check", m.duration.clone());
         r.register("condition_checks", "Condition checks run", m.checks.clone());
         r.register("condition_check_failures", "Condition checks the analysis refused", m.failures.clone());
+        use prometheus_client::registry::Unit;
+        let watts = || Unit::Other("watts".into());
+        r.register_with_unit(
+            "condition_time_to_limit",
+            "From the last condition check to the projected crossing of the parameter's limit (absent: not rising)",
+            Unit::Seconds,
+            m.time_to_limit.clone(),
+        );
+        r.register_with_unit("power", "Mean power of a flow of the drive's power budget", watts(), m.power.clone());
+        r.register_with_unit(
+            "energy",
+            "Energy of a flow of the power budget since the start",
+            Unit::Joules,
+            m.energy.clone(),
+        );
+        r.register_with_unit(
+            "effect_power_loss",
+            "Mean power lost to an effect above the nominal model",
+            watts(),
+            m.effect_loss.clone(),
+        );
+        r.register_with_unit(
+            "efficiency",
+            "Volumetric and mechanical efficiency",
+            Unit::Other("ratio".into()),
+            m.efficiency.clone(),
+        );
         m
+    }
+
+    /// Sets the power budget's gauges from a drive's energy report.
+    fn update_energy(&self, drive: &str, r: &EnergyReport) {
+        let flow = |f: &str| FlowLabels { drive: drive.into(), flow: f.trim_end_matches("_w").into() };
+        for ((name, p), e) in Flows::COLUMNS.iter().zip(r.power_w.values()).zip(r.energy_j.values()) {
+            self.power.get_or_create(&flow(name)).set(p);
+            self.energy.get_or_create(&flow(name)).set(e);
+        }
+        for c in &r.effects {
+            self.effect_loss
+                .get_or_create(&EffectLabels { drive: drive.into(), effect: c.effect.clone() })
+                .set(c.power_w);
+        }
+        for (kind, v) in [("volumetric", r.volumetric_efficiency), ("mechanical", r.mechanical_efficiency)] {
+            let l = EfficiencyLabels { drive: drive.into(), kind: kind.into() };
+            match v {
+                Some(v) => {
+                    self.efficiency.get_or_create(&l).set(v);
+                }
+                None => {
+                    self.efficiency.remove(&l);
+                }
+            }
+        }
     }
 
     /// Sets the gauges from a drive's monitor after its last check.
@@ -150,6 +267,17 @@ impl ConditionMetrics {
             self.parameter.get_or_create(&ParameterLabels { drive: drive.into(), effect, parameter }).set(value);
         }
         self.duration.get_or_create(&DriveLabel { drive: drive.into() }).set(last.duration_s);
+        for t in monitor.tracked() {
+            let l = ParameterLabels { drive: drive.into(), effect: t.effect.clone(), parameter: t.parameter.clone() };
+            match t.trend.seconds_to_limit {
+                Some(s) => {
+                    self.time_to_limit.get_or_create(&l).set(s);
+                }
+                None => {
+                    self.time_to_limit.remove(&l);
+                }
+            }
+        }
     }
 }
 
@@ -165,9 +293,44 @@ pub struct Job {
     /// The service time of the last sample this run's last check saw: a drive whose link is down brings no new
     /// data, and the same window is not checked twice.
     pub checked_up_to_s: Option<f64>,
+    /// The drive's energies so far, and when they were last brought up to date.
+    pub ledger: Ledger,
+    pub energy_at: Instant,
 }
 
 impl Job {
+    pub fn new(
+        drive: Arc<DriveState>,
+        condition: Arc<DriveCondition>,
+        settings: ConditionSettings,
+        store: Option<Store>,
+    ) -> Job {
+        Job {
+            drive,
+            condition,
+            settings,
+            store,
+            stored_lines: 0,
+            checked_up_to_s: None,
+            ledger: Ledger::default(),
+            energy_at: Instant::now(),
+        }
+    }
+
+    /// Integrates the power budget over the ring's rows since the last time (the nominal model with the last
+    /// check's findings), and publishes the report and its metrics.
+    fn integrate_energy(&mut self, metrics: &ConditionMetrics) {
+        let lookback = (self.energy_at.elapsed() + ENERGY_EVERY).as_secs_f64().min(self.settings.window.as_secs_f64());
+        self.energy_at = Instant::now();
+        let points = self.drive.history(lookback, (lookback * MAX_CHECK_HZ).ceil() as usize);
+        let fitted = self.condition.monitor().last().map(|c| effects_of_findings(&c.findings)).unwrap_or_default();
+        let Some(model) = PowerModel::new(&self.settings.model, &fitted) else { return };
+        self.ledger.add_all(&model, points.iter().map(operating));
+        let report = self.ledger.report(self.settings.energy_price_per_kwh);
+        metrics.update_energy(&self.drive.name, &report);
+        *lock(&self.condition.energy) = Some(report);
+    }
+
     /// Loads the drive's history from its store (the alarms replayed) and sets the metrics from it.
     fn restore(&mut self, metrics: &ConditionMetrics) {
         if self.settings.enabled {
@@ -195,6 +358,7 @@ impl Job {
             Err(e) => tracing::warn!(drive = %self.drive.name, file = %store.path().display(), error = %e,
                 "cannot read the condition history; starting without it"),
         }
+        self.condition.refresh();
     }
 
     /// Runs one check on the ring's last window; false when the ring does not hold enough data yet.
@@ -262,6 +426,18 @@ impl Job {
     }
 }
 
+/// A ring row as the power budget takes it: the estimator's speed, and all it sees resist the motor beside inertia.
+fn operating(p: &Point) -> Operating {
+    let (m, e) = (&p.sample, &p.estimate);
+    Operating {
+        t_s: m.t_s,
+        dp_bar: m.p_in_bar - m.p_out_bar,
+        f_drive_hz: m.f_drive_hz,
+        omega_rad_s: e.omega_hat_rad_s,
+        resisting_torque_nm: e.load_hat_nm + e.viscous_hat_nm_s_rad * e.omega_hat_rad_s,
+    }
+}
+
 /// The store of a drive's history: `<recordings dir>/<drive>.condition.jsonl`.
 pub fn store_for(dir: Option<&Path>, drive: &str) -> Option<Store> {
     dir.map(|d| Store::new(d, drive))
@@ -294,6 +470,11 @@ pub fn start(
         // bounded: every pass either sleeps (≤ 100 ms) or runs one check, and the token ends it
         while !shutdown.is_cancelled() {
             let now = Instant::now();
+            for (job, _) in jobs.iter_mut() {
+                if job.energy_at + ENERGY_EVERY <= now {
+                    job.integrate_energy(&metrics);
+                }
+            }
             let Some(next) = jobs.iter_mut().min_by_key(|(_, due)| *due) else { return };
             if next.1 > now {
                 std::thread::sleep((next.1 - now).min(Duration::from_millis(100)));

@@ -967,11 +967,19 @@ struct RawCondition {
     every_s: f64,
     model: Option<String>,
     limits: condition::Limits,
+    energy_price_per_kwh: Option<f64>,
 }
 
 impl Default for RawCondition {
     fn default() -> Self {
-        RawCondition { enabled: false, window_s: 120.0, every_s: 300.0, model: None, limits: condition::Limits::new() }
+        RawCondition {
+            enabled: false,
+            window_s: 120.0,
+            every_s: 300.0,
+            model: None,
+            limits: condition::Limits::new(),
+            energy_price_per_kwh: None,
+        }
     }
 }
 
@@ -985,6 +993,8 @@ pub struct ConditionSettings {
     /// set to "recorded": the service's data carry no load, so the load is unknown.
     pub model: PlantModel,
     pub limits: condition::Limits,
+    /// The price of a kWh (any currency): the energy report then says what each effect costs a day and a year.
+    pub energy_price_per_kwh: Option<f64>,
 }
 
 /// Validates `[drives.condition]`; `key` is its prefix (`drives[0].condition`), `estimator_model` the default model,
@@ -1014,12 +1024,18 @@ fn validate_condition(
     }
     model.load = LoadSpec::Recorded;
     condition::validate_limits(&raw.limits, &k("limits"))?;
+    if let Some(p) = raw.energy_price_per_kwh
+        && !(p.is_finite() && p >= 0.0)
+    {
+        return Err(KeyError::new(k("energy_price_per_kwh"), format!("must be a finite price ≥ 0, got {p}")));
+    }
     Ok(ConditionSettings {
         enabled: raw.enabled,
         window: Duration::from_secs_f64(raw.window_s),
         every: Duration::from_secs_f64(raw.every_s),
         model,
         limits: raw.limits,
+        energy_price_per_kwh: raw.energy_price_per_kwh,
     })
 }
 
@@ -1301,6 +1317,7 @@ address = "127.0.0.1:5020"
                 key("[limits]\ninternal_leakage = { l_per_bar = 0.02 }"),
                 "drives[0].condition.limits.internal_leakage.l_per_bar"
             );
+            assert_eq!(key("energy_price_per_kwh = -0.1"), "drives[0].condition.energy_price_per_kwh");
             let unknown = toml::from_str::<RawCondition>("enable = true").expect_err("unknown key").to_string();
             assert!(unknown.contains("enable"), "{unknown}");
         }

@@ -426,6 +426,8 @@ impl DriveLoop {
             identification: self.cycle.estimate().map(|e| crate::estimator::Identified::of(&e)),
             timing: stats,
             recording: recording_health,
+            energy: None,
+            condition: Vec::new(),
         });
     }
 }

@@ -83,7 +83,15 @@ impl ServiceState {
     }
 
     pub fn snapshots(&self) -> Vec<DriveSnapshot> {
-        self.drives.iter().map(|d| d.snapshot()).collect()
+        self.drives
+            .iter()
+            .zip(&self.conditions)
+            .map(|(d, c)| {
+                let mut s = d.snapshot();
+                c.fill(&mut s);
+                s
+            })
+            .collect()
     }
 
     /// The metrics exposition in `format` (OpenMetrics or the Prometheus text format).
@@ -137,6 +145,8 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
             identification: None,
             timing: TimingStats::default(),
             recording: None,
+            energy: None,
+            condition: Vec::new(),
         };
         let state =
             Arc::new(DriveState::new(snapshot, d.max_target_omega_rad_s(), d.stale_after, history_len.min(1 << 20)));
@@ -165,14 +175,12 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
         loops.push(DriveLoop::new(d.clone(), connection, estimator, state.clone(), metrics.clone(), recorder, started));
         let cond = Arc::new(condition::DriveCondition::new(&d.name, &d.condition));
         if d.condition.enabled {
-            condition_jobs.push(condition::Job {
-                drive: state.clone(),
-                condition: cond.clone(),
-                settings: d.condition.clone(),
-                store: condition::store_for(settings.recording.dir.as_deref(), &d.name),
-                stored_lines: 0,
-                checked_up_to_s: None,
-            });
+            condition_jobs.push(condition::Job::new(
+                state.clone(),
+                cond.clone(),
+                d.condition.clone(),
+                condition::store_for(settings.recording.dir.as_deref(), &d.name),
+            ));
         }
         conditions.push(cond);
         drives.push(state);

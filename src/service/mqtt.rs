@@ -215,7 +215,11 @@ pub fn start(
 fn interval_messages(topics: &mut [DriveTopics]) -> Vec<Message> {
     let mut out = Vec::with_capacity(topics.len() * 2);
     for t in topics {
-        match serde_json::to_vec(&t.state.snapshot()) {
+        let mut snapshot = t.state.snapshot();
+        if let Some(c) = &t.condition {
+            c.fill(&mut snapshot);
+        }
+        match serde_json::to_vec(&snapshot) {
             Ok(payload) => out.push(Message { topic: t.status.clone(), payload, qos: QoS::AtMostOnce, retain: false }),
             Err(e) => tracing::error!(drive = %t.state.name, error = %e, "serialising the status for MQTT"),
         }

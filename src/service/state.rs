@@ -147,6 +147,12 @@ pub struct DriveSnapshot {
     pub timing: TimingStats,
     /// The recorder's health; None while recording is off.
     pub recording: Option<RecordingHealth>,
+    /// Where the power goes (src/condition/power.rs), integrated by the condition thread; null while condition
+    /// monitoring is off and before its first second. Filled when the snapshot is read, not by the poll loop.
+    pub energy: Option<crate::condition::power::EnergyReport>,
+    /// Each effect with a limit: its last value, the limit, the alarm and its trend to the limit
+    /// (`crate::condition::Tracked`); empty while condition monitoring is off. Filled when read, as `energy`.
+    pub condition: Vec<crate::condition::Tracked>,
 }
 
 /// Whether the drive's rows reach the disk (a full disk, say, makes them fail until space returns).
@@ -371,6 +377,8 @@ mod tests {
             identification: None,
             timing: TimingStats::default(),
             recording: None,
+            energy: None,
+            condition: Vec::new(),
         };
         DriveState::new(snap, 100.0, Duration::from_millis(50), history_len)
     }

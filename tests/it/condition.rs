@@ -114,6 +114,12 @@ async fn condition_json(url: &str, drive: &str) -> (reqwest::StatusCode, serde_j
     (status, r.json().await.expect("json"))
 }
 
+async fn drive_status(url: &str) -> serde_json::Value {
+    let r = reqwest::get(format!("{url}/api/status")).await.expect("GET status");
+    let v: serde_json::Value = r.json().await.expect("json");
+    v["drives"][0].clone()
+}
+
 fn leaks(v: &serde_json::Value) -> Vec<Option<f64>> {
     v["checks"]
         .as_array()
@@ -181,6 +187,23 @@ async fn over_tcp_a_growing_leak_shows_rising_across_checks_and_raises_its_alarm
         assert_eq!(param, Some(last));
         let took = support::metric(&metrics, "hydrolens_condition_check_duration_seconds{drive=\"pump1\"}");
         assert!(took.is_some_and(|s| s > 0.0 && s < 5.0), "{took:?}");
+        // the power budget and the trend, in /api/status and /metrics
+        let d = drive_status(&stack.url).await;
+        let e = &d["energy"];
+        assert!(e["power_w"]["input_w"].as_f64().is_some_and(|w| w > 0.0), "{e}");
+        assert!(e["energy_j"]["internal_leakage_w"].as_f64().is_some_and(|j| j > 0.0), "{e}");
+        assert!(e["effects"].as_array().is_some_and(|a| a.iter().any(|c| c["effect"] == "internal_leakage")), "{e}");
+        let eta = e["volumetric_efficiency"].as_f64().expect("volumetric efficiency");
+        assert!(eta > 0.5 && eta < 1.0, "{eta}");
+        let tracked = &d["condition"][0];
+        assert_eq!(tracked["effect"], "internal_leakage");
+        assert_eq!(tracked["found"], true, "{tracked}");
+        assert!(["rising", "past_limit", "too_few_checks"].contains(&tracked["trend"]["state"].as_str().unwrap_or("")));
+        let watts = support::metric(&metrics, "hydrolens_power_watts{drive=\"pump1\",flow=\"input\"}");
+        assert!(watts.is_some_and(|w| w > 0.0), "{metrics}");
+        assert!(metrics.contains("hydrolens_energy_joules{drive=\"pump1\",flow=\"internal_leakage\"}"), "{metrics}");
+        assert!(metrics.contains("hydrolens_efficiency_ratio{drive=\"pump1\",kind=\"volumetric\"}"), "{metrics}");
+        assert!(metrics.contains("hydrolens_effect_power_loss_watts{drive=\"pump1\",effect=\"internal_leakage\"}"));
         let (status, _) = condition_json(&stack.url, "pump9").await;
         assert_eq!(status, 404);
         assert!(!stack.sim.lock().truth().tripped);
@@ -212,6 +235,13 @@ async fn over_tcp_a_clean_plant_gives_no_finding_and_no_alarm() {
         let alarm = support::metric(&metrics, "hydrolens_condition_alarm{drive=\"pump1\",effect=\"internal_leakage\"}");
         assert_eq!(alarm, Some(0.0), "{metrics}");
         assert!(!metrics.contains("hydrolens_condition_parameter{"), "no fitted parameter: {metrics}");
+        assert!(!metrics.contains("hydrolens_condition_time_to_limit_seconds{"), "not rising: {metrics}");
+        let d = drive_status(&stack.url).await;
+        let tracked = &d["condition"][0];
+        assert_eq!((tracked["found"].as_bool(), tracked["value"].as_f64()), (Some(false), Some(0.0)), "{tracked}");
+        assert!(["not_rising", "too_few_checks"].contains(&tracked["trend"]["state"].as_str().unwrap_or("")), "{d}");
+        assert_eq!(d["energy"]["effects"], serde_json::json!([]), "nothing above the nominal model: {d}");
+        assert!(d["energy"]["power_w"]["load_w"].as_f64().is_some(), "{d}");
         stack.stop().await;
     };
     tokio::time::timeout(Duration::from_secs(70), run).await.expect("bounded");
@@ -433,4 +463,179 @@ async fn over_tcp_a_drive_without_new_data_is_not_checked_again() {
         stack.stop().await;
     };
     tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
+}
+
+// ---- time to limit (src/condition/trend.rs) on the wearing plant and on a clean one ----
+
+/// The leak grows from 0 at 0.2 l/min/bar an hour: it reaches the limit 0.05 at 900 s.
+const WEAR_PER_HOUR: f64 = 0.2;
+const WEAR_LIMIT: f64 = 0.05;
+const WEAR_RUN_S: f64 = 840.0;
+
+/// The checks of a run, each followed by the tracked leak's trend: (check time, trend), the checks' wall times set
+/// to their service times (the offline run takes seconds).
+fn projections(growth_per_hour: f64, seed: u64) -> Vec<(f64, hydrolens::condition::Tracked)> {
+    let truth = plant(growth_per_hour);
+    let rec = hydrolens::recording::simulated::test_stand(&truth, WEAR_RUN_S, seed, &mut |_| {}).expect("simulable");
+    let rec = as_the_service_records(&rec, POLL_MS, seed);
+    let mut m = Monitor::with_nominal(leak_limit(WEAR_LIMIT), &PlantModel::reference());
+    let mut out = Vec::new();
+    let mut t = WINDOW_S;
+    while t <= WEAR_RUN_S + 1e-9 {
+        let mut c =
+            condition::check(&window(&rec, t - WINDOW_S, t), &PlantModel::reference(), t, WINDOW_S).expect("check");
+        c.unix_s = t;
+        m.push(c);
+        out.push((t, m.tracked().remove(0)));
+        t += EVERY_S;
+    }
+    out
+}
+
+#[test]
+fn a_growing_leaks_projected_crossing_is_within_20_percent_once_a_third_of_the_way_there() {
+    let true_crossing_s = WEAR_LIMIT / WEAR_PER_HOUR * 3600.0;
+    let mut failures = Vec::new();
+    eprintln!("true crossing {true_crossing_s} s; check t, leak, state, projected crossing [95 % interval], error");
+    for (t, tr) in projections(WEAR_PER_HOUR, 3) {
+        let at = |s: Option<f64>| s.map(|s| t + s);
+        let (x, lo, hi) =
+            (at(tr.trend.seconds_to_limit), at(tr.trend.seconds_to_limit_low), at(tr.trend.seconds_to_limit_high));
+        let err = x.map(|x| (x - true_crossing_s) / true_crossing_s);
+        eprintln!(
+            "  {t:>5.0} s  {:>7.4}  {:<15} {:>7.0} [{:>5.0} … {:>5.0}]  {:>6.1} %",
+            tr.value.unwrap_or(f64::NAN),
+            format!("{:?}", tr.trend.state),
+            x.unwrap_or(f64::NAN),
+            lo.unwrap_or(f64::NAN),
+            hi.unwrap_or(f64::INFINITY),
+            100.0 * err.unwrap_or(f64::NAN)
+        );
+        if t >= true_crossing_s / 3.0 && !err.is_some_and(|e| e.abs() <= 0.2) {
+            failures.push(format!("at {t} s: {:?} projected {x:?}", tr.trend.state));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+#[test]
+fn a_clean_plant_is_not_rising_over_the_same_time() {
+    for (t, tr) in projections(0.0, 3) {
+        assert!(
+            matches!(
+                tr.trend.state,
+                hydrolens::condition::trend::TrendState::NotRising
+                    | hydrolens::condition::trend::TrendState::TooFewChecks
+            ),
+            "at {t} s: {tr:?}"
+        );
+        assert!(!tr.found && !tr.alarm, "at {t} s: {tr:?}");
+    }
+}
+
+/// The condition panel in headless chromium on the checks of a real run (the offline wearing run of
+/// [`projections`], or the clean one, kept in the history file as the service writes it) and a live service on the
+/// same plant over TCP: human titles, the trend's state and projected crossing, "checked, nothing found" drawn as
+/// points at the nominal value (the bulk modulus at 15 000 bar), and the power bar's shares. The rendered page is
+/// checked, not only its JSON; `HYDROLENS_DOCS_SCREENSHOTS=1` writes the two screenshots to
+/// docs/condition_clean.png and docs/condition_wearing.png.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_dashboard_draws_each_tracked_effect_its_trend_and_where_the_power_goes() {
+    use crate::dashboard::{attr_after, run_chromium};
+    for (name, growth) in [("clean", 0.0), ("wearing", WEAR_PER_HOUR)] {
+        let dir = tempfile::tempdir().expect("tmp");
+        let store = condition::Store::new(dir.path(), "pump1");
+        let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).expect("clock").as_secs_f64();
+        let truth = plant(growth);
+        let rec = hydrolens::recording::simulated::test_stand(&truth, 480.0, 3, &mut |_| {}).expect("simulable");
+        let rec = as_the_service_records(&rec, POLL_MS, 3);
+        let mut t = WINDOW_S;
+        while t <= 480.0 + 1e-9 {
+            let mut c =
+                condition::check(&window(&rec, t - WINDOW_S, t), &PlantModel::reference(), t, WINDOW_S).expect("check");
+            c.unix_s = now - (480.0 - t);
+            store.append(&c).expect("append");
+            t += EVERY_S;
+        }
+        // the live plant goes on from where the run ended (its leak, and its wear)
+        let (_sim, addr, sim_stop, sim_task) = support::start_sim(truth.at(480.0), 0).await;
+        let text = support::config_text(
+            addr,
+            dir.path(),
+            5,
+            "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 40.0\nmax_hz = 50.0\nramp_hz_per_s = 20.0\n\n\
+             [drives.condition]\nenabled = true\nevery_s = 3600.0\nenergy_price_per_kwh = 0.25\n\
+             [drives.condition.limits]\ninternal_leakage = { l_min_per_bar = 0.05 }\n\
+             entrained_air = { bulk_modulus_bar = 8000.0 }\n",
+        );
+        let svc = support::start_service(&text).await;
+        let stop = tokio_util::sync::CancellationToken::new();
+        tokio::spawn(move_targets(svc.state.drives[0].clone(), stop.clone()));
+        let url = svc.url.clone();
+        let energy = wait_for(Duration::from_secs(20), || async {
+            drive_status(&url).await["energy"]["span_s"].as_f64().is_some_and(|s| s > 3.0)
+        })
+        .await;
+        assert!(energy.is_some(), "{name}: no energy report within 20 s");
+        let page = format!("{url}/?close_after=5");
+        let dom = tokio::task::spawn_blocking(move || {
+            run_chromium(&page, &["--virtual-time-budget=5000", "--dump-dom"], Duration::from_secs(60))
+        })
+        .await
+        .expect("joins");
+        let leak = "data-parameter=\"internal_leakage.l_min_per_bar\"";
+        let air = "data-parameter=\"entrained_air.bulk_modulus_bar\"";
+        assert!(dom.contains("Internal leakage (l/min/bar)"), "{name}: a human title: {dom:.4000}");
+        assert!(dom.contains("Entrained air: effective bulk modulus (bar)"), "{name}: {dom:.4000}");
+        assert!(!dom.contains(">entrained_air.bulk_modulus_bar<"), "{name}: no raw key as a title");
+        assert_eq!(attr_after(&dom, air, "data-nothing-found"), Some("7"), "{name}: the checks found no air");
+        // the axis is drawn on a canvas: its labels as the page made them
+        let ticks = attr_after(&dom, air, "data-y-ticks").unwrap_or_default().to_string();
+        let values: Vec<f64> = ticks.split('|').filter_map(|t| t.replace('\u{2009}', "").parse().ok()).collect();
+        assert!(
+            !values.is_empty() && values.len() == ticks.split('|').count(),
+            "{name}: every axis label a whole number: {ticks:?}"
+        );
+        assert!(values.iter().any(|v| *v >= 14_000.0), "{name}: the bulk modulus axis in full: {ticks:?}");
+        let share: f64 =
+            attr_after(&dom, "data-flow=\"load\"", "data-share").and_then(|s| s.parse().ok()).expect("share");
+        assert!(share > 0.3 && share < 1.0, "{name}: the load's share of the input {share}");
+        match name {
+            "clean" => {
+                assert_eq!(attr_after(&dom, leak, "data-nothing-found"), Some("7"));
+                assert_eq!(attr_after(&dom, leak, "data-state"), Some("not_rising"));
+                assert!(dom.contains("checked, nothing found"), "{dom:.4000}");
+            }
+            _ => {
+                assert_eq!(attr_after(&dom, leak, "data-state"), Some("rising"));
+                let crossing: f64 =
+                    attr_after(&dom, leak, "data-crossing-unix-s").and_then(|s| s.parse().ok()).expect("a crossing");
+                // the run's t = 0 is now − 480 s; the leak reaches 0.05 at t = 900 s
+                let err = (crossing - (now - 480.0) - 900.0) / 900.0;
+                assert!(err.abs() < 0.2, "{name}: the projected crossing {err:+.3} off");
+                assert!(dom.contains("rising: reaches the limit in"), "{dom:.4000}");
+            }
+        }
+        let shots = tempfile::tempdir().expect("tmp");
+        let shot = shots.path().join(format!("condition_{name}.png"));
+        let (page, arg) = (format!("{url}/?close_after=5"), format!("--screenshot={}", shot.display()));
+        tokio::task::spawn_blocking(move || {
+            run_chromium(
+                &page,
+                &["--virtual-time-budget=5000", "--window-size=1280,1500", &arg],
+                Duration::from_secs(60),
+            )
+        })
+        .await
+        .expect("joins");
+        let png = std::fs::read(&shot).expect("a screenshot");
+        assert!(png.starts_with(b"\x89PNG") && png.len() > 10_000, "{} bytes", png.len());
+        if std::env::var_os("HYDROLENS_DOCS_SCREENSHOTS").is_some() {
+            std::fs::copy(&shot, support::root().join("docs").join(format!("condition_{name}.png"))).expect("copy");
+        }
+        stop.cancel();
+        support::stop_service(svc).await;
+        sim_stop.cancel();
+        let _ = tokio::time::timeout(Duration::from_secs(10), sim_task).await.expect("simulator stops");
+    }
 }

@@ -22,6 +22,7 @@ mod mqtt;
 mod multi;
 mod noload;
 mod plant;
+mod power;
 mod prometheus;
 mod proxy;
 mod rtu;

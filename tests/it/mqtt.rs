@@ -234,6 +234,7 @@ async fn condition_checks_go_to_the_condition_topic_and_again_after_a_broker_res
         let from_http = support::get_json(format!("{}/api/drives/pump1/condition", stack.url)).await;
         assert_eq!(keys(&v), keys(&from_http), "the MQTT object is GET /api/drives/pump1/condition's");
         assert_eq!(v["checks"][0]["t_s"], from_http["checks"][0]["t_s"]);
+        assert!(v["tracked"].is_array(), "the tracked effects and their trends ride along: {v}");
         let dir = stack.stop().await;
 
         // a service that restores those checks from the recordings dir and checks again only in a day: its one

@@ -67,8 +67,10 @@ async fn full_stack() -> Stack {
          every_s = 1\n\n[drives.condition.limits]\ninternal_leakage = { l_min_per_bar = 0.02 }\n",
     )
     .await;
-    let found = wait_for(Duration::from_secs(20), || async {
-        stack.metrics().await.contains("hydrolens_condition_parameter{")
+    // the leak named, and enough checks for its trend (past the limit: a time to limit of 0)
+    let found = wait_for(Duration::from_secs(25), || async {
+        let m = stack.metrics().await;
+        m.contains("hydrolens_condition_parameter{") && m.contains("hydrolens_condition_time_to_limit_seconds{")
     })
     .await;
     assert!(found.is_some(), "no condition check named the leak in 20 s:\n{}", stack.metrics().await);
@@ -184,6 +186,7 @@ async fn shipped_rules_config_and_dashboard_check_and_name_only_exported_metrics
         "HydrolensModbusErrorsRising",
         "HydrolensRecorderFailing",
         "HydrolensConditionAlarm",
+        "HydrolensConditionLimitNear",
     ] {
         assert!(rules.contains(&format!("alert: {alert}\n")), "alerts.yml lacks {alert}");
     }
