@@ -84,7 +84,7 @@ pub fn estimate_file_in_batches(
     batch_rows: usize,
 ) -> Result<u64, EstimateError> {
     let mut estimator = estimator.boxed_clone();
-    let (mut reader, plan) = open_planned(recording)?;
+    let (reader, plan) = open_planned(recording)?;
     let name = recording.display().to_string();
     let mut replayer = Replayer::new(plan, model, model_origin, &name, estimator.as_mut());
     // an output error waits until the recording and the replay are known to be good
@@ -97,61 +97,9 @@ pub fn estimate_file_in_batches(
         let (text_tx, text_rx) = mpsc::channel::<Vec<u8>>();
         let (spare_text_tx, spare_text_rx) = mpsc::channel::<Vec<u8>>();
         let io = s.spawn(move || {
-            let mut output = output;
-            let write = |mut text: Vec<u8>, output: &mut Result<Output, EstimateError>| {
-                if let Ok(o) = output {
-                    o.write(&text);
-                }
-                text.clear();
-                let _ = spare_text_tx.send(text);
-            };
-            loop {
-                while let Ok(text) = text_rx.try_recv() {
-                    write(text, &mut output);
-                }
-                let mut batch = spare_batch_rx.try_recv().unwrap_or_default();
-                match reader.read_batch(&mut batch, batch_rows) {
-                    Ok(0) => break,
-                    Ok(_) => {
-                        if batch_tx.send(Ok(batch)).is_err() {
-                            break;
-                        }
-                    }
-                    Err(e) => {
-                        let _ = batch_tx.send(Err(e));
-                        break;
-                    }
-                }
-            }
-            drop(batch_tx);
-            for text in text_rx {
-                write(text, &mut output);
-            }
-            output
+            read_and_write(reader, batch_rows, output, batch_tx, spare_batch_rx, text_rx, spare_text_tx)
         });
-
-        let mut text = Vec::with_capacity(TEXT_BYTES + 1024);
-        let mut rows = RowText::default();
-        let mut recording_error = None;
-        for message in batch_rx {
-            let batch = match message {
-                Ok(batch) => batch,
-                Err(e) => {
-                    recording_error = Some(e);
-                    break;
-                }
-            };
-            replayer.push(&batch.t_s, &batch.columns, |t, e| rows.push(&mut text, t, e));
-            if text.len() >= TEXT_BYTES {
-                let spare = spare_text_rx.try_recv().unwrap_or_else(|_| Vec::with_capacity(TEXT_BYTES + 1024));
-                let _ = text_tx.send(std::mem::replace(&mut text, spare));
-            }
-            let _ = spare_batch_tx.send(batch);
-        }
-        if recording_error.is_none() && !text.is_empty() {
-            let _ = text_tx.send(text);
-        }
-        drop(text_tx);
+        let recording_error = replay_batches(&mut replayer, batch_rx, &spare_batch_tx, text_tx, &spare_text_rx);
         let output = io.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic));
         (recording_error, output)
     });
@@ -163,6 +111,85 @@ pub fn estimate_file_in_batches(
     }
     let rows = replayer.finish().map_err(EstimateError::Replay)?;
     output?.commit().map(|()| rows)
+}
+
+/// The reading and writing thread: reads the recording `batch_rows` rows at a time into `batches` (reusing the
+/// batches the replay hands back), writing the estimates' text that waits in `texts` before each; once the
+/// recording ends (or fails), writes the rest of the text as it comes. Hands back the output.
+fn read_and_write(
+    mut reader: StreamReader<crate::recording::RecordingFile>,
+    batch_rows: usize,
+    mut output: Result<Output, EstimateError>,
+    batches: mpsc::SyncSender<Result<Batch, RecordingError>>,
+    spare_batches: mpsc::Receiver<Batch>,
+    texts: mpsc::Receiver<Vec<u8>>,
+    spare_texts: mpsc::Sender<Vec<u8>>,
+) -> Result<Output, EstimateError> {
+    let write = |mut text: Vec<u8>, output: &mut Result<Output, EstimateError>| {
+        if let Ok(o) = output {
+            o.write(&text);
+        }
+        text.clear();
+        let _ = spare_texts.send(text);
+    };
+    loop {
+        while let Ok(text) = texts.try_recv() {
+            write(text, &mut output);
+        }
+        let mut batch = spare_batches.try_recv().unwrap_or_default();
+        match reader.read_batch(&mut batch, batch_rows) {
+            Ok(0) => break,
+            Ok(_) => {
+                if batches.send(Ok(batch)).is_err() {
+                    break;
+                }
+            }
+            Err(e) => {
+                let _ = batches.send(Err(e));
+                break;
+            }
+        }
+    }
+    drop(batches);
+    for text in texts {
+        write(text, &mut output);
+    }
+    output
+}
+
+/// The replaying side: each batch from `batches` through `replayer`, the estimates as CSV text into `texts` (in
+/// pieces of about [`TEXT_BYTES`]), the batch handed back for reuse. The recording's error, if it had one (the
+/// text after it is not sent).
+fn replay_batches(
+    replayer: &mut Replayer<'_>,
+    batches: mpsc::Receiver<Result<Batch, RecordingError>>,
+    spare_batches: &mpsc::Sender<Batch>,
+    texts: mpsc::Sender<Vec<u8>>,
+    spare_texts: &mpsc::Receiver<Vec<u8>>,
+) -> Option<RecordingError> {
+    let mut text = Vec::with_capacity(TEXT_BYTES + 1024);
+    let mut rows = RowText::default();
+    let mut recording_error = None;
+    for message in batches {
+        let batch = match message {
+            Ok(batch) => batch,
+            Err(e) => {
+                recording_error = Some(e);
+                break;
+            }
+        };
+        replayer.push(&batch.t_s, &batch.columns, |t, e| rows.push(&mut text, t, e));
+        if text.len() >= TEXT_BYTES {
+            let spare = spare_texts.try_recv().unwrap_or_else(|_| Vec::with_capacity(TEXT_BYTES + 1024));
+            let _ = texts.send(std::mem::replace(&mut text, spare));
+        }
+        let _ = spare_batches.send(batch);
+    }
+    if recording_error.is_none() && !text.is_empty() {
+        let _ = texts.send(text);
+    }
+    // dropping `texts` tells the writing thread that the text is complete
+    recording_error
 }
 
 /// The recording's reader with the replay's columns selected, and the replay's plan.

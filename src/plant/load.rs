@@ -99,94 +99,61 @@ impl LoadSpec {
 
     /// Checks the parameters, naming the key of the first bad one.
     pub fn validate(&self) -> Result<(), KeyError> {
-        let bad = |key: &str, msg: String| Err(KeyError::new(format!("load.{key}"), msg));
         let all_finite = |vals: &[f64]| vals.iter().all(|v| v.is_finite());
         match self {
             LoadSpec::Steps { levels_nm, period_s } => {
                 if levels_nm.is_empty() || !all_finite(levels_nm) {
                     return bad("levels_nm", "must be a non-empty list of finite numbers".into());
                 }
-                if !(*period_s > 0.0 && period_s.is_finite()) {
-                    return bad("period_s", format!("must be > 0, got {period_s}"));
-                }
+                positive("period_s", *period_s)?;
             }
             LoadSpec::Sine { mean_nm, amplitude_nm, period_s } => {
                 if !all_finite(&[*mean_nm, *amplitude_nm]) {
                     return bad("amplitude_nm", "mean_nm and amplitude_nm must be finite".into());
                 }
-                if !(*period_s > 0.0 && period_s.is_finite()) {
-                    return bad("period_s", format!("must be > 0, got {period_s}"));
-                }
+                positive("period_s", *period_s)?;
             }
             LoadSpec::Ramp { from_nm, to_nm, start_s, duration_s } => {
                 if !all_finite(&[*from_nm, *to_nm, *start_s]) {
                     return bad("from_nm", "from_nm, to_nm and start_s must be finite".into());
                 }
-                if !(*duration_s >= 0.0 && duration_s.is_finite()) {
-                    return bad("duration_s", format!("must be ≥ 0, got {duration_s}"));
-                }
+                nonneg("duration_s", *duration_s)?;
             }
             LoadSpec::Trend { start_nm, rate_nm_per_s, max_nm }
                 if !all_finite(&[*start_nm, *rate_nm_per_s]) || max_nm.is_nan() =>
             {
                 return bad("rate_nm_per_s", "start_nm, rate_nm_per_s and max_nm must be numbers".into());
             }
-            LoadSpec::Constant { torque_nm } if !torque_nm.is_finite() => {
-                return bad("torque_nm", format!("must be finite, got {torque_nm}"));
-            }
+            LoadSpec::Constant { torque_nm } => finite("torque_nm", *torque_nm)?,
             LoadSpec::Speed { constant_nm, linear_nm_s_rad, quadratic_nm_s2_rad2 } => {
-                for (key, v) in [
-                    ("constant_nm", constant_nm),
-                    ("linear_nm_s_rad", linear_nm_s_rad),
-                    ("quadratic_nm_s2_rad2", quadratic_nm_s2_rad2),
-                ] {
-                    if !v.is_finite() {
-                        return bad(key, format!("must be finite, got {v}"));
-                    }
-                }
+                finite("constant_nm", *constant_nm)?;
+                finite("linear_nm_s_rad", *linear_nm_s_rad)?;
+                finite("quadratic_nm_s2_rad2", *quadratic_nm_s2_rad2)?;
             }
             LoadSpec::Centrifugal { torque_nm, at_rad_s } => {
-                if !torque_nm.is_finite() {
-                    return bad("torque_nm", format!("must be finite, got {torque_nm}"));
-                }
-                if !(*at_rad_s > 0.0 && at_rad_s.is_finite()) {
-                    return bad("at_rad_s", format!("must be > 0, got {at_rad_s}"));
-                }
+                finite("torque_nm", *torque_nm)?;
+                positive("at_rad_s", *at_rad_s)?;
             }
             LoadSpec::ShaftAngle { mean_nm, amplitude_nm, cycles_per_rev } => {
                 if !all_finite(&[*mean_nm, *amplitude_nm]) {
                     return bad("amplitude_nm", "mean_nm and amplitude_nm must be finite".into());
                 }
-                if !(*cycles_per_rev > 0.0 && cycles_per_rev.is_finite()) {
-                    return bad("cycles_per_rev", format!("must be > 0, got {cycles_per_rev}"));
-                }
+                positive("cycles_per_rev", *cycles_per_rev)?;
             }
             LoadSpec::Random { mean_nm, sd_nm, correlation_s, .. } => {
-                if !mean_nm.is_finite() {
-                    return bad("mean_nm", format!("must be finite, got {mean_nm}"));
-                }
-                if !(*sd_nm >= 0.0 && sd_nm.is_finite()) {
-                    return bad("sd_nm", format!("must be ≥ 0, got {sd_nm}"));
-                }
-                if !(*correlation_s > 0.0 && correlation_s.is_finite()) {
-                    return bad("correlation_s", format!("must be > 0, got {correlation_s}"));
-                }
+                finite("mean_nm", *mean_nm)?;
+                nonneg("sd_nm", *sd_nm)?;
+                positive("correlation_s", *correlation_s)?;
             }
             LoadSpec::Impacts { base_nm, peak_nm, width_s, mean_interval_s, .. } => {
                 if !all_finite(&[*base_nm, *peak_nm]) {
                     return bad("peak_nm", "base_nm and peak_nm must be finite".into());
                 }
-                if !(*width_s > 0.0 && width_s.is_finite()) {
-                    return bad("width_s", format!("must be > 0, got {width_s}"));
-                }
-                if !(*mean_interval_s > 0.0 && mean_interval_s.is_finite()) {
-                    return bad("mean_interval_s", format!("must be > 0, got {mean_interval_s}"));
-                }
+                positive("width_s", *width_s)?;
+                positive("mean_interval_s", *mean_interval_s)?;
             }
             LoadSpec::Sines { mean_nm, amplitudes_nm, periods_s } => {
-                if !mean_nm.is_finite() {
-                    return bad("mean_nm", format!("must be finite, got {mean_nm}"));
-                }
+                finite("mean_nm", *mean_nm)?;
                 if amplitudes_nm.is_empty() || !all_finite(amplitudes_nm) {
                     return bad("amplitudes_nm", "must be a non-empty list of finite numbers".into());
                 }
@@ -198,6 +165,26 @@ impl LoadSpec {
         }
         Ok(())
     }
+}
+
+/// The error of a bad `load.<key>`.
+fn bad(key: &str, msg: String) -> Result<(), KeyError> {
+    Err(KeyError::new(format!("load.{key}"), msg))
+}
+
+/// `load.<key>` must be finite.
+fn finite(key: &str, v: f64) -> Result<(), KeyError> {
+    if v.is_finite() { Ok(()) } else { bad(key, format!("must be finite, got {v}")) }
+}
+
+/// `load.<key>` must be finite and > 0.
+fn positive(key: &str, v: f64) -> Result<(), KeyError> {
+    if v > 0.0 && v.is_finite() { Ok(()) } else { bad(key, format!("must be > 0, got {v}")) }
+}
+
+/// `load.<key>` must be finite and ≥ 0.
+fn nonneg(key: &str, v: f64) -> Result<(), KeyError> {
+    if v >= 0.0 && v.is_finite() { Ok(()) } else { bad(key, format!("must be ≥ 0, got {v}")) }
 }
 
 fn steps(levels: &[f64], period_s: f64, t_s: f64) -> f64 {

@@ -186,129 +186,9 @@ impl Scenario {
             Ok(u) => u.sample(&mut rng),
             Err(_) => lo,
         };
-        let (lo_hz, hi_hz) = if family == Family::Slow { (1.5, 30.0) } else { (0.0, 55.0) };
         let first_move_s = draw(0.3, 1.0);
-        let mut setpoint = Vec::new();
-        let mut t = first_move_s;
-        let mut first = true;
-        while t < duration_s {
-            let stop = !first && family != Family::Slow && draw(0.0, 1.0) < 0.12;
-            let to_hz = if stop {
-                0.0
-            } else if first {
-                draw((lo_hz + hi_hz) * 0.4, hi_hz)
-            } else {
-                draw(lo_hz.max(if family == Family::Slow { 1.5 } else { 8.0 }), hi_hz)
-            };
-            let ramp_s = if !first && draw(0.0, 1.0) < 0.35 { draw(0.5, 4.0) } else { 0.0 };
-            setpoint.push(SetpointMove { t_s: t, to_hz, ramp_s });
-            t += ramp_s + draw(1.5, 5.0);
-            first = false;
-        }
-        let max_step_nm = if family == Family::Slow { 15.0 } else { 30.0 };
-        let load = match family {
-            Family::Brake | Family::StartUp | Family::Slow => {
-                let mut times_s = Vec::new();
-                let mut levels_nm = Vec::new();
-                let mut t = if family == Family::StartUp { first_move_s + draw(0.3, 1.0) } else { draw(0.5, 4.0) };
-                if family == Family::StartUp {
-                    times_s.push(t);
-                    levels_nm.push(draw(15.0, 30.0));
-                    t += draw(1.0, 4.0);
-                }
-                while t < duration_s {
-                    times_s.push(t);
-                    levels_nm.push(draw(0.0, max_step_nm));
-                    t += draw(1.0, 4.0);
-                }
-                LoadProgram::Steps { times_s, levels_nm }
-            }
-            Family::Ramp => {
-                let start_s = draw(2.0, duration_s * 0.3);
-                LoadProgram::Profile(LoadSpec::Ramp {
-                    from_nm: draw(0.0, 10.0),
-                    to_nm: draw(5.0, 25.0),
-                    start_s,
-                    duration_s: draw(5.0, duration_s - start_s),
-                })
-            }
-            Family::Trend => LoadProgram::Profile(LoadSpec::Trend {
-                start_nm: draw(0.0, 5.0),
-                rate_nm_per_s: draw(0.1, 0.5),
-                max_nm: 25.0,
-            }),
-            Family::Sine => LoadProgram::Profile(LoadSpec::Sine {
-                mean_nm: draw(6.0, 14.0),
-                amplitude_nm: draw(2.0, 6.0),
-                period_s: draw(1.5, 10.0),
-            }),
-            Family::Centrifugal => LoadProgram::Sum(vec![
-                LoadProgram::Profile(LoadSpec::Constant { torque_nm: draw(0.0, 5.0) }),
-                centrifugal(&mut draw),
-            ]),
-            Family::Linear => LoadProgram::Profile(LoadSpec::Speed {
-                constant_nm: draw(2.0, 10.0),
-                linear_nm_s_rad: draw(0.05, 0.3),
-                quadratic_nm_s2_rad2: 0.0,
-            }),
-            Family::Gearbox => gearbox(&mut draw),
-            Family::Random => {
-                let seed = hash_seed(&mut draw);
-                random(&mut draw, seed)
-            }
-            Family::Impacts => {
-                let seed = hash_seed(&mut draw);
-                LoadProgram::Profile(LoadSpec::Impacts {
-                    base_nm: draw(1.0, 4.0),
-                    peak_nm: draw(10.0, 30.0),
-                    width_s: draw(0.02, 0.15),
-                    mean_interval_s: draw(0.5, 3.0),
-                    seed,
-                })
-            }
-            Family::TwoSines => {
-                let p1 = draw(1.5, 12.0);
-                // unrelated: the second period is redrawn while the two are near a ratio of small whole numbers
-                let related = |p2: f64| {
-                    let r = p1.max(p2) / p1.min(p2);
-                    [1.0, 2.0, 3.0, 4.0, 1.5, 2.5, 4.0 / 3.0, 5.0 / 3.0, 5.0 / 4.0]
-                        .iter()
-                        .any(|q| (r / q - 1.0).abs() < 0.06)
-                };
-                let mut p2 = draw(1.5, 12.0);
-                for _ in 0..20 {
-                    if !related(p2) {
-                        break;
-                    }
-                    p2 = draw(1.5, 12.0);
-                }
-                LoadProgram::Profile(LoadSpec::Sines {
-                    mean_nm: draw(6.0, 14.0),
-                    amplitudes_nm: vec![draw(2.0, 5.0), draw(1.5, 4.0)],
-                    periods_s: vec![p1, p2],
-                })
-            }
-            Family::Mixed => {
-                let mut times_s = Vec::new();
-                let mut levels_nm = Vec::new();
-                let mut t = draw(0.5, 4.0);
-                while t < duration_s {
-                    times_s.push(t);
-                    levels_nm.push(draw(0.0, max_step_nm));
-                    t += draw(1.0, 4.0);
-                }
-                let brake = LoadProgram::Steps { times_s, levels_nm };
-                let other = match (draw(0.0, 3.0) as u32).min(2) {
-                    0 => centrifugal(&mut draw),
-                    1 => {
-                        let seed = hash_seed(&mut draw);
-                        random(&mut draw, seed)
-                    }
-                    _ => gearbox(&mut draw),
-                };
-                LoadProgram::Sum(vec![brake, other])
-            }
-        };
+        let setpoint = setpoint_moves(family, duration_s, first_move_s, &mut draw);
+        let load = load_program(family, duration_s, first_move_s, &mut draw);
         let inertia_factor = 2f64.powf(draw(-1.0, 1.0));
         let viscous_factor = 10f64.powf(draw(0.3f64.log10(), 3f64.log10()));
         Scenario { seed, family, duration_s, setpoint, load, inertia_factor, viscous_factor }
@@ -338,6 +218,152 @@ impl Scenario {
             self.load.describe()
         )
     }
+}
+
+/// The setpoint moves from `first_move_s` to `duration_s`: steps, some ramped, some to a stop (not in the slow family).
+fn setpoint_moves(
+    family: Family,
+    duration_s: f64,
+    first_move_s: f64,
+    draw: &mut dyn FnMut(f64, f64) -> f64,
+) -> Vec<SetpointMove> {
+    let (lo_hz, hi_hz) = if family == Family::Slow { (1.5, 30.0) } else { (0.0, 55.0) };
+    let mut setpoint = Vec::new();
+    let mut t = first_move_s;
+    let mut first = true;
+    while t < duration_s {
+        let stop = !first && family != Family::Slow && draw(0.0, 1.0) < 0.12;
+        let to_hz = if stop {
+            0.0
+        } else if first {
+            draw((lo_hz + hi_hz) * 0.4, hi_hz)
+        } else {
+            draw(lo_hz.max(if family == Family::Slow { 1.5 } else { 8.0 }), hi_hz)
+        };
+        let ramp_s = if !first && draw(0.0, 1.0) < 0.35 { draw(0.5, 4.0) } else { 0.0 };
+        setpoint.push(SetpointMove { t_s: t, to_hz, ramp_s });
+        t += ramp_s + draw(1.5, 5.0);
+        first = false;
+    }
+    setpoint
+}
+
+/// The family's load program (`first_move_s`: when the drive first starts).
+fn load_program(
+    family: Family,
+    duration_s: f64,
+    first_move_s: f64,
+    draw: &mut dyn FnMut(f64, f64) -> f64,
+) -> LoadProgram {
+    let max_step_nm = if family == Family::Slow { 15.0 } else { 30.0 };
+    match family {
+        Family::Brake | Family::StartUp | Family::Slow => {
+            let mut times_s = Vec::new();
+            let mut levels_nm = Vec::new();
+            let mut t = if family == Family::StartUp { first_move_s + draw(0.3, 1.0) } else { draw(0.5, 4.0) };
+            if family == Family::StartUp {
+                times_s.push(t);
+                levels_nm.push(draw(15.0, 30.0));
+                t += draw(1.0, 4.0);
+            }
+            steps(times_s, levels_nm, t, duration_s, max_step_nm, draw)
+        }
+        Family::Ramp => {
+            let start_s = draw(2.0, duration_s * 0.3);
+            LoadProgram::Profile(LoadSpec::Ramp {
+                from_nm: draw(0.0, 10.0),
+                to_nm: draw(5.0, 25.0),
+                start_s,
+                duration_s: draw(5.0, duration_s - start_s),
+            })
+        }
+        Family::Trend => LoadProgram::Profile(LoadSpec::Trend {
+            start_nm: draw(0.0, 5.0),
+            rate_nm_per_s: draw(0.1, 0.5),
+            max_nm: 25.0,
+        }),
+        Family::Sine => LoadProgram::Profile(LoadSpec::Sine {
+            mean_nm: draw(6.0, 14.0),
+            amplitude_nm: draw(2.0, 6.0),
+            period_s: draw(1.5, 10.0),
+        }),
+        Family::Centrifugal => LoadProgram::Sum(vec![
+            LoadProgram::Profile(LoadSpec::Constant { torque_nm: draw(0.0, 5.0) }),
+            centrifugal(draw),
+        ]),
+        Family::Linear => LoadProgram::Profile(LoadSpec::Speed {
+            constant_nm: draw(2.0, 10.0),
+            linear_nm_s_rad: draw(0.05, 0.3),
+            quadratic_nm_s2_rad2: 0.0,
+        }),
+        Family::Gearbox => gearbox(draw),
+        Family::Random => {
+            let seed = hash_seed(draw);
+            random(draw, seed)
+        }
+        Family::Impacts => {
+            let seed = hash_seed(draw);
+            LoadProgram::Profile(LoadSpec::Impacts {
+                base_nm: draw(1.0, 4.0),
+                peak_nm: draw(10.0, 30.0),
+                width_s: draw(0.02, 0.15),
+                mean_interval_s: draw(0.5, 3.0),
+                seed,
+            })
+        }
+        Family::TwoSines => two_sines(draw),
+        Family::Mixed => {
+            let t = draw(0.5, 4.0);
+            let brake = steps(Vec::new(), Vec::new(), t, duration_s, max_step_nm, draw);
+            let other = match (draw(0.0, 3.0) as u32).min(2) {
+                0 => centrifugal(draw),
+                1 => {
+                    let seed = hash_seed(draw);
+                    random(draw, seed)
+                }
+                _ => gearbox(draw),
+            };
+            LoadProgram::Sum(vec![brake, other])
+        }
+    }
+}
+
+/// Load steps after `times_s` and `levels_nm`, from `t` to `duration_s`: a level up to `max_step_nm` every 1 to 4 s.
+fn steps(
+    mut times_s: Vec<f64>,
+    mut levels_nm: Vec<f64>,
+    mut t: f64,
+    duration_s: f64,
+    max_step_nm: f64,
+    draw: &mut dyn FnMut(f64, f64) -> f64,
+) -> LoadProgram {
+    while t < duration_s {
+        times_s.push(t);
+        levels_nm.push(draw(0.0, max_step_nm));
+        t += draw(1.0, 4.0);
+    }
+    LoadProgram::Steps { times_s, levels_nm }
+}
+
+/// Two sines of unrelated periods: the second is redrawn while the two are near a ratio of small whole numbers.
+fn two_sines(draw: &mut dyn FnMut(f64, f64) -> f64) -> LoadProgram {
+    let p1 = draw(1.5, 12.0);
+    let related = |p2: f64| {
+        let r = p1.max(p2) / p1.min(p2);
+        [1.0, 2.0, 3.0, 4.0, 1.5, 2.5, 4.0 / 3.0, 5.0 / 3.0, 5.0 / 4.0].iter().any(|q| (r / q - 1.0).abs() < 0.06)
+    };
+    let mut p2 = draw(1.5, 12.0);
+    for _ in 0..20 {
+        if !related(p2) {
+            break;
+        }
+        p2 = draw(1.5, 12.0);
+    }
+    LoadProgram::Profile(LoadSpec::Sines {
+        mean_nm: draw(6.0, 14.0),
+        amplitudes_nm: vec![draw(2.0, 5.0), draw(1.5, 4.0)],
+        periods_s: vec![p1, p2],
+    })
 }
 
 /// The seed of a hashed load (random, impacts): a whole number below 2⁵³.

@@ -464,59 +464,66 @@ fn register_capacity(spec: &RegisterSpec) -> f64 {
 }
 
 fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
-    let bind = raw.http.bind.parse().map_err(|e| {
-        KeyError::new(
-            "http.bind".to_string(),
-            format!("{:?} is not an address such as 127.0.0.1:8080 ({e})", raw.http.bind),
-        )
+    let http = validate_http(raw.http)?;
+    let recording = validate_recording(raw.recording)?;
+    let drives = validate_drives(raw.drives, base)?;
+    check_lines(&drives)?;
+    let mqtt = raw.mqtt.map(|m| super::mqtt_config::validate(m, |p| resolve(p, base))).transpose()?;
+    Ok(Settings { http, recording, drives, mqtt })
+}
+
+/// `[http]`, validated.
+fn validate_http(h: RawHttp) -> Result<HttpSettings, Invalid> {
+    let bind = h.bind.parse().map_err(|e| {
+        KeyError::new("http.bind".to_string(), format!("{:?} is not an address such as 127.0.0.1:8080 ({e})", h.bind))
     })?;
-    if raw.http.max_body_bytes == 0 || raw.http.max_body_bytes > 1 << 20 {
+    if h.max_body_bytes == 0 || h.max_body_bytes > 1 << 20 {
         return Err(KeyError::new(
             "http.max_body_bytes".into(),
-            format!("must be 1 ..= 1048576, got {}", raw.http.max_body_bytes),
+            format!("must be 1 ..= 1048576, got {}", h.max_body_bytes),
         ));
     }
-    let history_s = positive("http.history_seconds", raw.http.history_seconds)?;
+    let history_s = positive("http.history_seconds", h.history_seconds)?;
     if history_s > 3600.0 {
         return Err(KeyError::new("http.history_seconds".into(), format!("must be ≤ 3600, got {history_s}")));
     }
-    let token = (!raw.http.token.is_empty()).then_some(raw.http.token);
+    let token = (!h.token.is_empty()).then_some(h.token);
     // an idle or half-sent request must be gone within 30 s (issue 20)
-    for (k, ms) in [
-        ("http.header_timeout_ms", raw.http.header_timeout_ms),
-        ("http.request_timeout_ms", raw.http.request_timeout_ms),
-    ] {
+    for (k, ms) in [("http.header_timeout_ms", h.header_timeout_ms), ("http.request_timeout_ms", h.request_timeout_ms)]
+    {
         if !(1..=30_000).contains(&ms) {
             return Err(KeyError::new(k.into(), format!("must be 1 ..= 30000, got {ms}")));
         }
     }
-    if !(1..=65_536).contains(&raw.http.max_connections) {
+    if !(1..=65_536).contains(&h.max_connections) {
         return Err(KeyError::new(
             "http.max_connections".into(),
-            format!("must be 1 ..= 65536, got {}", raw.http.max_connections),
+            format!("must be 1 ..= 65536, got {}", h.max_connections),
         ));
     }
     for (k, n) in [
-        ("http.max_connections_per_client", raw.http.max_connections_per_client),
-        ("http.max_event_streams", raw.http.max_event_streams),
+        ("http.max_connections_per_client", h.max_connections_per_client),
+        ("http.max_event_streams", h.max_event_streams),
     ] {
         if !(1..=65_536).contains(&n) {
             return Err(KeyError::new(k.into(), format!("must be 1 ..= 65536, got {n}")));
         }
     }
-    let http = HttpSettings {
+    Ok(HttpSettings {
         bind,
         token,
-        max_body_bytes: raw.http.max_body_bytes,
+        max_body_bytes: h.max_body_bytes,
         history: Duration::from_secs_f64(history_s),
-        header_timeout: Duration::from_millis(raw.http.header_timeout_ms),
-        request_timeout: Duration::from_millis(raw.http.request_timeout_ms),
-        max_connections: raw.http.max_connections,
-        max_connections_per_client: raw.http.max_connections_per_client,
-        max_event_streams: raw.http.max_event_streams,
-    };
+        header_timeout: Duration::from_millis(h.header_timeout_ms),
+        request_timeout: Duration::from_millis(h.request_timeout_ms),
+        max_connections: h.max_connections,
+        max_connections_per_client: h.max_connections_per_client,
+        max_event_streams: h.max_event_streams,
+    })
+}
 
-    let r = raw.recording;
+/// `[recording]`, validated.
+fn validate_recording(r: RawRecording) -> Result<RecordingSettings, Invalid> {
     let max_mb = positive("recording.max_file_mb", r.max_file_mb)?;
     if max_mb < MIN_FILE_MB {
         return Err(KeyError::new(
@@ -563,22 +570,25 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
             Some(Duration::from_secs_f64(d * 86_400.0))
         }
     };
-    let recording = RecordingSettings {
+    Ok(RecordingSettings {
         dir: r.enabled.then(|| PathBuf::from(r.dir)),
         max_file_bytes: (max_mb * 1024.0 * 1024.0) as u64,
         rotate_after: Duration::from_secs_f64(hours * 3600.0),
         max_total_bytes,
         keep,
         compress: r.compress,
-    };
+    })
+}
 
-    if raw.drives.is_empty() {
+/// The `[[drives]]`, each validated, with unique names and no two writing loops on one device.
+fn validate_drives(raw: Vec<RawDrive>, base: Option<&Path>) -> Result<Vec<DriveSettings>, Invalid> {
+    if raw.is_empty() {
         return Err(KeyError::new("drives".into(), "needs at least one [[drives]] entry".into()));
     }
-    let mut drives = Vec::with_capacity(raw.drives.len());
+    let mut drives = Vec::with_capacity(raw.len());
     // each drive's device identity, resolved once
-    let mut devices: Vec<Vec<String>> = Vec::with_capacity(raw.drives.len());
-    for (i, d) in raw.drives.into_iter().enumerate() {
+    let mut devices: Vec<Vec<String>> = Vec::with_capacity(raw.len());
+    for (i, d) in raw.into_iter().enumerate() {
         let drive = validate_drive(d, i, base)?;
         if drives.iter().any(|o: &DriveSettings| o.name == drive.name) {
             return Err(KeyError::new(
@@ -606,9 +616,7 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
         drives.push(drive);
         devices.push(ids);
     }
-    check_lines(&drives)?;
-    let mqtt = raw.mqtt.map(|m| super::mqtt_config::validate(m, |p| resolve(p, base))).transpose()?;
-    Ok(Settings { http, recording, drives, mqtt })
+    Ok(drives)
 }
 
 /// The drives on each RTU line: one setting per line, and no more traffic than the line can carry.
@@ -690,45 +698,9 @@ fn validate_transport(d: &RawDrive, key: &dyn Fn(&str) -> String) -> Result<(Tra
         ("parity", d.parity.is_some()),
         ("stop_bits", d.stop_bits.is_some()),
     ];
-    let host_port = |address: &Option<String>| match address.as_deref() {
-        None => Err(KeyError::new(key("address"), format!("is required with transport = {kind:?} (host:port)"))),
-        Some(a) => match a.rsplit_once(':') {
-            Some((host, port)) if !host.is_empty() && port.parse::<u16>().is_ok() => Ok(a.to_string()),
-            _ => Err(KeyError::new(key("address"), format!("{a:?} is not host:port such as 127.0.0.1:5020"))),
-        },
-    };
-    let line = || -> Result<SerialLine, Invalid> {
-        let mut line = SerialLine::default();
-        if let Some(b) = d.baud_rate {
-            if b <= 0 {
-                return Err(KeyError::new(key("baud_rate"), format!("must be positive, got {b}")));
-            }
-            line.baud_rate = u32::try_from(b)
-                .map_err(|_| KeyError::new(key("baud_rate"), format!("must be at most {}, got {b}", u32::MAX)))?;
-        }
-        if let Some(p) = &d.parity {
-            line.parity = Parity::parse(p).ok_or_else(|| {
-                KeyError::new(key("parity"), format!("{p:?}: expected \"none\", \"even\" or \"odd\""))
-            })?;
-        }
-        if let Some(s) = d.stop_bits {
-            if !(1..=2).contains(&s) {
-                return Err(KeyError::new(key("stop_bits"), format!("must be 1 or 2, got {s}")));
-            }
-            line.stop_bits = s as u8;
-        }
-        Ok(line)
-    };
-    let rtu_unit = || {
-        if (1..=247).contains(&d.unit_id) {
-            Ok(())
-        } else {
-            Err(KeyError::new(
-                key("unit_id"),
-                format!("must be 1 ..= 247 on an RTU line (0 is broadcast), got {}", d.unit_id),
-            ))
-        }
-    };
+    let host_port = |address: &Option<String>| host_port(address.as_deref(), kind, key);
+    let line = || serial_line(d, key);
+    let rtu_unit = || rtu_unit(d.unit_id, key);
     match kind {
         "tcp" => {
             if let Some((k, _)) = serial_given.iter().find(|(_, given)| *given) {
@@ -774,18 +746,111 @@ fn validate_transport(d: &RawDrive, key: &dyn Fn(&str) -> String) -> Result<(Tra
     }
 }
 
+/// A drive's `address` as `host:port` (required with `kind`, a transport that reaches it over TCP).
+fn host_port(address: Option<&str>, kind: &str, key: &dyn Fn(&str) -> String) -> Result<String, Invalid> {
+    match address {
+        None => Err(KeyError::new(key("address"), format!("is required with transport = {kind:?} (host:port)"))),
+        Some(a) => match a.rsplit_once(':') {
+            Some((host, port)) if !host.is_empty() && port.parse::<u16>().is_ok() => Ok(a.to_string()),
+            _ => Err(KeyError::new(key("address"), format!("{a:?} is not host:port such as 127.0.0.1:5020"))),
+        },
+    }
+}
+
+/// A drive's serial line settings, defaults where not given.
+fn serial_line(d: &RawDrive, key: &dyn Fn(&str) -> String) -> Result<SerialLine, Invalid> {
+    let mut line = SerialLine::default();
+    if let Some(b) = d.baud_rate {
+        if b <= 0 {
+            return Err(KeyError::new(key("baud_rate"), format!("must be positive, got {b}")));
+        }
+        line.baud_rate = u32::try_from(b)
+            .map_err(|_| KeyError::new(key("baud_rate"), format!("must be at most {}, got {b}", u32::MAX)))?;
+    }
+    if let Some(p) = &d.parity {
+        line.parity = Parity::parse(p)
+            .ok_or_else(|| KeyError::new(key("parity"), format!("{p:?}: expected \"none\", \"even\" or \"odd\"")))?;
+    }
+    if let Some(s) = d.stop_bits {
+        if !(1..=2).contains(&s) {
+            return Err(KeyError::new(key("stop_bits"), format!("must be 1 or 2, got {s}")));
+        }
+        line.stop_bits = s as u8;
+    }
+    Ok(line)
+}
+
+/// A unit id an RTU line can address (0 is broadcast).
+fn rtu_unit(unit_id: u8, key: &dyn Fn(&str) -> String) -> Result<(), Invalid> {
+    if (1..=247).contains(&unit_id) {
+        Ok(())
+    } else {
+        Err(KeyError::new(key("unit_id"), format!("must be 1 ..= 247 on an RTU line (0 is broadcast), got {unit_id}")))
+    }
+}
+
 fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSettings, Invalid> {
     let key = |k: &str| format!("drives[{i}].{k}");
-    let name_ok = !d.name.is_empty()
-        && d.name.len() <= 64
-        && d.name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+    check_name(&d.name, &key)?;
+    let (transport, address) = validate_transport(&d, &key)?;
+    let stale_ms = validate_periods(&d, &key)?;
+    let c = validate_control(&d.control, &key)?;
+    let (estimator, model, feed_forward) = validate_estimator(d.estimator, &key, base)?;
+    let ranges = validate_ranges(&d.limits, &key)?;
+    let registers = apply_overrides(d.registers, &key("registers"))?;
+    let condition = validate_condition(d.condition, &key("condition"), &model, |p| resolve(p, base))?;
+    check_setpoint_fits(&registers.frequency_setpoint_hz, &c, &key)?;
+    check_watchdog(d.comm_timeout_ms, d.watchdog_ms, &model, &key)?;
+    let settings = DriveSettings {
+        name: d.name,
+        address,
+        transport,
+        unit_id: d.unit_id,
+        poll: Duration::from_millis(d.poll_ms),
+        timeout: Duration::from_millis(d.timeout_ms),
+        stale_after: Duration::from_millis(stale_ms),
+        watchdog_every: Duration::from_millis(d.watchdog_ms),
+        realtime_priority: d.realtime_priority,
+        mode: c.mode,
+        target_omega_rad_s: c.target,
+        fixed_hz: c.fixed_hz,
+        limits: c.limits,
+        gains: c.gains,
+        feed_forward,
+        estimator,
+        model,
+        ranges,
+        registers,
+        condition,
+    };
+    let target = c.target;
+    if target > settings.max_target_omega_rad_s() * 1.5 {
+        return Err(KeyError::new(
+            key("control.target_omega_rad_s"),
+            format!(
+                "{target} rad/s is far beyond what max_hz allows (≈ {:.1} rad/s)",
+                settings.max_target_omega_rad_s()
+            ),
+        ));
+    }
+    Ok(settings)
+}
+
+/// A drive's name: it names files and URLs.
+fn check_name(name: &str, key: &dyn Fn(&str) -> String) -> Result<(), Invalid> {
+    let name_ok =
+        !name.is_empty() && name.len() <= 64 && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
     if !name_ok {
         return Err(KeyError::new(
             key("name"),
-            format!("{:?}: use 1 to 64 letters, digits, `_` or `-` (it names files and URLs)", d.name),
+            format!("{name:?}: use 1 to 64 letters, digits, `_` or `-` (it names files and URLs)"),
         ));
     }
-    let (transport, address) = validate_transport(&d, &key)?;
+    Ok(())
+}
+
+/// A drive's periods (poll, timeout, watchdog, stale) and its thread's priority; the stale period in ms.
+fn validate_periods(d: &RawDrive, key: &dyn Fn(&str) -> String) -> Result<u64, Invalid> {
     if !(1..=60_000).contains(&d.poll_ms) {
         return Err(KeyError::new(key("poll_ms"), format!("must be 1 ..= 60000, got {}", d.poll_ms)));
     }
@@ -810,8 +875,19 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
     if stale_ms > MAX_STALE_MS {
         return Err(KeyError::new(key("stale_ms"), format!("must be ≤ {MAX_STALE_MS} (10 min), got {stale_ms}")));
     }
+    Ok(stale_ms)
+}
 
-    let c = d.control;
+/// `[drives.control]`, validated (its setpoints' fit in the register is checked once the registers are known).
+struct Control {
+    mode: Mode,
+    limits: Limits,
+    gains: Gains,
+    fixed_hz: f64,
+    target: f64,
+}
+
+fn validate_control(c: &RawControl, key: &dyn Fn(&str) -> String) -> Result<Control, Invalid> {
     let min_hz = nonneg(&key("control.min_hz"), c.min_hz)?;
     let max_hz = positive(&key("control.max_hz"), c.max_hz)?;
     if min_hz > max_hz {
@@ -837,8 +913,22 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
         ));
     }
     let target = nonneg(&key("control.target_omega_rad_s"), c.target_omega_rad_s)?;
+    Ok(Control {
+        mode: c.mode,
+        limits: Limits { min_hz, max_hz, ramp_hz_per_s: ramp },
+        gains: Gains { kp_hz_per_rad_s: kp, ki_hz_per_rad: ki },
+        fixed_hz,
+        target,
+    })
+}
 
-    let method = match d.estimator.method.as_deref() {
+/// `[drives.estimator]`: the estimator's settings, the model they come from, and the control's feed-forward.
+fn validate_estimator(
+    e: RawEstimator,
+    key: &dyn Fn(&str) -> String,
+    base: Option<&Path>,
+) -> Result<(EstimatorSettings, PlantModel, FeedForward), Invalid> {
+    let method = match e.method.as_deref() {
         None | Some("rls-sgd") => Method::RlsSgd,
         Some("kalman") => Method::Kalman,
         Some(other) => {
@@ -848,7 +938,7 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
             ));
         }
     };
-    let model = match d.estimator.model {
+    let model = match e.model {
         None => PlantModel::reference(),
         Some(p) => {
             let path = resolve(&p, base);
@@ -873,8 +963,11 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
         leakage_si: coefficients.leakage_si,
         viscous_nm_s_rad: coefficients.mechanics.viscous_nm_s_rad,
     };
+    Ok((estimator, model, feed_forward))
+}
 
-    let l = d.limits;
+/// `[drives.limits]`: the ranges and rates a sample must keep to be used.
+fn validate_ranges(l: &RawLimits, key: &dyn Fn(&str) -> String) -> Result<ValidRanges, Invalid> {
     let ranges = ValidRanges {
         min_pressure_bar: finite(&key("limits.min_pressure_bar"), l.min_pressure_bar)?,
         max_pressure_bar: finite(&key("limits.max_pressure_bar"), l.max_pressure_bar)?,
@@ -889,10 +982,12 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
     if ranges.min_pressure_bar >= ranges.max_pressure_bar {
         return Err(KeyError::new(key("limits.min_pressure_bar"), "must be below limits.max_pressure_bar".into()));
     }
+    Ok(ranges)
+}
 
-    let registers = apply_overrides(d.registers, &key("registers"))?;
-    let condition = validate_condition(d.condition, &key("condition"), &model, |p| resolve(p, base))?;
-    let setpoint = registers.frequency_setpoint_hz;
+/// The control's frequencies fit the setpoint register.
+fn check_setpoint_fits(setpoint: &RegisterSpec, c: &Control, key: &dyn Fn(&str) -> String) -> Result<(), Invalid> {
+    let (min_hz, max_hz, fixed_hz) = (c.limits.min_hz, c.limits.max_hz, c.fixed_hz);
     for (k, hz) in [("control.max_hz", max_hz), ("control.fixed_hz", fixed_hz), ("control.min_hz", min_hz)] {
         if setpoint.encode(hz).is_err() {
             return Err(KeyError::new(
@@ -901,61 +996,39 @@ fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Result<DriveSet
                     "{hz} Hz does not fit the setpoint register ({:?}, {} Hz per step: at most {} Hz)",
                     setpoint.kind,
                     setpoint.scale,
-                    register_capacity(&setpoint)
+                    register_capacity(setpoint)
                 ),
             ));
         }
     }
+    Ok(())
+}
+
+/// The watchdog is refreshed well within the drive's comm timeout (`comm_timeout_ms`, else the model's).
+fn check_watchdog(
+    comm_timeout_ms: Option<u64>,
+    watchdog_ms: u64,
+    model: &PlantModel,
+    key: &dyn Fn(&str) -> String,
+) -> Result<(), Invalid> {
     let comm_timeout_ms =
-        d.comm_timeout_ms.unwrap_or_else(|| model.drive.as_ref().map_or(1000, |drive| drive.comm_timeout_ms));
+        comm_timeout_ms.unwrap_or_else(|| model.drive.as_ref().map_or(1000, |drive| drive.comm_timeout_ms));
     if !(1..=crate::plant::model::MAX_COMM_TIMEOUT_MS).contains(&comm_timeout_ms) {
         return Err(KeyError::new(
             key("comm_timeout_ms"),
             format!("must be 1 ..= {} (one hour), got {comm_timeout_ms}", crate::plant::model::MAX_COMM_TIMEOUT_MS),
         ));
     }
-    if d.watchdog_ms.saturating_mul(3) > comm_timeout_ms {
+    if watchdog_ms.saturating_mul(3) > comm_timeout_ms {
         return Err(KeyError::new(
             key("watchdog_ms"),
             format!(
-                "{} ms is more than a third of the drive's comm timeout ({comm_timeout_ms} ms, comm_timeout_ms or \
-                 the model's drive.comm_timeout_ms): the drive would trip",
-                d.watchdog_ms
+                "{watchdog_ms} ms is more than a third of the drive's comm timeout ({comm_timeout_ms} ms, \
+                 comm_timeout_ms or the model's drive.comm_timeout_ms): the drive would trip"
             ),
         ));
     }
-    let settings = DriveSettings {
-        name: d.name,
-        address,
-        transport,
-        unit_id: d.unit_id,
-        poll: Duration::from_millis(d.poll_ms),
-        timeout: Duration::from_millis(d.timeout_ms),
-        stale_after: Duration::from_millis(stale_ms),
-        watchdog_every: Duration::from_millis(d.watchdog_ms),
-        realtime_priority: d.realtime_priority,
-        mode: c.mode,
-        target_omega_rad_s: target,
-        fixed_hz,
-        limits: Limits { min_hz, max_hz, ramp_hz_per_s: ramp },
-        gains: Gains { kp_hz_per_rad_s: kp, ki_hz_per_rad: ki },
-        feed_forward,
-        estimator,
-        model,
-        ranges,
-        registers,
-        condition,
-    };
-    if target > settings.max_target_omega_rad_s() * 1.5 {
-        return Err(KeyError::new(
-            key("control.target_omega_rad_s"),
-            format!(
-                "{target} rad/s is far beyond what max_hz allows (≈ {:.1} rad/s)",
-                settings.max_target_omega_rad_s()
-            ),
-        ));
-    }
-    Ok(settings)
+    Ok(())
 }
 
 /// `[drives.condition]` as written.

@@ -112,66 +112,18 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
     let mut condition_jobs = Vec::new();
     // one writer per recordings directory, taken before anything in it is touched (leftovers, retention)
     let recording_lock = settings.recording.dir.as_deref().map(recorder::DirLock::take).transpose()?.map(Arc::new);
-    // one bus per RTU line (serial port or gateway), shared by the drives on it
-    let mut buses: Vec<Bus> = Vec::new();
+    let buses = buses(settings);
     for d in &settings.drives {
-        if let Some((endpoint, _)) = d.line()
-            && !buses.iter().any(|b| b.endpoint().same_line(&endpoint))
-        {
-            let on_line =
-                settings.drives.iter().filter(|o| o.line().is_some_and(|(e, _)| e.same_line(&endpoint))).count();
-            buses.push(Bus::new(endpoint, on_line));
-        }
-    }
-    for d in &settings.drives {
-        // the ring also holds a condition check's window
-        let mut ring_s = settings.http.history.as_secs_f64();
-        if d.condition.enabled {
-            ring_s = ring_s.max(d.condition.window.as_secs_f64());
-        }
-        let history_len = (ring_s / d.poll.as_secs_f64()).ceil() as usize;
-        let snapshot = DriveSnapshot {
-            name: d.name.clone(),
-            mode: d.mode,
-            address: d.address.clone(),
-            unit_id: d.unit_id,
-            target_omega_rad_s: d.target_omega_rad_s,
-            setpoint_hz: None,
-            tripped: false,
-            status: DriveStatus::default(),
-            link: Link::default(),
-            sample: None,
-            estimate: None,
-            identification: None,
-            timing: TimingStats::default(),
-            recording: None,
-            energy: None,
-            condition: Vec::new(),
-        };
-        let state =
-            Arc::new(DriveState::new(snapshot, d.max_target_omega_rad_s(), d.stale_after, history_len.min(1 << 20)));
-        let recorder = match &settings.recording.dir {
-            Some(dir) => {
-                let r = &settings.recording;
-                let retention = retention::Retention {
-                    // each drive keeps its share of the whole
-                    max_bytes: r.max_total_bytes.map(|t| t / settings.drives.len().max(1) as u64),
-                    keep: r.keep,
-                };
-                let lock = recording_lock.clone();
-                Some(Recorder::start(dir, &d.name, r.rotate_after, r.max_file_bytes, retention, r.compress, lock)?)
-            }
-            None => None,
-        };
+        let state = Arc::new(DriveState::new(
+            initial_snapshot(d),
+            d.max_target_omega_rad_s(),
+            d.stale_after,
+            history_len(settings, d).min(1 << 20),
+        ));
+        let recorder = recorder_for(settings, d, recording_lock.clone())?;
         tracing::info!(drive = %d.name, method = ?d.estimator.method, "estimator");
         let estimator = crate::estimator::build(&d.estimator, &d.model);
-        let connection = match d.line() {
-            None => Connection::Own(DriveClient::new(&d.address, d.unit_id, d.timeout)),
-            Some((endpoint, _)) => match buses.iter().find(|b| b.endpoint().same_line(&endpoint)) {
-                Some(bus) => bus.handle(d.unit_id, d.timeout),
-                None => Connection::Own(DriveClient::on(endpoint, d.unit_id, d.timeout)),
-            },
-        };
+        let connection = connection_for(d, &buses);
         loops.push(DriveLoop::new(d.clone(), connection, estimator, state.clone(), metrics.clone(), recorder, started));
         let cond = Arc::new(condition::DriveCondition::new(&d.name, &d.condition));
         if d.condition.enabled {
@@ -206,30 +158,8 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
     });
     for bus in buses {
         let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
-        let stop = shutdown.clone();
-        let name = format!("bus-{}", bus.endpoint().name().rsplit('/').next().unwrap_or("line"));
-        // the line serves its drives' poll threads: it runs at the highest real-time priority any of them asks for
-        let priority = settings
-            .drives
-            .iter()
-            .filter(|d| d.line().is_some_and(|(e, _)| e.same_line(bus.endpoint())))
-            .filter_map(|d| d.realtime_priority)
-            .max();
-        let what = name.clone();
-        let run = move || {
-            if let Some(p) = priority {
-                use_realtime_priority(p, &what);
-            }
-            rt.block_on(bus.run(stop))
-        };
-        match std::thread::Builder::new().name(name).spawn(run) {
-            Ok(t) => threads.push(t),
-            Err(e) => {
-                shutdown.cancel();
-                join(threads);
-                return Err(e);
-            }
-        }
+        let spawned = spawn_bus(bus, rt, settings, shutdown.clone());
+        keep_or_stop(&mut threads, spawned, &shutdown)?;
     }
     let count = loops.len();
     for (index, mut l) in loops.into_iter().enumerate() {
@@ -238,27 +168,132 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
         let stop = shutdown.clone();
         let spawned =
             std::thread::Builder::new().name(format!("poll-{}", l.name())).spawn(move || l.run_blocking(&rt, &stop));
-        match spawned {
-            Ok(t) => threads.push(t),
-            Err(e) => {
-                // the loops already started must not outlive a failed start
-                shutdown.cancel();
-                join(threads);
-                return Err(e);
-            }
-        }
+        // the loops already started must not outlive a failed start
+        keep_or_stop(&mut threads, spawned, &shutdown)?;
     }
     // the checks' thread after the loops: a failed start stops the loops as above
-    match condition::start(condition_jobs, condition_metrics, shutdown.clone()) {
-        Ok(Some(t)) => threads.push(t),
-        Ok(None) => {}
-        Err(e) => {
-            shutdown.cancel();
-            join(threads);
-            return Err(e);
-        }
+    let checks = condition::start(condition_jobs, condition_metrics, shutdown.clone()).transpose();
+    if let Some(spawned) = checks {
+        keep_or_stop(&mut threads, spawned, &shutdown)?;
     }
     Ok(Service { state, threads })
+}
+
+/// One bus per RTU line (serial port or gateway), shared by the drives on it.
+fn buses(settings: &Settings) -> Vec<Bus> {
+    let mut buses: Vec<Bus> = Vec::new();
+    for d in &settings.drives {
+        if let Some((endpoint, _)) = d.line()
+            && !buses.iter().any(|b| b.endpoint().same_line(&endpoint))
+        {
+            let on_line =
+                settings.drives.iter().filter(|o| o.line().is_some_and(|(e, _)| e.same_line(&endpoint))).count();
+            buses.push(Bus::new(endpoint, on_line));
+        }
+    }
+    buses
+}
+
+/// The rows a drive's history ring holds: the HTTP history, or a condition check's window if that is longer.
+fn history_len(settings: &Settings, d: &DriveSettings) -> usize {
+    let mut ring_s = settings.http.history.as_secs_f64();
+    if d.condition.enabled {
+        ring_s = ring_s.max(d.condition.window.as_secs_f64());
+    }
+    (ring_s / d.poll.as_secs_f64()).ceil() as usize
+}
+
+/// A drive's snapshot before its first poll.
+fn initial_snapshot(d: &DriveSettings) -> DriveSnapshot {
+    DriveSnapshot {
+        name: d.name.clone(),
+        mode: d.mode,
+        address: d.address.clone(),
+        unit_id: d.unit_id,
+        target_omega_rad_s: d.target_omega_rad_s,
+        setpoint_hz: None,
+        tripped: false,
+        status: DriveStatus::default(),
+        link: Link::default(),
+        sample: None,
+        estimate: None,
+        identification: None,
+        timing: TimingStats::default(),
+        recording: None,
+        energy: None,
+        condition: Vec::new(),
+    }
+}
+
+/// A drive's recorder (None when recording is off), keeping its share of the directory's retention.
+fn recorder_for(
+    settings: &Settings,
+    d: &DriveSettings,
+    lock: Option<Arc<recorder::DirLock>>,
+) -> std::io::Result<Option<Recorder>> {
+    let Some(dir) = &settings.recording.dir else { return Ok(None) };
+    let r = &settings.recording;
+    let retention = retention::Retention {
+        // each drive keeps its share of the whole
+        max_bytes: r.max_total_bytes.map(|t| t / settings.drives.len().max(1) as u64),
+        keep: r.keep,
+    };
+    Ok(Some(Recorder::start(dir, &d.name, r.rotate_after, r.max_file_bytes, retention, r.compress, lock)?))
+}
+
+/// A drive's link: its own client, or its turn on its line's bus.
+fn connection_for(d: &DriveSettings, buses: &[Bus]) -> Connection {
+    match d.line() {
+        None => Connection::Own(DriveClient::new(&d.address, d.unit_id, d.timeout)),
+        Some((endpoint, _)) => match buses.iter().find(|b| b.endpoint().same_line(&endpoint)) {
+            Some(bus) => bus.handle(d.unit_id, d.timeout),
+            None => Connection::Own(DriveClient::on(endpoint, d.unit_id, d.timeout)),
+        },
+    }
+}
+
+/// Runs a line's bus on a thread of its own (`bus-<port>`) on `rt`, until `stop`.
+fn spawn_bus(
+    bus: Bus,
+    rt: tokio::runtime::Runtime,
+    settings: &Settings,
+    stop: CancellationToken,
+) -> std::io::Result<std::thread::JoinHandle<()>> {
+    let name = format!("bus-{}", bus.endpoint().name().rsplit('/').next().unwrap_or("line"));
+    // the line serves its drives' poll threads: it runs at the highest real-time priority any of them asks for
+    let priority = settings
+        .drives
+        .iter()
+        .filter(|d| d.line().is_some_and(|(e, _)| e.same_line(bus.endpoint())))
+        .filter_map(|d| d.realtime_priority)
+        .max();
+    let what = name.clone();
+    let run = move || {
+        if let Some(p) = priority {
+            use_realtime_priority(p, &what);
+        }
+        rt.block_on(bus.run(stop))
+    };
+    std::thread::Builder::new().name(name).spawn(run)
+}
+
+/// Keeps a thread that started; if it did not, stops and joins those already running and hands back the error.
+fn keep_or_stop(
+    threads: &mut Vec<std::thread::JoinHandle<()>>,
+    spawned: std::io::Result<std::thread::JoinHandle<()>>,
+    shutdown: &CancellationToken,
+) -> std::io::Result<()> {
+    match spawned {
+        Ok(t) => {
+            threads.push(t);
+            Ok(())
+        }
+        Err(e) => {
+            shutdown.cancel();
+            join(std::mem::take(threads));
+            Err(e)
+        }
+    }
 }
 
 /// Joins poll threads, logging any that panicked.

@@ -252,109 +252,138 @@ async fn run(
     shutdown: CancellationToken,
 ) {
     let online_topic = format!("{}/status", settings.topic_prefix);
+    // a small channel: what waits for the broker waits in the outbox, where it is counted when dropped
+    let (client, mut eventloop) = AsyncClient::new(options(&settings, &online_topic), 8);
+    let outbox = Arc::new(Outbox::new(settings.queue_messages));
+    // set on every connection: the retained condition messages go again (a broker without persistence lost them,
+    // and the queue may have dropped the last one while the broker was away)
+    let resend = AtomicBool::new(false);
+    tokio::select! {
+        _ = shutdown.cancelled() => {}
+        _ = produce(settings.interval, &mut topics, &outbox, &health, &resend) => {}
+        _ = publish(&outbox, &client) => {}
+        _ = drive_connection(&mut eventloop, &client, &settings, &online_topic, &health, &resend) => {}
+    }
+    // a clean goodbye: `offline` (retained) as the will would say it, then DISCONNECT
+    if health.connected.load(Ordering::Relaxed) {
+        say_goodbye(&client, &mut eventloop, &online_topic).await;
+    }
+    health.set_connected(false);
+}
+
+/// The connection's options: keep-alive, clean session, `offline` as the last will, credentials and TLS if given.
+fn options(settings: &MqttSettings, online_topic: &str) -> MqttOptions {
     let mut options = MqttOptions::new(&settings.client_id, &settings.host, settings.port);
     options.set_keep_alive(Duration::from_secs(5));
     options.set_clean_session(true);
-    options.set_last_will(LastWill::new(&online_topic, "offline", QoS::AtLeastOnce, true));
+    options.set_last_will(LastWill::new(online_topic, "offline", QoS::AtLeastOnce, true));
     if let Some((u, p)) = &settings.credentials {
         options.set_credentials(u, p);
     }
     if let Some(tls) = &settings.tls {
         options.set_transport(Transport::Tls(TlsConfiguration::Rustls(tls.clone())));
     }
-    // a small channel: what waits for the broker waits in the outbox, where it is counted when dropped
-    let (client, mut eventloop) = AsyncClient::new(options, 8);
-    let outbox = Arc::new(Outbox::new(settings.queue_messages));
-    // set on every connection: the retained condition messages go again (a broker without persistence lost them,
-    // and the queue may have dropped the last one while the broker was away)
-    let resend = AtomicBool::new(false);
+    options
+}
 
-    let produce = async {
-        let mut tick = tokio::time::interval(settings.interval);
-        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-        loop {
-            tick.tick().await;
-            if resend.swap(false, Ordering::Relaxed) {
-                topics.iter_mut().for_each(|t| t.last_condition = None);
+/// Every `interval`: the drives' messages into the outbox (the oldest dropped, and counted, when it is full).
+async fn produce(
+    interval: Duration,
+    topics: &mut [DriveTopics],
+    outbox: &Outbox,
+    health: &MqttHealth,
+    resend: &AtomicBool,
+) {
+    let mut tick = tokio::time::interval(interval);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tick.tick().await;
+        if resend.swap(false, Ordering::Relaxed) {
+            topics.iter_mut().for_each(|t| t.last_condition = None);
+        }
+        for m in interval_messages(topics) {
+            if outbox.push(m) {
+                health.count_dropped();
             }
-            for m in interval_messages(&mut topics) {
-                if outbox.push(m) {
-                    health.count_dropped();
+        }
+    }
+}
+
+/// Hands the outbox's messages to the client, one by one.
+async fn publish(outbox: &Outbox, client: &AsyncClient) {
+    loop {
+        let m = outbox.pop().await;
+        // waits while rumqttc's channel is full (the broker down); the outbox keeps taking messages meanwhile
+        // counted as published by the connection's events, once the broker has it
+        let _ = client.publish(m.topic, m.qos, m.retain, m.payload).await;
+    }
+}
+
+/// Drives the connection: counts what the broker took, says `online` on each connection, and after a failure
+/// waits (a back-off doubling to [`MAX_BACKOFF`]) before the event loop connects again.
+async fn drive_connection(
+    eventloop: &mut rumqttc::EventLoop,
+    client: &AsyncClient,
+    settings: &MqttSettings,
+    online_topic: &str,
+    health: &MqttHealth,
+    resend: &AtomicBool,
+) {
+    let mut backoff = Duration::from_millis(100);
+    // the failure last logged as a warning: the same one again (every 2 s while it lasts) goes to debug
+    let mut last_failure: Option<String> = None;
+    loop {
+        match eventloop.poll().await {
+            Ok(Event::Incoming(Packet::ConnAck(_))) => {
+                tracing::info!(url = %settings.url, "MQTT connected");
+                last_failure = None;
+                health.set_connected(true);
+                resend.store(true, Ordering::Relaxed);
+                backoff = Duration::from_millis(100);
+                // queued behind at most the channel's few messages; rumqttc's channel never loses it
+                let c = client.clone();
+                let topic = online_topic.to_string();
+                tokio::spawn(async move {
+                    let _ = c.publish(topic, QoS::AtLeastOnce, true, "online").await;
+                });
+            }
+            // published: a QoS 1 message once the broker acknowledges it; a QoS 0 one (status) once it has
+            // gone into the open connection (nothing acknowledges those)
+            Ok(Event::Incoming(Packet::PubAck(_))) | Ok(Event::Outgoing(rumqttc::Outgoing::Publish(0))) => {
+                health.count_published();
+            }
+            Ok(_) => {}
+            Err(e) => {
+                let error = e.to_string();
+                if health.connected.load(Ordering::Relaxed) {
+                    tracing::warn!(url = %settings.url, error, "MQTT connection lost");
+                } else if last_failure.as_ref() != Some(&error) {
+                    tracing::warn!(url = %settings.url, error, "MQTT connection attempt failed");
+                } else {
+                    tracing::debug!(url = %settings.url, error, "MQTT connection attempt failed");
                 }
+                last_failure = Some(error);
+                health.set_connected(false);
+                tokio::time::sleep(backoff).await;
+                backoff = (backoff * 2).min(MAX_BACKOFF);
             }
         }
-    };
-    let publish = async {
-        loop {
-            let m = outbox.pop().await;
-            // waits while rumqttc's channel is full (the broker down); the outbox keeps taking messages meanwhile
-            // counted as published by the connection's events, once the broker has it
-            let _ = client.publish(m.topic, m.qos, m.retain, m.payload).await;
-        }
-    };
-    let drive_connection = async {
-        let mut backoff = Duration::from_millis(100);
-        // the failure last logged as a warning: the same one again (every 2 s while it lasts) goes to debug
-        let mut last_failure: Option<String> = None;
+    }
+}
+
+/// `offline` (retained) and DISCONNECT, given 2 s at most to go out.
+async fn say_goodbye(client: &AsyncClient, eventloop: &mut rumqttc::EventLoop, online_topic: &str) {
+    let _ = client.try_publish(online_topic, QoS::AtLeastOnce, true, "offline");
+    let _ = client.try_disconnect();
+    let goodbye = async {
         loop {
             match eventloop.poll().await {
-                Ok(Event::Incoming(Packet::ConnAck(_))) => {
-                    tracing::info!(url = %settings.url, "MQTT connected");
-                    last_failure = None;
-                    health.set_connected(true);
-                    resend.store(true, Ordering::Relaxed);
-                    backoff = Duration::from_millis(100);
-                    // queued behind at most the channel's few messages; rumqttc's channel never loses it
-                    let c = client.clone();
-                    let topic = online_topic.clone();
-                    tokio::spawn(async move {
-                        let _ = c.publish(topic, QoS::AtLeastOnce, true, "online").await;
-                    });
-                }
-                // published: a QoS 1 message once the broker acknowledges it; a QoS 0 one (status) once it has
-                // gone into the open connection (nothing acknowledges those)
-                Ok(Event::Incoming(Packet::PubAck(_))) | Ok(Event::Outgoing(rumqttc::Outgoing::Publish(0))) => {
-                    health.count_published();
-                }
+                Ok(Event::Outgoing(rumqttc::Outgoing::Disconnect)) | Err(_) => return,
                 Ok(_) => {}
-                Err(e) => {
-                    let error = e.to_string();
-                    if health.connected.load(Ordering::Relaxed) {
-                        tracing::warn!(url = %settings.url, error, "MQTT connection lost");
-                    } else if last_failure.as_ref() != Some(&error) {
-                        tracing::warn!(url = %settings.url, error, "MQTT connection attempt failed");
-                    } else {
-                        tracing::debug!(url = %settings.url, error, "MQTT connection attempt failed");
-                    }
-                    last_failure = Some(error);
-                    health.set_connected(false);
-                    tokio::time::sleep(backoff).await;
-                    backoff = (backoff * 2).min(MAX_BACKOFF);
-                }
             }
         }
     };
-    tokio::select! {
-        _ = shutdown.cancelled() => {}
-        _ = produce => {}
-        _ = publish => {}
-        _ = drive_connection => {}
-    }
-    // a clean goodbye: `offline` (retained) as the will would say it, then DISCONNECT
-    if health.connected.load(Ordering::Relaxed) {
-        let _ = client.try_publish(&online_topic, QoS::AtLeastOnce, true, "offline");
-        let _ = client.try_disconnect();
-        let goodbye = async {
-            loop {
-                match eventloop.poll().await {
-                    Ok(Event::Outgoing(rumqttc::Outgoing::Disconnect)) | Err(_) => return,
-                    Ok(_) => {}
-                }
-            }
-        };
-        let _ = tokio::time::timeout(Duration::from_secs(2), goodbye).await;
-    }
-    health.set_connected(false);
+    let _ = tokio::time::timeout(Duration::from_secs(2), goodbye).await;
 }
 
 #[cfg(test)]

@@ -304,6 +304,78 @@ impl DirLock {
     }
 }
 
+/// The recorder thread: every [`DRAIN_EVERY`] writes the rows waiting in `rx`, flushes every [`FLUSH_EVERY`] (and
+/// at the end), tells the keeper of each new file, and when `rx` closes closes the last file (dropping `keeper_tx`
+/// then tells the keeper it is closed).
+fn write_rows(
+    name: &str,
+    health: &Health,
+    mut writer: RotatingWriter,
+    rx: &mpsc::Receiver<Point>,
+    keeper_tx: &mpsc::Sender<Opened>,
+    lock: Option<&DirLock>,
+) {
+    let mut spell = Spell { name, health, retry_at: None };
+    // the thread drains the channel on its own clock rather than blocking in `recv`: a blocked receiver
+    // would be woken by every row, a context switch per poll per drive (a tenth of a 50-drive service's CPU)
+    let mut flushed = Instant::now();
+    let mut told: Option<PathBuf> = None;
+    loop {
+        std::thread::sleep(DRAIN_EVERY);
+        let (open, wrote) = drain(rx, &mut writer, &mut spell);
+        if flushed.elapsed() >= FLUSH_EVERY || !open {
+            match writer.flush() {
+                // only a flush proves the rows reached the file
+                Ok(()) if wrote || spell.retry_at.is_none() => spell.succeeded(),
+                Ok(()) => {}
+                Err(e) => spell.failed(&mut writer, &e),
+            }
+            if let Some(lost) = writer.give_up_if_lost() {
+                spell.lost(&lost);
+                // the directory may have gone with it: the next row makes it again, and the lock is kept
+                if let Some(l) = lock {
+                    let _ = std::fs::create_dir_all(&l.dir);
+                    l.keep();
+                }
+            }
+            flushed = Instant::now();
+        }
+        // the keeper hears of each new file: the one before it is closed
+        let current = writer.current_path().map(Path::to_path_buf);
+        if current != told {
+            told.clone_from(&current);
+            let _ = keeper_tx.send(Opened(current));
+        }
+        if !open {
+            break;
+        }
+    }
+    if let Err(e) = writer.close() {
+        spell.failed(&mut writer, &e);
+    }
+}
+
+/// Writes the rows waiting in `rx` (none while a failure's retry is not due): whether `rx` is still open, and
+/// whether a row was written.
+fn drain(rx: &mpsc::Receiver<Point>, writer: &mut RotatingWriter, spell: &mut Spell<'_>) -> (bool, bool) {
+    let mut wrote = false;
+    loop {
+        match rx.try_recv() {
+            Ok(p) => {
+                if spell.waiting() {
+                    continue;
+                }
+                match writer.write_row(Instant::now(), p.values()) {
+                    Ok(()) => wrote = true,
+                    Err(e) => spell.failed(writer, &e),
+                }
+            }
+            Err(mpsc::TryRecvError::Empty) => return (true, wrote),
+            Err(mpsc::TryRecvError::Disconnected) => return (false, wrote),
+        }
+    }
+}
+
 impl Recorder {
     /// Starts writing `<dir>/<drive>-<unix ms>.csv` files, rotated after `rotate_after` or `max_bytes`; closed
     /// files are compressed to `.csv.gz` when `compress` (those of earlier runs too).
@@ -318,7 +390,7 @@ impl Recorder {
     ) -> std::io::Result<Recorder> {
         std::fs::create_dir_all(dir)?;
         let found = leftovers(dir, drive)?;
-        let mut writer = RotatingWriter::new(dir, drive, &COLUMNS, rotate_after, max_bytes);
+        let writer = RotatingWriter::new(dir, drive, &COLUMNS, rotate_after, max_bytes);
         let (tx, rx) = mpsc::channel::<Point>();
         let (keeper_tx, keeper_rx) = mpsc::channel::<Opened>();
         let name = drive.to_string();
@@ -334,66 +406,9 @@ impl Recorder {
         };
         let keeper = std::thread::Builder::new().name(format!("keep-{drive}")).spawn(move || keeper.run(keeper_rx))?;
         let shared = health.clone();
-        let thread = std::thread::Builder::new().name(format!("rec-{drive}")).spawn(move || {
-            let mut spell = Spell { name: &name, health: &shared, retry_at: None };
-            // the thread drains the channel on its own clock rather than blocking in `recv`: a blocked receiver
-            // would be woken by every row, a context switch per poll per drive (a tenth of a 50-drive service's CPU)
-            let mut flushed = Instant::now();
-            let mut told: Option<PathBuf> = None;
-            loop {
-                std::thread::sleep(DRAIN_EVERY);
-                let mut open = true;
-                let mut wrote = false;
-                loop {
-                    match rx.try_recv() {
-                        Ok(p) => {
-                            if spell.waiting() {
-                                continue;
-                            }
-                            match writer.write_row(Instant::now(), p.values()) {
-                                Ok(()) => wrote = true,
-                                Err(e) => spell.failed(&mut writer, &e),
-                            }
-                        }
-                        Err(mpsc::TryRecvError::Empty) => break,
-                        Err(mpsc::TryRecvError::Disconnected) => {
-                            open = false;
-                            break;
-                        }
-                    }
-                }
-                if flushed.elapsed() >= FLUSH_EVERY || !open {
-                    match writer.flush() {
-                        // only a flush proves the rows reached the file
-                        Ok(()) if wrote || spell.retry_at.is_none() => spell.succeeded(),
-                        Ok(()) => {}
-                        Err(e) => spell.failed(&mut writer, &e),
-                    }
-                    if let Some(lost) = writer.give_up_if_lost() {
-                        spell.lost(&lost);
-                        // the directory may have gone with it: the next row makes it again, and the lock is kept
-                        if let Some(l) = &lock {
-                            let _ = std::fs::create_dir_all(&l.dir);
-                            l.keep();
-                        }
-                    }
-                    flushed = Instant::now();
-                }
-                // the keeper hears of each new file: the one before it is closed
-                let current = writer.current_path().map(Path::to_path_buf);
-                if current != told {
-                    told.clone_from(&current);
-                    let _ = keeper_tx.send(Opened(current));
-                }
-                if !open {
-                    break;
-                }
-            }
-            if let Err(e) = writer.close() {
-                spell.failed(&mut writer, &e);
-            }
-            // dropping `keeper_tx` tells the keeper the last file is closed
-        })?;
+        let thread = std::thread::Builder::new()
+            .name(format!("rec-{drive}"))
+            .spawn(move || write_rows(&name, &shared, writer, &rx, &keeper_tx, lock.as_deref()))?;
         Ok(Recorder { tx: Some(tx), thread: Some(thread), keeper: Some(keeper), health })
     }
 

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
-use crate::support::{ServeProcess, TOKEN, metric};
+use crate::support::{ServeProcess, TOKEN, metric, wait_for};
 
 /// `hydrolens serve` on a drive in speed mode at a closed Modbus port, recording into `dir/rec`.
 struct Serve(ServeProcess);
@@ -192,16 +192,11 @@ async fn a_client_that_stops_reading_is_closed() {
         open(s.addr, "GET /api/recordings/pump1-2.csv HTTP/1.1\r\nHost: t\r\n\r\n").await.expect("a download");
     assert_eq!(code, 200);
     // reads nothing until the service has given up on it (bounded), then finds the connection closed early
-    let mut closed = false;
-    for _ in 0..100 {
-        tokio::time::sleep(Duration::from_millis(100)).await;
-        let m = s.metrics().await;
-        if metric(&m, "hydrolens_http_refused_total{reason=\"stalled\"}").unwrap_or(0.0) >= 1.0 {
-            closed = true;
-            break;
-        }
-    }
-    assert!(closed, "the stalled connection is counted closed");
+    let closed = wait_for(Duration::from_secs(10), || async {
+        metric(&s.metrics().await, "hydrolens_http_refused_total{reason=\"stalled\"}").unwrap_or(0.0) >= 1.0
+    })
+    .await;
+    assert!(closed.is_some(), "the stalled connection is counted closed");
     let mut rest = Vec::new();
     let _ = tokio::time::timeout(Duration::from_secs(5), c.read_to_end(&mut rest)).await.expect("EOF");
     assert!(rest.len() < text.len(), "the download was cut: {} of {} bytes", rest.len(), text.len());
@@ -215,7 +210,16 @@ async fn one_address_holds_at_most_its_share_and_then_reaches_only_the_reserve()
     for _ in 0..4 {
         held.push(TcpStream::connect(s.addr).await.expect("connect"));
     }
-    tokio::time::sleep(Duration::from_millis(200)).await; // all four taken by the server
+    // all four taken by the server: its open-connection gauge, read from another address (127.0.0.2, whose share
+    // is its own) counts them and the connection that asks
+    let other =
+        reqwest::Client::builder().local_address(std::net::IpAddr::from([127, 0, 0, 2])).build().expect("client");
+    let taken = wait_for(Duration::from_secs(3), || async {
+        let Ok(r) = other.get(format!("{}/metrics", s.url)).send().await else { return false };
+        metric(&r.text().await.unwrap_or_default(), "hydrolens_http_connections ").unwrap_or(0.0) >= 5.0
+    })
+    .await;
+    assert!(taken.is_some(), "the four connections are taken by the server");
     let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: t\r\n\r\n").await.map(|(c, _)| c);
     let [(health, _), (target, _)] = operator(&s.url).await;
     assert_eq!(status, Some(503), "a fifth connection from the address is a reserved one");

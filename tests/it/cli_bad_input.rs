@@ -15,6 +15,7 @@ use crate::support::{bin, root};
 struct Running {
     child: Child,
     out: Arc<Mutex<String>>,
+    readers: Vec<std::thread::JoinHandle<()>>,
 }
 
 impl Running {
@@ -28,19 +29,20 @@ impl Running {
             .spawn()
             .expect("starts");
         let out = Arc::new(Mutex::new(String::new()));
+        let mut readers = Vec::new();
         for mut pipe in [
             Box::new(child.stderr.take().expect("stderr")) as Box<dyn Read + Send>,
             Box::new(child.stdout.take().expect("stdout")),
         ] {
             let out = out.clone();
-            std::thread::spawn(move || {
+            readers.push(std::thread::spawn(move || {
                 let mut buf = [0u8; 4096];
                 while let Ok(n @ 1..) = pipe.read(&mut buf) {
                     out.lock().expect("lock").push_str(&String::from_utf8_lossy(&buf[..n]));
                 }
-            });
+            }));
         }
-        Running { child, out }
+        Running { child, out, readers }
     }
 
     fn output(&self) -> String {
@@ -76,8 +78,10 @@ impl Running {
         };
         let _ = self.child.kill();
         let _ = self.child.wait();
-        // the readers see the pipes close
-        std::thread::sleep(Duration::from_millis(50));
+        // the readers see the pipes close: all the output is in
+        for reader in self.readers.drain(..) {
+            reader.join().expect("a reader");
+        }
         (status, self.output())
     }
 

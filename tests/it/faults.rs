@@ -28,13 +28,13 @@ async fn stalled_replies_time_out_drop_the_link_and_reconnect() {
             .await
             .expect("not ready while stalled");
         let writes_stalled = stack.sim.lock().writes;
-        tokio::time::sleep(Duration::from_millis(500)).await;
         // requests may still land while the replies are held; none may carry a new setpoint from stale data
+        let timeouts = |m: &str| metric(m, "hydrolens_errors_total{drive=\"pump1\",kind=\"timeout\"}");
+        let counted =
+            wait_for(Duration::from_secs(3), || async { timeouts(&stack.metrics().await).is_some_and(|t| t >= 1.0) })
+                .await;
         let m = stack.metrics().await;
-        assert!(
-            metric(&m, "hydrolens_errors_total{drive=\"pump1\",kind=\"timeout\"}").expect("timeouts") >= 1.0,
-            "{m}"
-        );
+        assert!(counted.is_some(), "no timeout counted: {m}");
         assert_eq!(metric(&m, "hydrolens_stale{drive=\"pump1\"}"), Some(1.0));
         set(&stack, |f| f.reply_delay = None);
         let back = ready_within(&stack, Duration::from_secs(3)).await.expect("ready again");
@@ -53,9 +53,12 @@ async fn frozen_counter_is_stale_and_nothing_is_written() {
         let stack = Stack::start(5.0, 10, SPEED).await;
         ready_within(&stack, Duration::from_secs(5)).await.expect("ready");
         set(&stack, |f| f.freeze_counter = true);
-        tokio::time::sleep(Duration::from_millis(100)).await; // a write in flight lands
+        wait_for(Duration::from_secs(2), || async { stack.state.drives[0].snapshot().link.stale })
+            .await
+            .expect("stale once the counter stands");
+        stack.wait_polls(2, "a write in flight lands").await;
         let before = stack.sim.lock().writes;
-        tokio::time::sleep(Duration::from_millis(600)).await;
+        stack.wait_polls(40, "frozen").await;
         assert_eq!(stack.sim.lock().writes, before, "no writes while the data are frozen");
         assert_eq!(stack.readyz().await, 503);
         let s = stack.status().await;
@@ -75,9 +78,12 @@ async fn exceptions_and_out_of_range_values_are_counted_and_rejected() {
         let stack = Stack::start(5.0, 10, SPEED).await;
         ready_within(&stack, Duration::from_secs(5)).await.expect("ready");
         set(&stack, |f| f.exception = Some(ExceptionCode::ServerDeviceBusy));
-        tokio::time::sleep(Duration::from_millis(300)).await;
+        let exceptions = |m: &str| metric(m, "hydrolens_errors_total{drive=\"pump1\",kind=\"exception\"}");
+        let counted =
+            wait_for(Duration::from_secs(3), || async { exceptions(&stack.metrics().await).is_some_and(|e| e >= 5.0) })
+                .await;
         let m = stack.metrics().await;
-        assert!(metric(&m, "hydrolens_errors_total{drive=\"pump1\",kind=\"exception\"}").expect("exceptions") >= 5.0);
+        assert!(counted.is_some(), "fewer than 5 exceptions counted: {m}");
         assert_eq!(
             metric(&m, "hydrolens_reconnects_total{drive=\"pump1\"}").unwrap_or(0.0),
             0.0,
@@ -88,9 +94,15 @@ async fn exceptions_and_out_of_range_values_are_counted_and_rejected() {
 
         let hat_before = stack.state.drives[0].snapshot().estimate.expect("estimate");
         set(&stack, |f| f.inlet_pressure_override_bar = Some(600.0)); // beyond limits.max_pressure_bar = 400
-        tokio::time::sleep(Duration::from_millis(100)).await;
+        let rejected_from = stack.state.drives[0].snapshot().link.rejected_samples;
+        wait_for(Duration::from_secs(2), || async {
+            stack.state.drives[0].snapshot().link.rejected_samples > rejected_from
+        })
+        .await
+        .expect("samples rejected");
+        stack.wait_polls(2, "a write in flight lands").await;
         let before = stack.sim.lock().writes;
-        tokio::time::sleep(Duration::from_millis(400)).await;
+        stack.wait_polls(25, "rejected data").await;
         assert_eq!(stack.sim.lock().writes, before, "no writes from rejected data");
         let s = stack.state.drives[0].snapshot();
         assert!(s.link.rejected_samples >= 20, "{:?}", s.link);
@@ -115,7 +127,12 @@ async fn a_restarted_server_is_reconnected_within_a_second() {
         }
         wait_for(Duration::from_secs(3), || async { stack.readyz().await == 503 }).await.expect("down");
         assert_eq!(stack.status().await["link"]["connected"], false);
-        tokio::time::sleep(Duration::from_millis(1500)).await; // the back-off reaches its cap
+        // the back-off reaches its cap: it doubles from 50 ms with each failed connect, to 500 ms at the fifth
+        let connects = |m: &str| metric(m, "hydrolens_errors_total{drive=\"pump1\",kind=\"connect\"}");
+        let capped =
+            wait_for(Duration::from_secs(5), || async { connects(&stack.metrics().await).is_some_and(|c| c >= 5.0) })
+                .await;
+        assert!(capped.is_some(), "fewer than 5 failed connects: {}", stack.metrics().await);
         let (sim, _, stop, task) = support::start_sim(support::test_plant(5.0), stack.modbus_addr.port()).await;
         stack.sim = sim;
         stack.sim_stop = stop;

@@ -15,7 +15,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 
 use crate::device::{self, Device};
-use crate::support::{TOKEN, get_json, metric, root, start_service, stop_service, wait_for};
+use crate::support::{TOKEN, get_json, metric, root, start_service, stop_service, wait_exit, wait_for, wait_polls};
 
 const SPEED: &str = crate::support::SPEED_30;
 
@@ -72,10 +72,12 @@ async fn late_replies_that_readiness_calls_stale_never_lead_to_writes() {
         wait_for(Duration::from_secs(5), || async { dev.lock().writes > 5 }).await.expect("writing while healthy");
         // replies 70 ms late: inside timeout_ms = 100, beyond the default stale_ms = 50
         dev.lock().delay = Duration::from_millis(70);
-        tokio::time::sleep(Duration::from_millis(300)).await; // what was in flight lands
+        let drive = &s.state().drives[0];
+        wait_for(Duration::from_secs(3), || async { s.readyz().await == 503 }).await.expect("late data are stale");
+        wait_polls(drive, 2, "what was in flight lands").await;
         let before = dev.lock().writes;
         for _ in 0..8 {
-            tokio::time::sleep(Duration::from_millis(100)).await;
+            wait_polls(drive, 1, "late replies").await;
             assert_eq!(s.readyz().await, 503, "late data are stale for readiness");
         }
         assert_eq!(dev.lock().writes, before, "nothing written from data readiness calls stale");
@@ -133,9 +135,13 @@ async fn a_counter_running_backwards_or_alternating_is_stale_and_a_device_fault(
                 .await
                 .expect("ready and writing while healthy");
             dev.lock().script = script;
-            tokio::time::sleep(Duration::from_millis(200)).await;
+            let drive = &s.state().drives[0];
+            wait_for(Duration::from_secs(3), || async { s.readyz().await == 503 })
+                .await
+                .unwrap_or_else(|| panic!("{name}: not ready"));
+            wait_polls(drive, 2, "a write in flight lands").await;
             let before = dev.lock().writes;
-            tokio::time::sleep(Duration::from_millis(600)).await;
+            wait_polls(drive, 40, name).await;
             assert_eq!(dev.lock().writes, before, "{name}: nothing written");
             assert_eq!(s.readyz().await, 503, "{name}: not ready");
             let m = s.metrics().await;
@@ -316,7 +322,10 @@ async fn concurrent_connections_are_bounded() {
         for _ in 0..2 + hydrolens::http::conn::RESERVED_CONNECTIONS {
             held.push(TcpStream::connect(&addr).await.expect("connect"));
         }
-        tokio::time::sleep(Duration::from_millis(200)).await; // all taken by the server
+        let taken = (2 + hydrolens::http::conn::RESERVED_CONNECTIONS) as i64;
+        wait_for(Duration::from_secs(3), || async { s.state().metrics.http_connections.get() >= taken })
+            .await
+            .expect("all taken by the server");
         let mut next = TcpStream::connect(&addr).await.expect("the kernel queues it");
         next.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").await.expect("write");
         let mut buf = [0u8; 256];
@@ -467,18 +476,11 @@ fn serve_with_a_recording_dir_that_is_a_file_exits_2_naming_the_key() {
         .stdout(std::process::Stdio::null())
         .spawn()
         .expect("starts");
-    let deadline = std::time::Instant::now() + Duration::from_secs(10);
-    let status = loop {
-        if let Some(s) = child.try_wait().expect("wait") {
-            break Some(s);
-        }
-        if std::time::Instant::now() > deadline {
-            let _ = child.kill();
-            let _ = child.wait();
-            break None;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let status = wait_exit(&mut child, Duration::from_secs(10));
+    if status.is_none() {
+        let _ = child.kill();
+        let _ = child.wait();
+    }
     let mut err = String::new();
     std::io::Read::read_to_string(&mut child.stderr.take().expect("stderr"), &mut err).expect("utf-8");
     let status = status.expect("refused at once");
@@ -574,8 +576,11 @@ async fn a_full_disk_shows_in_status_metrics_and_readiness_and_recording_resumes
         let m = reqwest::get(format!("{url}/metrics")).await.expect("metrics").text().await.expect("text");
         assert!(metric(&m, "hydrolens_recording_errors_total{drive=\"pump1\"}").unwrap_or(0.0) >= 1.0, "{m}");
         assert_eq!(metric(&m, "hydrolens_recording_ok{drive=\"pump1\"}"), Some(0.0), "{m}");
-        tokio::time::sleep(Duration::from_millis(300)).await;
-        assert!(status().await["link"]["polls"].as_u64().expect("polls") > polls, "polling goes on");
+        let on = wait_for(Duration::from_secs(3), || async {
+            status().await["link"]["polls"].as_u64().expect("polls") > polls
+        })
+        .await;
+        assert!(on.is_some(), "polling goes on");
         // space returns
         let lifted = std::process::Command::new("prlimit")
             .args([format!("--pid={pid}"), "--fsize=unlimited:unlimited".to_string()])

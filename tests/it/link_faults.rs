@@ -87,12 +87,16 @@ async fn every_fault_is_survived_and_cleared_by_a_reset() {
                 .unwrap_or_else(|| panic!("{fault:?}: /readyz must say 503"));
             // a write decided from fresh data and already in flight may land; a slow link holds it back by its own
             // delay (the proxy delays every request it forwards), so wait that long too
-            tokio::time::sleep(Duration::from_millis(150) + fault.link_delay()).await;
+            stack.wait_polls(2, "a write in flight lands").await;
+            if !fault.link_delay().is_zero() {
+                tokio::time::sleep(fault.link_delay()).await; // the fault's own delay, as injected
+            }
             let writes = stack.sim.lock().writes;
-            // past the drive's 1 s watchdog: it trips, and nothing is written from stale data meanwhile
-            tokio::time::sleep(Duration::from_millis(1300)).await;
+            // the drive's 1 s watchdog trips (1.3 s at most, as ever), and nothing is written from stale data meanwhile
+            wait_for(Duration::from_millis(1300), || async { stack.sim.lock().truth().tripped })
+                .await
+                .unwrap_or_else(|| panic!("{fault:?}: the drive's watchdog took over"));
             assert_eq!(stack.sim.lock().writes, writes, "{fault:?}: a write reached the drive from stale data");
-            assert!(stack.sim.lock().truth().tripped, "{fault:?}: the drive's watchdog took over");
             let status = stack.status().await;
             assert!(status["link"][counter].as_u64().expect("counter") > count_before, "{fault:?}: {status}");
             assert_eq!(status["link"]["stale"], true, "{fault:?}: {status}");
@@ -106,7 +110,7 @@ async fn every_fault_is_survived_and_cleared_by_a_reset() {
             // the back-off is capped at 1 s; add a poll and the readiness check's own granularity
             assert!(reconnect < Duration::from_millis(1200), "{fault:?}: ready again after {reconnect:?}");
             // tripped: the service never re-arms it by itself
-            tokio::time::sleep(Duration::from_millis(300)).await;
+            stack.wait_polls(30, "ready, not reset").await;
             assert!(stack.sim.lock().truth().tripped, "{fault:?}: re-armed without a reset");
             let r = client
                 .post(format!("{}/api/drives/pump1/reset", stack.url))

@@ -60,7 +60,7 @@ async fn a_non_finite_sensor_value_is_rejected_and_never_reaches_the_estimator()
         let extra = "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\n\
                      [drives.registers.inlet_pressure_bar]\naddress = 0\ntype = \"f32\"\nscale = 1.0\n";
         let stack = Stack::start(5.0, 10, extra).await;
-        tokio::time::sleep(Duration::from_millis(500)).await;
+        wait_for(Duration::from_secs(5), || async { stack.state.ready() }).await.expect("fresh data");
         stack.sim.lock().faults.inlet_pressure_override_bar = Some(f64::from(0x7FC0u16) * 0.01);
         let rejected = wait_for(Duration::from_secs(3), || async {
             stack.status().await["link"]["rejected_samples"].as_u64().unwrap_or(0) > 10
@@ -68,7 +68,7 @@ async fn a_non_finite_sensor_value_is_rejected_and_never_reaches_the_estimator()
         .await;
         assert!(rejected.is_some(), "NaN samples rejected and counted: {}", stack.status().await);
         let writes = stack.sim.lock().writes;
-        tokio::time::sleep(Duration::from_millis(300)).await;
+        stack.wait_polls(30, "rejected samples").await;
         assert_eq!(stack.sim.lock().writes, writes, "no write while every sample is rejected");
         let s = stack.status().await;
         assert_eq!(s["link"]["stale"], true, "{s}");

@@ -620,11 +620,7 @@ fn demo_on_a_leaking_plant_then_analyze_names_the_leak() {
     let mut child = demo(&plant);
     std::thread::sleep(Duration::from_secs(35));
     let _ = Command::new("kill").args(["-TERM", &child.id().to_string()]).status();
-    let deadline = std::time::Instant::now() + Duration::from_secs(10);
-    while child.try_wait().expect("wait").is_none() {
-        assert!(std::time::Instant::now() < deadline, "demo did not stop on SIGTERM");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    assert!(support::wait_exit(&mut child, Duration::from_secs(10)).is_some(), "demo did not stop on SIGTERM");
     let out = Command::new(support::bin())
         .arg("analyze")
         .arg(&recordings)

@@ -438,12 +438,12 @@ async fn sim_serves_rtu_on_a_serial_device_from_the_command_line() {
         let endpoint = Endpoint::Serial { port: a, line: LINE };
         let mut client = DriveClient::on(endpoint, 2, Duration::from_millis(100));
         let mut answered = false;
-        for _ in 0..50 {
+        for _ in 0..250 {
             if client.read(Table::Input, 0, 6).await.is_ok() {
                 answered = true;
                 break;
             }
-            tokio::time::sleep(Duration::from_millis(100)).await;
+            tokio::time::sleep(Duration::from_millis(20)).await;
         }
         assert!(answered, "unit 2 answers");
         // a unit id the simulator does not serve: nobody answers
@@ -463,13 +463,9 @@ async fn sim_serves_rtu_on_a_serial_device_from_the_command_line() {
     };
     let result = tokio::time::timeout(Duration::from_secs(20), run).await;
     let _ = Command::new("kill").args(["-TERM", &sim.id().to_string()]).status();
-    let deadline = std::time::Instant::now() + Duration::from_secs(5);
-    while sim.try_wait().expect("wait").is_none() {
-        if std::time::Instant::now() > deadline {
-            let _ = sim.kill();
-            panic!("sim did not stop on SIGTERM");
-        }
-        std::thread::sleep(Duration::from_millis(20));
+    if crate::support::wait_exit(&mut sim, Duration::from_secs(5)).is_none() {
+        let _ = sim.kill();
+        panic!("sim did not stop on SIGTERM");
     }
     result.expect("within 20 s");
 }

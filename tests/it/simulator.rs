@@ -232,13 +232,6 @@ fn sim_serves_until_sigterm_and_exits_cleanly() {
     std::net::TcpStream::connect_timeout(&addr, Duration::from_secs(2)).expect("accepts connections");
     let pid = child.id().to_string();
     assert!(Command::new("kill").args(["-TERM", &pid]).status().expect("kill").success());
-    let deadline = std::time::Instant::now() + Duration::from_secs(5);
-    loop {
-        if let Some(status) = child.try_wait().expect("wait") {
-            assert!(status.success(), "exit {status:?}");
-            break;
-        }
-        assert!(std::time::Instant::now() < deadline, "sim did not stop on SIGTERM");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    let status = crate::support::wait_exit(&mut child, Duration::from_secs(5)).expect("sim stops on SIGTERM");
+    assert!(status.success(), "exit {status:?}");
 }

@@ -190,6 +190,21 @@ impl Stack {
     pub async fn metrics(&self) -> String {
         reqwest::get(format!("{}/metrics", self.url)).await.expect("GET metrics").text().await.expect("text")
     }
+
+    /// As [`wait_polls`], for the stack's drive.
+    pub async fn wait_polls(&self, n: u64, what: &str) {
+        wait_polls(&self.state.drives[0], n, what).await;
+    }
+}
+
+/// Waits until `drive` has run `n` more poll cycles (each counted when it starts, whatever its outcome, and
+/// published when it ends): a window measured in the loop's own cycles, not in a guess of how fast this machine is.
+/// Panics (naming `what`) if they do not come within 10 s.
+pub async fn wait_polls(drive: &hydrolens::service::DriveState, n: u64, what: &str) {
+    let from = drive.snapshot().link.polls;
+    wait_for(Duration::from_secs(10), || async { drive.snapshot().link.polls >= from + n })
+        .await
+        .unwrap_or_else(|| panic!("{what}: {n} poll cycles did not run within 10 s (from {from})"));
 }
 
 /// `GET url`, its body as JSON.
@@ -213,6 +228,31 @@ where
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     None
+}
+
+/// As [`wait_for`], for tests whose parts are separate processes or threads: polls `cond` every 10 ms until it
+/// holds or `limit` passes; returns the time it took.
+pub fn wait_for_sync(limit: Duration, mut cond: impl FnMut() -> bool) -> Option<Duration> {
+    let start = std::time::Instant::now();
+    loop {
+        if cond() {
+            return Some(start.elapsed());
+        }
+        if start.elapsed() >= limit {
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// Waits (polled, `limit` at most) for `child` to exit: its status, or None if it is still running.
+pub fn wait_exit(child: &mut std::process::Child, limit: Duration) -> Option<std::process::ExitStatus> {
+    let mut status = None;
+    wait_for_sync(limit, || {
+        status = child.try_wait().expect("wait");
+        status.is_some()
+    });
+    status
 }
 
 /// The value of a metric line that starts with `prefix` (name and labels), if present.
@@ -289,18 +329,12 @@ impl ServeProcess {
     /// SIGTERM, then waits (10 s at most) for it to exit: its exit status, None if it had to be killed.
     pub fn stop(&mut self) -> Option<std::process::ExitStatus> {
         let _ = std::process::Command::new("kill").args(["-TERM", &self.pid().to_string()]).status();
-        let deadline = std::time::Instant::now() + Duration::from_secs(10);
-        loop {
-            if let Some(code) = self.child.try_wait().expect("wait") {
-                return Some(code);
-            }
-            if std::time::Instant::now() > deadline {
-                let _ = self.child.kill();
-                let _ = self.child.wait();
-                return None;
-            }
-            std::thread::sleep(Duration::from_millis(20));
+        let code = wait_exit(&mut self.child, Duration::from_secs(10));
+        if code.is_none() {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
         }
+        code
     }
 
     /// The log so far (stderr).
