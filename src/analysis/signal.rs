@@ -134,13 +134,21 @@ pub fn least_squares(columns: &[Vec<f64>], y: &[f64]) -> Option<Vec<f64>> {
     if p == 0 || n < p || columns.iter().any(|c| c.len() != n) {
         return None;
     }
-    // Scale columns to unit norm so the rank test is meaningful whatever the units.
-    let norms: Vec<f64> = columns.iter().map(|c| c.iter().map(|v| v * v).sum::<f64>().sqrt()).collect();
-    if norms.iter().any(|&s| !(s > 0.0 && s.is_finite())) {
-        return None;
-    }
+    let norms = unit_norms(columns)?;
     let a = DMatrix::from_fn(n, p, |i, j| columns[j][i] / norms[j]);
-    let b = DVector::from_column_slice(y);
+    solve_and_unscale(a, DVector::from_column_slice(y), &norms)
+}
+
+/// The Euclidean norm of each column, so that a fit can scale its columns to unit norm and its rank test means
+/// the same whatever the units; `None` when a column is zero or not finite.
+fn unit_norms(columns: &[Vec<f64>]) -> Option<Vec<f64>> {
+    let norms: Vec<f64> = columns.iter().map(|c| c.iter().map(|v| v * v).sum::<f64>().sqrt()).collect();
+    norms.iter().all(|&s| s > 0.0 && s.is_finite()).then_some(norms)
+}
+
+/// Solves `a θ = b` by SVD for columns scaled by `norms`, and undoes the scaling; `None` when `a` is rank
+/// deficient or θ not finite.
+fn solve_and_unscale(a: DMatrix<f64>, b: DVector<f64>, norms: &[f64]) -> Option<Vec<f64>> {
     let svd = a.svd(true, true);
     let smax = svd.singular_values.max();
     let smin = svd.singular_values.min();
@@ -148,7 +156,7 @@ pub fn least_squares(columns: &[Vec<f64>], y: &[f64]) -> Option<Vec<f64>> {
         return None;
     }
     let theta = svd.solve(&b, 1e-12).ok()?;
-    let out: Vec<f64> = theta.iter().zip(&norms).map(|(t, s)| t / s).collect();
+    let out: Vec<f64> = theta.iter().zip(norms).map(|(t, s)| t / s).collect();
     out.iter().all(|v| v.is_finite()).then_some(out)
 }
 
@@ -232,24 +240,11 @@ pub fn instrumental_least_squares(a: &[Vec<f64>], z: &[Vec<f64>], y: &[f64]) -> 
     if p == 0 || z.len() != p || n < p || a.iter().chain(z).any(|c| c.len() != n) {
         return None;
     }
-    // columns scaled to unit norm, so that the rank test is meaningful whatever the units
-    let norm = |c: &Vec<f64>| c.iter().map(|v| v * v).sum::<f64>().sqrt();
-    let (na, nz): (Vec<f64>, Vec<f64>) = (a.iter().map(norm).collect(), z.iter().map(norm).collect());
-    if na.iter().chain(&nz).any(|&s| !(s > 0.0 && s.is_finite())) {
-        return None;
-    }
+    let (na, nz) = (unit_norms(a)?, unit_norms(z)?);
     let dot = |u: &[f64], v: &[f64]| u.iter().zip(v).map(|(x, y)| x * y).sum::<f64>();
     let zta = DMatrix::from_fn(p, p, |i, j| dot(&z[i], &a[j]) / (nz[i] * na[j]));
     let zty = DVector::from_fn(p, |i, _| dot(&z[i], y) / nz[i]);
-    let svd = zta.svd(true, true);
-    let smax = svd.singular_values.max();
-    let smin = svd.singular_values.min();
-    if smin.is_nan() || smin <= 1e-9 * smax {
-        return None;
-    }
-    let theta = svd.solve(&zty, 1e-12).ok()?;
-    let out: Vec<f64> = theta.iter().zip(&na).map(|(t, s)| t / s).collect();
-    out.iter().all(|v| v.is_finite()).then_some(out)
+    solve_and_unscale(zta, zty, &na)
 }
 
 #[cfg(test)]
