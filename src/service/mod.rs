@@ -43,8 +43,7 @@ use crate::modbus::client::DriveClient;
 use drive::DriveLoop;
 use metrics::Metrics;
 use recorder::Recorder;
-use state::{DriveStatus, Link};
-use timing::{TimingStats, use_realtime_priority};
+use timing::use_realtime_priority;
 
 /// The running poll loops.
 pub struct Service {
@@ -205,24 +204,7 @@ fn history_len(settings: &Settings, d: &DriveSettings) -> usize {
 
 /// A drive's snapshot before its first poll.
 fn initial_snapshot(d: &DriveSettings) -> DriveSnapshot {
-    DriveSnapshot {
-        name: d.name.clone(),
-        mode: d.mode,
-        address: d.address.clone(),
-        unit_id: d.unit_id,
-        target_omega_rad_s: d.target_omega_rad_s,
-        setpoint_hz: None,
-        tripped: false,
-        status: DriveStatus::default(),
-        link: Link::default(),
-        sample: None,
-        estimate: None,
-        identification: None,
-        timing: TimingStats::default(),
-        recording: None,
-        energy: None,
-        condition: Vec::new(),
-    }
+    DriveSnapshot::before_first_poll(d.name.clone(), d.mode, d.address.clone(), d.unit_id, d.target_omega_rad_s)
 }
 
 /// A drive's recorder (None when recording is off), keeping its share of the directory's retention.

@@ -155,6 +155,36 @@ pub struct DriveSnapshot {
     pub condition: Vec<crate::condition::Tracked>,
 }
 
+impl DriveSnapshot {
+    /// A drive's snapshot before its first poll: who it is, and nothing measured, written or integrated yet.
+    pub fn before_first_poll(
+        name: String,
+        mode: Mode,
+        address: String,
+        unit_id: u8,
+        target_omega_rad_s: f64,
+    ) -> DriveSnapshot {
+        DriveSnapshot {
+            name,
+            mode,
+            address,
+            unit_id,
+            target_omega_rad_s,
+            setpoint_hz: None,
+            tripped: false,
+            status: DriveStatus::default(),
+            link: Link::default(),
+            sample: None,
+            estimate: None,
+            identification: None,
+            timing: TimingStats::default(),
+            recording: None,
+            energy: None,
+            condition: Vec::new(),
+        }
+    }
+}
+
 /// Whether the drive's rows reach the disk (a full disk, say, makes them fail until space returns).
 #[derive(Debug, Clone, PartialEq, Serialize, Default)]
 pub struct RecordingHealth {
@@ -362,24 +392,7 @@ mod tests {
     }
 
     fn state(history_len: usize) -> DriveState {
-        let snap = DriveSnapshot {
-            name: "d".into(),
-            mode: Mode::Monitor,
-            address: "x:1".into(),
-            unit_id: 1,
-            target_omega_rad_s: 0.0,
-            setpoint_hz: None,
-            tripped: false,
-            status: DriveStatus::default(),
-            link: Link::default(),
-            sample: None,
-            estimate: None,
-            identification: None,
-            timing: TimingStats::default(),
-            recording: None,
-            energy: None,
-            condition: Vec::new(),
-        };
+        let snap = DriveSnapshot::before_first_poll("d".into(), Mode::Monitor, "x:1".into(), 1, 0.0);
         DriveState::new(snap, 100.0, Duration::from_millis(50), history_len)
     }
 
