@@ -189,7 +189,20 @@ impl PeriodicLoad {
     /// Searches the period, fits, and judges the fit: B and J with their variances, and the period; or nothing.
     fn fit(&self, covered: f64, [lo, hi]: [f64; 2]) -> Option<(Answer, f64)> {
         let prepared = prepare(self.rows());
-        let max_period = 0.5 * covered;
+        let p = self.best_period(&prepared, 0.5 * covered)?;
+        let answer = fit_at(&prepared, p)?;
+        let ((b_hat, var), (_, var_j)) = (answer.viscous, answer.inertia);
+        let sd = var.sqrt();
+        let identified = sd <= MAX_RELATIVE_SD * b_hat.abs() && var_j.sqrt() <= MAX_RELATIVE_SD * answer.inertia.0;
+        if !(var.is_finite() && var_j.is_finite() && identified && b_hat > lo - 2.0 * sd && b_hat < hi + 2.0 * sd) {
+            return None;
+        }
+        Some((Answer { viscous: (b_hat.clamp(lo, hi), var), ..answer }, p))
+    }
+
+    /// The period of least residual: a geometric grid (every other row) over the whole range, or around the last
+    /// accepted period, then a golden section within one grid step on all rows.
+    fn best_period(&self, prepared: &Prepared, max_period: f64) -> Option<f64> {
         // Search: the whole grid, or around the last accepted period.
         let (from, to) = match self.period {
             Some(p) if p <= max_period => (p / SCAN_RATIO.powi(2), (p * SCAN_RATIO.powi(2)).min(max_period)),
@@ -207,11 +220,11 @@ impl PeriodicLoad {
             }
             p *= SCAN_RATIO;
         }
-        let (_, mut p) = best?;
+        let (_, p) = best?;
         // Refine within one grid step (golden section).
         let (mut a, mut b) = (p / SCAN_RATIO, (p * SCAN_RATIO).min(max_period));
         let g = 0.5 * (5f64.sqrt() - 1.0);
-        let ssr = |p: f64| solve(&prepared, p).map_or(f64::INFINITY, |f| f.ssr);
+        let ssr = |p: f64| solve(prepared, p).map_or(f64::INFINITY, |f| f.ssr);
         let (mut c, mut d) = (b - g * (b - a), a + g * (b - a));
         let (mut fc, mut fd) = (ssr(c), ssr(d));
         for _ in 0..10 {
@@ -225,67 +238,7 @@ impl PeriodicLoad {
                 fd = ssr(d);
             }
         }
-        p = if fc < fd { c } else { d };
-        // The final fit from exact regressors, with one normal system per jackknife segment.
-        let rows = &prepared.rows;
-        let n = rows.len();
-        let len = n.div_ceil(SEGMENTS);
-        let mut parts = [(Normal::zeros(), Column::zeros(), 0.0); SEGMENTS];
-        let w = TAU / p;
-        let xs: Vec<Column> = rows.iter().map(|r| regressors(r, w)).collect();
-        for (i, (x, r)) in xs.iter().zip(rows).enumerate() {
-            let part = &mut parts[i / len];
-            part.0.ger(1.0, x, x, 1.0);
-            part.1 += x * r.y;
-            part.2 += r.y * r.y;
-        }
-        let (mut a, mut b, mut yy) = (Normal::zeros(), Column::zeros(), 0.0);
-        for part in &parts {
-            a += part.0;
-            b += part.1;
-            yy += part.2;
-        }
-        let fit = factorise(&a, &b, yy)?;
-        // Durbin–Watson on the residual.
-        let residual: Vec<f64> = xs.iter().zip(rows).map(|(x, r)| r.y - x.dot(&fit.x)).collect();
-        let rough: f64 = residual.windows(2).map(|w| (w[1] - w[0]).powi(2)).sum();
-        let level: f64 = residual.iter().map(|r| r * r).sum();
-        let viscous = |x: &Column| x[2] / x[1];
-        let b_hat = viscous(&fit.x);
-        let j_hat = 1.0 / fit.x[1];
-        if !(level > 0.0 && rough / level >= MIN_DURBIN_WATSON && fit.x[1] > 0.0 && b_hat.is_finite()) {
-            return None;
-        }
-        // The fit's own variance of B = x₂/x₁ (first order), residual-scaled.
-        let sigma2 = fit.ssr / (n - N) as f64;
-        let grad = [-fit.x[2] / (fit.x[1] * fit.x[1]), 1.0 / fit.x[1]];
-        let (s1, s2) = (fit.scale[1], fit.scale[2]);
-        let inverse = fit.factor.inverse();
-        let cov = |i: usize, j: usize, si: f64, sj: f64| inverse[(i, j)] / (si * sj) * sigma2;
-        let own = grad[0] * grad[0] * cov(1, 1, s1, s1)
-            + 2.0 * grad[0] * grad[1] * cov(1, 2, s1, s2)
-            + grad[1] * grad[1] * cov(2, 2, s2, s2);
-        let own_j = cov(1, 1, s1, s1) * j_hat.powi(4);
-        // Delete-a-segment jackknife.
-        let mut leave_out = [(0.0, 0.0); SEGMENTS];
-        for (k, out) in leave_out.iter_mut().enumerate() {
-            let (pa, pb, py) = &parts[k];
-            let x = factorise(&(a - pa), &(b - pb), yy - py)?.x;
-            *out = (viscous(&x), 1.0 / x[1]);
-        }
-        let k = SEGMENTS as f64;
-        let jackknife = |f: fn(&(f64, f64)) -> f64| {
-            let mean = leave_out.iter().map(f).sum::<f64>() / k;
-            (k - 1.0) / k * leave_out.iter().map(|o| (f(o) - mean).powi(2)).sum::<f64>()
-        };
-        let var = own.max(jackknife(|o| o.0)).max((MODEL_SD * b_hat).powi(2));
-        let var_j = own_j.max(jackknife(|o| o.1)).max((MODEL_SD * j_hat).powi(2));
-        let sd = var.sqrt();
-        let identified = sd <= MAX_RELATIVE_SD * b_hat.abs() && var_j.sqrt() <= MAX_RELATIVE_SD * j_hat;
-        if !(var.is_finite() && var_j.is_finite() && identified && b_hat > lo - 2.0 * sd && b_hat < hi + 2.0 * sd) {
-            return None;
-        }
-        Some((Answer { viscous: (b_hat.clamp(lo, hi), var), inertia: (j_hat, var_j) }, p))
+        Some(if fc < fd { c } else { d })
     }
 
     /// The horizon's rows, relative to its first block.
@@ -301,6 +254,67 @@ impl PeriodicLoad {
             })
             .collect()
     }
+}
+
+/// The fit at period `p` from exact regressors, with one normal system per jackknife segment: B and J with their
+/// variances (the fit's own, residual-scaled, at least the delete-a-segment jackknife's and the model floor); None
+/// where the residual is too smooth (Durbin–Watson) or the fit unphysical.
+fn fit_at(prepared: &Prepared, p: f64) -> Option<Answer> {
+    let rows = &prepared.rows;
+
+    let n = rows.len();
+    let len = n.div_ceil(SEGMENTS);
+    let mut parts = [(Normal::zeros(), Column::zeros(), 0.0); SEGMENTS];
+    let w = TAU / p;
+    let xs: Vec<Column> = rows.iter().map(|r| regressors(r, w)).collect();
+    for (i, (x, r)) in xs.iter().zip(rows).enumerate() {
+        let part = &mut parts[i / len];
+        part.0.ger(1.0, x, x, 1.0);
+        part.1 += x * r.y;
+        part.2 += r.y * r.y;
+    }
+    let (mut a, mut b, mut yy) = (Normal::zeros(), Column::zeros(), 0.0);
+    for part in &parts {
+        a += part.0;
+        b += part.1;
+        yy += part.2;
+    }
+    let fit = factorise(&a, &b, yy)?;
+    // Durbin–Watson on the residual.
+    let residual: Vec<f64> = xs.iter().zip(rows).map(|(x, r)| r.y - x.dot(&fit.x)).collect();
+    let rough: f64 = residual.windows(2).map(|w| (w[1] - w[0]).powi(2)).sum();
+    let level: f64 = residual.iter().map(|r| r * r).sum();
+    let viscous = |x: &Column| x[2] / x[1];
+    let b_hat = viscous(&fit.x);
+    let j_hat = 1.0 / fit.x[1];
+    if !(level > 0.0 && rough / level >= MIN_DURBIN_WATSON && fit.x[1] > 0.0 && b_hat.is_finite()) {
+        return None;
+    }
+    // The fit's own variance of B = x₂/x₁ (first order), residual-scaled.
+    let sigma2 = fit.ssr / (n - N) as f64;
+    let grad = [-fit.x[2] / (fit.x[1] * fit.x[1]), 1.0 / fit.x[1]];
+    let (s1, s2) = (fit.scale[1], fit.scale[2]);
+    let inverse = fit.factor.inverse();
+    let cov = |i: usize, j: usize, si: f64, sj: f64| inverse[(i, j)] / (si * sj) * sigma2;
+    let own = grad[0] * grad[0] * cov(1, 1, s1, s1)
+        + 2.0 * grad[0] * grad[1] * cov(1, 2, s1, s2)
+        + grad[1] * grad[1] * cov(2, 2, s2, s2);
+    let own_j = cov(1, 1, s1, s1) * j_hat.powi(4);
+    // Delete-a-segment jackknife.
+    let mut leave_out = [(0.0, 0.0); SEGMENTS];
+    for (k, out) in leave_out.iter_mut().enumerate() {
+        let (pa, pb, py) = &parts[k];
+        let x = factorise(&(a - pa), &(b - pb), yy - py)?.x;
+        *out = (viscous(&x), 1.0 / x[1]);
+    }
+    let k = SEGMENTS as f64;
+    let jackknife = |f: fn(&(f64, f64)) -> f64| {
+        let mean = leave_out.iter().map(f).sum::<f64>() / k;
+        (k - 1.0) / k * leave_out.iter().map(|o| (f(o) - mean).powi(2)).sum::<f64>()
+    };
+    let var = own.max(jackknife(|o| o.0)).max((MODEL_SD * b_hat).powi(2));
+    let var_j = own_j.max(jackknife(|o| o.1)).max((MODEL_SD * j_hat).powi(2));
+    Some(Answer { viscous: (b_hat, var), inertia: (j_hat, var_j) })
 }
 
 #[derive(Debug, Clone, Copy)]

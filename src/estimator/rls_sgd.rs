@@ -301,6 +301,106 @@ impl WindowPool {
     }
 }
 
+/// Each suffix sum's stride in [`Window::suffix`]: the columns without the step, then ω.
+const Q: usize = POLY + 1;
+
+/// The normal equations (`a`, `b`, without the step) with the step column at row k: (u − u_{k−1})₊, non-zero from
+/// row k on, from the window's suffix sums.
+fn with_step(w: &Window, length: f64, (a, b): (&Normal, &Column), k: usize) -> (Normal, Column) {
+    let us = w.rows[k - 1].s / length;
+    let sf = &w.suffix[k];
+    let (mut a, mut b) = (*a, *b);
+    for j in 0..POLY {
+        let v = sf[Q + j] - us * sf[j];
+        a[(STEP, j)] = v;
+        a[(j, STEP)] = v;
+    }
+    // Σ (u − us)² = Σu² − 2·us·Σu + us²·Σ1 over the suffix (columns 2, 3, 4 are 1, u, u²).
+    a[(STEP, STEP)] = sf[4] - 2.0 * us * sf[3] + us * us * sf[2];
+    b[STEP] = sf[Q + POLY] - us * sf[POLY];
+    (a, b)
+}
+
+/// Each nuisance order, with and without its best step: the model with the least RSS after a penalty per extra
+/// term, with its normal equations, solution and RSS.
+fn choose_model(
+    w: &Window,
+    length: f64,
+    (a, b, yy): (&Normal, &Column, f64),
+    sigma2: f64,
+) -> Option<(Model, Normal, Column, Column, f64)> {
+    let mut chosen: Option<(Model, Normal, Column, Column, f64, f64)> = None; // (model, A, b, x, rss, penalised)
+    for degree in 2..=4 {
+        let plain = Model { degree, step: false, dynamics: true };
+        if let Some((x, rss)) = plain.solve(a, b, yy) {
+            let pen = rss / sigma2 + DEGREE_PENALTY * (degree - 2) as f64;
+            if chosen.as_ref().is_none_or(|c| pen < c.5) {
+                chosen = Some((plain, *a, *b, x, rss, pen));
+            }
+        }
+        let Some(k) = best_step(w, length, plain, (a, b, yy)) else { continue };
+        let stepped = Model { degree, step: true, dynamics: true };
+        let (ak, bk) = with_step(w, length, (a, b), k);
+        if let Some((x, rss)) = stepped.solve(&ak, &bk, yy) {
+            let pen = rss / sigma2 + DEGREE_PENALTY * (degree - 2) as f64 + STEP_GLR;
+            if chosen.as_ref().is_none_or(|c| pen < c.5) {
+                chosen = Some((stepped, ak, bk, x, rss, pen));
+            }
+        }
+    }
+    chosen.map(|(model, a, b, x, rss, _)| (model, a, b, x, rss))
+}
+
+/// The row at which a step added to the `plain` model removes the most RSS: each candidate scored by what its
+/// column adds to the plain fit (one factorisation for all; RSS falls by (c·r)² / (c·c − cᵀA⁻¹c), r the plain
+/// residual), on a coarse grid of [`STEP_GRID`], then finer around the best.
+fn best_step(w: &Window, length: f64, plain: Model, (a, b, yy): (&Normal, &Column, f64)) -> Option<usize> {
+    let n = w.rows.len();
+    let (a_plain, b_plain) = plain.restrict(a, b);
+    let factor = a_plain.cholesky()?;
+    let x_plain = factor.solve(&b_plain);
+    let rss_plain = yy - b_plain.dot(&x_plain);
+    let try_step = |k: usize| -> Option<(f64, usize)> {
+        if !(2..n - 2).contains(&k) {
+            return None;
+        }
+        let us = w.rows[k - 1].s / length;
+        let sf = &w.suffix[k];
+        let mut cross = Column::zeros();
+        for j in (0..POLY).filter(|&j| plain.active(j)) {
+            cross[j] = sf[Q + j] - us * sf[j];
+        }
+        let cc = sf[4] - 2.0 * us * sf[3] + us * us * sf[2];
+        let cy = sf[Q + POLY] - us * sf[POLY];
+        let left = cc - cross.dot(&factor.solve(&cross));
+        (left > 1e-12 * cc.abs()).then(|| (rss_plain - (cy - cross.dot(&x_plain)).powi(2) / left, k))
+    };
+    let better = |cand: Option<(f64, usize)>, best: &mut Option<(f64, usize)>| {
+        if let Some(c) = cand
+            && best.is_none_or(|b| c.0 < b.0)
+        {
+            *best = Some(c);
+        }
+    };
+    let mut best = None;
+    let spacing = (n / STEP_GRID).max(1);
+    for g in 1..STEP_GRID {
+        better(try_step(g * spacing), &mut best);
+    }
+    if let Some((_, coarse)) = best {
+        let stride = (spacing / 8).max(1);
+        for k in (coarse.saturating_sub(spacing)..=coarse + spacing).step_by(stride) {
+            better(try_step(k), &mut best);
+        }
+        if let Some((_, mid)) = best {
+            for k in mid.saturating_sub(stride)..=mid + stride {
+                better(try_step(k), &mut best);
+            }
+        }
+    }
+    best.map(|(_, k)| k)
+}
+
 /// The robust RLS on windows. θ = [J₀/J, (B/J)·J₀/B₀]; P its covariance.
 #[derive(Debug, Clone)]
 pub(crate) struct WindowRls {
@@ -390,120 +490,11 @@ impl WindowRls {
         if n < 16 || length <= 0.0 {
             return (Verdict::Uninformative, None);
         }
-        let (j0, b0) = (self.j0, self.b0);
-        let mut a = Normal::zeros();
-        let mut b = Column::zeros();
-        let mut yy = 0.0;
-        const Q: usize = POLY + 1;
-        w.suffix.resize(n + 1, [0.0; 2 * Q]);
-        w.suffix[n] = [0.0; 2 * Q];
-        for i in (0..n).rev() {
-            let r = &w.rows[i];
-            let u = r.s / length;
-            let c = columns(r, u, j0, b0);
-            for j in 0..POLY {
-                for k in 0..=j {
-                    a[(j, k)] += c[j] * c[k];
-                }
-                b[j] += c[j] * r.omega;
-            }
-            yy += r.omega * r.omega;
-            let mut acc = w.suffix[i + 1];
-            for k in 0..POLY {
-                acc[k] += c[k];
-                acc[Q + k] += u * c[k];
-            }
-            acc[POLY] += r.omega;
-            acc[Q + POLY] += u * r.omega;
-            w.suffix[i] = acc;
-        }
-        for j in 0..POLY {
-            for k in 0..j {
-                a[(k, j)] = a[(j, k)];
-            }
-        }
+        let (a, b, yy) = self.normal_equations(w, length);
         let sigma2 = speed_sd * speed_sd;
-        // The normal equations with the step column at row k: (u − u_{k−1})₊, non-zero from row k on.
-        let with_step = |k: usize| -> (Normal, Column) {
-            let us = w.rows[k - 1].s / length;
-            let sf = &w.suffix[k];
-            let (mut a, mut b) = (a, b);
-            for j in 0..POLY {
-                let v = sf[Q + j] - us * sf[j];
-                a[(STEP, j)] = v;
-                a[(j, STEP)] = v;
-            }
-            // Σ (u − us)² = Σu² − 2·us·Σu + us²·Σ1 over the suffix (columns 2, 3, 4 are 1, u, u²).
-            a[(STEP, STEP)] = sf[4] - 2.0 * us * sf[3] + us * us * sf[2];
-            b[STEP] = sf[Q + POLY] - us * sf[POLY];
-            (a, b)
+        let Some((model, a_m, b_m, x_m, rss)) = choose_model(w, length, (&a, &b, yy), sigma2) else {
+            return (Verdict::Uninformative, None);
         };
-        // Each nuisance order, with and without its best step; the least RSS after a penalty per extra term.
-        let mut chosen: Option<(Model, Normal, Column, Column, f64, f64)> = None; // (model, A, b, x, rss, penalised)
-        for degree in 2..=4 {
-            let plain = Model { degree, step: false, dynamics: true };
-            if let Some((x, rss)) = plain.solve(&a, &b, yy) {
-                let pen = rss / sigma2 + DEGREE_PENALTY * (degree - 2) as f64;
-                if chosen.as_ref().is_none_or(|c| pen < c.5) {
-                    chosen = Some((plain, a, b, x, rss, pen));
-                }
-            }
-            let stepped = Model { degree, step: true, dynamics: true };
-            // Each candidate step scored by what its column adds to the plain fit (one factorisation for all):
-            // RSS falls by (c·r)² / (c·c − cᵀA⁻¹c), r the plain residual.
-            let (a_plain, b_plain) = plain.restrict(&a, &b);
-            let Some(factor) = a_plain.cholesky() else { continue };
-            let x_plain = factor.solve(&b_plain);
-            let rss_plain = yy - b_plain.dot(&x_plain);
-            let try_step = |k: usize| -> Option<(f64, usize)> {
-                if !(2..n - 2).contains(&k) {
-                    return None;
-                }
-                let us = w.rows[k - 1].s / length;
-                let sf = &w.suffix[k];
-                let mut cross = Column::zeros();
-                for j in (0..POLY).filter(|&j| plain.active(j)) {
-                    cross[j] = sf[Q + j] - us * sf[j];
-                }
-                let cc = sf[4] - 2.0 * us * sf[3] + us * us * sf[2];
-                let cy = sf[Q + POLY] - us * sf[POLY];
-                let left = cc - cross.dot(&factor.solve(&cross));
-                (left > 1e-12 * cc.abs()).then(|| (rss_plain - (cy - cross.dot(&x_plain)).powi(2) / left, k))
-            };
-            let better = |cand: Option<(f64, usize)>, best: &mut Option<(f64, usize)>| {
-                if let Some(c) = cand
-                    && best.is_none_or(|b| c.0 < b.0)
-                {
-                    *best = Some(c);
-                }
-            };
-            let mut best = None;
-            let spacing = (n / STEP_GRID).max(1);
-            for g in 1..STEP_GRID {
-                better(try_step(g * spacing), &mut best);
-            }
-            if let Some((_, coarse)) = best {
-                let stride = (spacing / 8).max(1);
-                for k in (coarse.saturating_sub(spacing)..=coarse + spacing).step_by(stride) {
-                    better(try_step(k), &mut best);
-                }
-                if let Some((_, mid)) = best {
-                    for k in mid.saturating_sub(stride)..=mid + stride {
-                        better(try_step(k), &mut best);
-                    }
-                }
-            }
-            if let Some((_, k)) = best {
-                let (ak, bk) = with_step(k);
-                if let Some((x, rss)) = stepped.solve(&ak, &bk, yy) {
-                    let pen = rss / sigma2 + DEGREE_PENALTY * (degree - 2) as f64 + STEP_GLR;
-                    if chosen.as_ref().is_none_or(|c| pen < c.5) {
-                        chosen = Some((stepped, ak, bk, x, rss, pen));
-                    }
-                }
-            }
-        }
-        let Some((model, a_m, b_m, x_m, rss, _)) = chosen else { return (Verdict::Uninformative, None) };
         let Some((x_theta, info)) = model.theta(&a_m, &x_m) else { return (Verdict::Uninformative, None) };
         if model.step {
             self.counts[3] += 1;
@@ -546,21 +537,7 @@ impl WindowRls {
             self.absorb(x_theta, info / variance * 0.5, sequence, informative)
         };
         if !misfit && !impossible && moved > SPEED_MOVED_GLR {
-            // The window's own B and its variance, from the fit already made (each window counts half, as above).
-            if let Some(c) = (info / variance * 0.5).try_inverse() {
-                let (t0, t1) = (x_theta[0], x_theta[1]);
-                let g = Vector2::new(-t1 * self.b0 / (t0 * t0), self.b0 / t0);
-                let (b_w, var_w) = (t1 * self.b0 / t0, g.dot(&(c * g)));
-                // A window whose B lies far outside anything physical had a load its nuisance could not follow.
-                let [blo, bhi] = self.s.viscous_bounds_nm_s_rad;
-                let sd_w = var_w.max(0.0).sqrt();
-                if (blo - 3.0 * sd_w..=bhi + 3.0 * sd_w).contains(&b_w) {
-                    let speed = w.rows.iter().map(|r| r.omega).sum::<f64>() / n as f64;
-                    self.viscous.add(b_w, var_w, speed);
-                    let gj = Vector2::new(-self.j0 / (t0 * t0), 0.0);
-                    self.inertia.add(self.j0 / t0, gj.dot(&(c * gj)), speed);
-                }
-            }
+            self.pool_window(w, x_theta, info / variance * 0.5);
         }
         match verdict {
             Verdict::Accepted => self.counts[0] += 1,
@@ -572,6 +549,62 @@ impl WindowRls {
             self.remember(verdict == Verdict::Rejected);
         }
         (verdict, score)
+    }
+
+    /// The window's normal equations for every column but the step (A, b of the fit of ω on them, and Σω²), and the
+    /// suffix sums in `w` from which each candidate step's column is added ([`with_step`]).
+    fn normal_equations(&self, w: &mut Window, length: f64) -> (Normal, Column, f64) {
+        let n = w.rows.len();
+        let (j0, b0) = (self.j0, self.b0);
+        let mut a = Normal::zeros();
+        let mut b = Column::zeros();
+        let mut yy = 0.0;
+        w.suffix.resize(n + 1, [0.0; 2 * Q]);
+        w.suffix[n] = [0.0; 2 * Q];
+        for i in (0..n).rev() {
+            let r = &w.rows[i];
+            let u = r.s / length;
+            let c = columns(r, u, j0, b0);
+            for j in 0..POLY {
+                for k in 0..=j {
+                    a[(j, k)] += c[j] * c[k];
+                }
+                b[j] += c[j] * r.omega;
+            }
+            yy += r.omega * r.omega;
+            let mut acc = w.suffix[i + 1];
+            for k in 0..POLY {
+                acc[k] += c[k];
+                acc[Q + k] += u * c[k];
+            }
+            acc[POLY] += r.omega;
+            acc[Q + POLY] += u * r.omega;
+            w.suffix[i] = acc;
+        }
+        for j in 0..POLY {
+            for k in 0..j {
+                a[(k, j)] = a[(j, k)];
+            }
+        }
+        (a, b, yy)
+    }
+
+    /// Pools the window's own B and J (from the fit already made, its information `info`) into
+    /// [`WindowRls::viscous`] and [`WindowRls::inertia`], unless its B lies far outside anything physical (a load its
+    /// nuisance could not follow).
+    fn pool_window(&mut self, w: &Window, x_theta: Vector2<f64>, info: Matrix2<f64>) {
+        let Some(c) = info.try_inverse() else { return };
+        let (t0, t1) = (x_theta[0], x_theta[1]);
+        let g = Vector2::new(-t1 * self.b0 / (t0 * t0), self.b0 / t0);
+        let (b_w, var_w) = (t1 * self.b0 / t0, g.dot(&(c * g)));
+        let [blo, bhi] = self.s.viscous_bounds_nm_s_rad;
+        let sd_w = var_w.max(0.0).sqrt();
+        if (blo - 3.0 * sd_w..=bhi + 3.0 * sd_w).contains(&b_w) {
+            let speed = w.rows.iter().map(|r| r.omega).sum::<f64>() / w.rows.len() as f64;
+            self.viscous.add(b_w, var_w, speed);
+            let gj = Vector2::new(-self.j0 / (t0 * t0), 0.0);
+            self.inertia.add(self.j0 / t0, gj.dot(&(c * gj)), speed);
+        }
     }
 
     /// Adds a window's estimate `x` of θ with information `info` (inverse covariance), robustly.
