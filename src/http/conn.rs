@@ -230,20 +230,7 @@ pub fn raise_open_file_limit() -> Option<u64> {
 /// finish (bounded) and returns.
 pub async fn serve_with(listener: tokio::net::TcpListener, state: AppState, limits: ConnLimits) -> std::io::Result<()> {
     let shutdown = state.shutdown.clone();
-    let mut max = limits.max_connections.max(1);
-    if let Some(fds) = raise_open_file_limit() {
-        let room = usize::try_from(fds.saturating_sub(FD_RESERVE)).unwrap_or(usize::MAX).max(1);
-        let room = room.saturating_sub(RESERVED_CONNECTIONS).max(1);
-        if room < max {
-            tracing::warn!(
-                max_connections = max,
-                open_file_limit = fds,
-                "fewer HTTP connections than configured: \
-                the open-file limit leaves room for {room}"
-            );
-            max = room;
-        }
-    }
+    let max = connection_budget(limits.max_connections);
     let per_client = limits.max_connections_per_client.clamp(1, max);
     let metrics = state.service.metrics.clone();
     let app = router(state).layer(axum::middleware::from_fn_with_state(metrics.clone(), reserve_gate)).layer(
@@ -282,60 +269,13 @@ pub async fn serve_with(listener: tokio::net::TcpListener, state: AppState, limi
             },
             () = shutdown.cancelled() => break,
         };
-        // an address's share counts its ordinary connections; beyond it, the reserve or nothing
-        let (slot, client) = match slot.reserved {
-            true => (slot, None),
-            false => match clients.enter(peer.ip()) {
-                (count, client) if count <= per_client => (slot, Some(client)),
-                _ => {
-                    drop(slot);
-                    match reserve.clone().try_acquire_owned() {
-                        Ok(p) => (Slot { _permit: p, reserved: true }, None),
-                        Err(_) => {
-                            metrics.http_refused.get_or_create(&ReasonLabel { reason: "per_client" }).inc();
-                            continue; // the stream closes here
-                        }
-                    }
-                }
-            },
+        let Some((slot, client)) = admit(slot, &clients, peer.ip(), per_client, &reserve) else {
+            metrics.http_refused.get_or_create(&ReasonLabel { reason: "per_client" }).inc();
+            continue; // the stream closes here
         };
-        let reserved = slot.reserved;
         let _ = stream.set_nodelay(true);
-        let app = app.clone();
-        let stop = shutdown.clone();
-        let metrics = metrics.clone();
-        tokio::spawn(async move {
-            metrics.http_connections.inc();
-            let waiting_since = Arc::new(AtomicU64::new(0));
-            let io = Watched { inner: stream, epoch, waiting_since: waiting_since.clone() };
-            let service = hyper::service::service_fn(move |mut req: hyper::Request<hyper::body::Incoming>| {
-                req.extensions_mut().insert(ConnectInfo::<SocketAddr>(peer));
-                if reserved {
-                    req.extensions_mut().insert(Reserved);
-                }
-                app.clone().oneshot(req)
-            });
-            let mut builder = hyper::server::conn::http1::Builder::new();
-            let header_timeout =
-                if reserved { limits.header_timeout.min(RESERVED_HEADER_TIMEOUT) } else { limits.header_timeout };
-            builder.timer(TokioTimer::new()).header_read_timeout(header_timeout).keep_alive(!reserved);
-            let conn = builder.serve_connection(TokioIo::new(io), service).with_upgrades();
-            tokio::pin!(conn);
-            tokio::select! {
-                _ = conn.as_mut() => {}
-                () = stalled(waiting_since, epoch, limits.header_timeout) => {
-                    metrics.http_refused.get_or_create(&ReasonLabel { reason: "stalled" }).inc();
-                    tracing::debug!(client = %peer, "closed a connection whose client stopped reading");
-                }
-                () = stop.cancelled() => {
-                    conn.as_mut().graceful_shutdown();
-                    let _ = tokio::time::timeout(Duration::from_secs(5), conn).await;
-                }
-            }
-            metrics.http_connections.dec();
-            drop(client);
-            drop(slot);
-        });
+        let connection = Connection { peer, epoch, limits, metrics: metrics.clone(), stop: shutdown.clone() };
+        tokio::spawn(connection.serve(stream, app.clone(), slot, client));
     }
     drop(listener);
     // the connections finish (event streams end on shutdown); bounded
@@ -345,4 +285,93 @@ pub async fn serve_with(listener: tokio::net::TcpListener, state: AppState, limi
     };
     let _ = tokio::time::timeout(Duration::from_secs(6), wait).await;
     Ok(())
+}
+
+/// The connections served at once: `configured`, or fewer where the open-file limit (raised as far as allowed)
+/// leaves room for fewer beside the reserve and the service's own files (logged).
+fn connection_budget(configured: usize) -> usize {
+    let mut max = configured.max(1);
+    if let Some(fds) = raise_open_file_limit() {
+        let room = usize::try_from(fds.saturating_sub(FD_RESERVE)).unwrap_or(usize::MAX).max(1);
+        let room = room.saturating_sub(RESERVED_CONNECTIONS).max(1);
+        if room < max {
+            tracing::warn!(
+                max_connections = max,
+                open_file_limit = fds,
+                "fewer HTTP connections than configured: \
+                the open-file limit leaves room for {room}"
+            );
+            max = room;
+        }
+    }
+    max
+}
+
+/// An address's share counts its ordinary connections; beyond it, the reserve or nothing (None: refused).
+fn admit(
+    slot: Slot,
+    clients: &Arc<PerClient>,
+    ip: IpAddr,
+    per_client: usize,
+    reserve: &Arc<Semaphore>,
+) -> Option<(Slot, Option<ClientGuard>)> {
+    if slot.reserved {
+        return Some((slot, None));
+    }
+    match clients.enter(ip) {
+        (count, client) if count <= per_client => Some((slot, Some(client))),
+        _ => {
+            drop(slot);
+            reserve.clone().try_acquire_owned().ok().map(|p| (Slot { _permit: p, reserved: true }, None))
+        }
+    }
+}
+
+/// One accepted connection's settings.
+struct Connection {
+    peer: SocketAddr,
+    epoch: Instant,
+    limits: ConnLimits,
+    metrics: crate::service::metrics::Metrics,
+    stop: tokio_util::sync::CancellationToken,
+}
+
+impl Connection {
+    /// Serves HTTP/1 on `stream` until the client closes, stops reading (stalled), or the service shuts down
+    /// (gracefully, 5 s at most); the slot and the client's count are given back at the end. A connection on the
+    /// reserve gets a shorter header timeout and no keep-alive.
+    async fn serve(self, stream: tokio::net::TcpStream, app: axum::Router, slot: Slot, client: Option<ClientGuard>) {
+        let Connection { peer, epoch, limits, metrics, stop } = self;
+        let reserved = slot.reserved;
+        metrics.http_connections.inc();
+        let waiting_since = Arc::new(AtomicU64::new(0));
+        let io = Watched { inner: stream, epoch, waiting_since: waiting_since.clone() };
+        let service = hyper::service::service_fn(move |mut req: hyper::Request<hyper::body::Incoming>| {
+            req.extensions_mut().insert(ConnectInfo::<SocketAddr>(peer));
+            if reserved {
+                req.extensions_mut().insert(Reserved);
+            }
+            app.clone().oneshot(req)
+        });
+        let mut builder = hyper::server::conn::http1::Builder::new();
+        let header_timeout =
+            if reserved { limits.header_timeout.min(RESERVED_HEADER_TIMEOUT) } else { limits.header_timeout };
+        builder.timer(TokioTimer::new()).header_read_timeout(header_timeout).keep_alive(!reserved);
+        let conn = builder.serve_connection(TokioIo::new(io), service).with_upgrades();
+        tokio::pin!(conn);
+        tokio::select! {
+            _ = conn.as_mut() => {}
+            () = stalled(waiting_since, epoch, limits.header_timeout) => {
+                metrics.http_refused.get_or_create(&ReasonLabel { reason: "stalled" }).inc();
+                tracing::debug!(client = %peer, "closed a connection whose client stopped reading");
+            }
+            () = stop.cancelled() => {
+                conn.as_mut().graceful_shutdown();
+                let _ = tokio::time::timeout(Duration::from_secs(5), conn).await;
+            }
+        }
+        metrics.http_connections.dec();
+        drop(client);
+        drop(slot);
+    }
 }
