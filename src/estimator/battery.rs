@@ -298,7 +298,8 @@ pub fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::plant::scenario::Family;
+    use crate::plant::LoadSpec;
+    use crate::plant::scenario::{Family, LoadProgram};
 
     #[test]
     fn lost_polls_are_seeded_and_lengthen_the_next_step() {
@@ -329,5 +330,52 @@ mod tests {
         assert!(r.nominal.load_rmse_nm.is_finite() && r.nominal_ratio().is_finite(), "{r:?}");
         let j = r.nominal.inertia_error;
         assert!((j - (s.inertia_factor - 1.0)).abs() < 1e-9, "the filter on the wrong model keeps its J: {j}");
+    }
+
+    /// No record of ω and drive torque tells viscous friction from a load ∝ ω: a plant with friction B and a load
+    /// c + k·ω leaves the same record as one with friction B + k and the load c. So rls-sgd, started from the same
+    /// wrong model, gives the same J, B and T̂_L on both (T̂_L is right on one plant and off by k·ω on the other,
+    /// whatever an estimator does), and says so: B is not reported as identified friction on either.
+    #[test]
+    fn friction_and_a_load_proportional_to_speed_leave_one_record_and_the_estimate_says_so() {
+        let speed_load = Scenario::generate(Family::Linear, 9, 30.0);
+        let LoadProgram::Profile(LoadSpec::Speed { constant_nm, linear_nm_s_rad, .. }) = speed_load.load else {
+            unreachable!("the linear family is a speed profile")
+        };
+        let plant_a = PlantModel::reference();
+        let mut plant_b = plant_a.clone();
+        plant_b.motor.viscous_nm_s_rad += linear_nm_s_rad;
+        let constant_load = Scenario {
+            load: LoadProgram::Profile(LoadSpec::Constant { torque_nm: constant_nm }),
+            ..speed_load.clone()
+        };
+        let (a, b) = (poll(&speed_load, &plant_a, 1), poll(&constant_load, &plant_b, 1));
+        // the same record to a quantum of the register map (rounding differs where a value sits on a boundary)
+        let torque_lsb = 2.0
+            * cm3_per_rev_to_m3_per_rad(plant_a.motor.displacement_cm3.unwrap_or(0.0))
+            * bar_to_pa(PRESSURE_LSB_BAR);
+        for (x, y) in a.measurements.iter().zip(&b.measurements) {
+            assert!((x.omega_rad_s - y.omega_rad_s).abs() <= 1.01 * SPEED_LSB_RAD_S, "{x:?} {y:?}");
+            assert!((x.drive_torque_nm - y.drive_torque_nm).abs() <= 1.01 * torque_lsb, "{x:?} {y:?}");
+        }
+        let settings = EstimatorSettings { method: Method::RlsSgd, ..EstimatorSettings::default() };
+        let wrong = wrong_model(&speed_load, &plant_a);
+        let (ea, eb) = (score(&a, &settings, &wrong, &plant_a), score(&b, &settings, &wrong, &plant_b));
+        let (la, lb) = (ea.last, eb.last);
+        assert!((la.viscous_hat_nm_s_rad / lb.viscous_hat_nm_s_rad - 1.0).abs() < 1e-3, "{la:?} {lb:?}");
+        assert!((la.inertia_hat_kg_m2 / lb.inertia_hat_kg_m2 - 1.0).abs() < 1e-3, "{la:?} {lb:?}");
+        assert!((la.load_hat_nm - lb.load_hat_nm).abs() < 0.05, "{la:?} {lb:?}");
+        for e in [la, lb] {
+            assert_ne!(e.viscous_identified, super::super::Identification::Identified.code(), "{e:?}");
+        }
+        // the load's RMSE on the two truths differs by about k·ω: what the record cannot show
+        eprintln!(
+            "B {:.4} ± {:.4} ({}); T̂_L RMSE {:.2} N·m against c + k·ω, {:.2} against c",
+            la.viscous_hat_nm_s_rad,
+            la.viscous_sd_nm_s_rad,
+            super::super::Identification::from_code(la.viscous_identified).name(),
+            ea.load_rmse_nm,
+            eb.load_rmse_nm
+        );
     }
 }
