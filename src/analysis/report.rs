@@ -104,13 +104,27 @@ fn fmt_opt(v: Option<f64>) -> String {
 }
 
 /// The whole page.
+const GRAY: RGBColor = RGBColor(150, 150, 150);
+const RED: RGBColor = RGBColor(214, 39, 40);
+const BLUE: RGBColor = RGBColor(31, 119, 180);
+
 pub fn html(a: &Analysis) -> String {
-    let tr = &a.traces;
-    let (v, n) = (tr.split, tr.t_s.len());
-    let gray = RGBColor(150, 150, 150);
-    let red = RGBColor(214, 39, 40);
-    let blue = RGBColor(31, 119, 180);
     let mut out = String::new();
+    head(&mut out, a);
+    validation_table(&mut out, a);
+    findings(&mut out, a);
+    parameters(&mut out, a);
+    unexplained(&mut out, a);
+    traces(&mut out, a);
+    residual_maps(&mut out, a);
+    mismatches(&mut out, a);
+    candidates(&mut out, a);
+    out.push_str("</table></body></html>\n");
+    out
+}
+
+/// The page's head and the recording's description (with the unknown-load note).
+fn head(out: &mut String, a: &Analysis) {
     let _ = write!(
         out,
         "<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>hydrolens analysis: {src}</title>\
@@ -136,6 +150,10 @@ pub fn html(a: &Analysis) -> String {
              setpoint is compared with the drive frequency read back. The speed is an input, not predicted.</p>",
         );
     }
+}
+
+/// The validation errors of the nominal and the improved model.
+fn validation_table(out: &mut String, a: &Analysis) {
     let _ = write!(
         out,
         "<h2>Validation error</h2><table><tr><th></th><th>ω NRMSE</th><th>ΔP NRMSE</th><th>torque NRMSE</th>\
@@ -156,7 +174,10 @@ pub fn html(a: &Analysis) -> String {
         );
     }
     out.push_str("</table>");
+}
 
+/// The findings with their evidence, and the validation rule.
+fn findings(out: &mut String, a: &Analysis) {
     out.push_str("<h2>Findings</h2>");
     if a.findings.is_empty() {
         out.push_str("<p>Nothing is missing: no catalogue effect lowers the validation error by a clear margin.</p>");
@@ -199,7 +220,10 @@ pub fn html(a: &Analysis) -> String {
             fmt_opt(f.evidence.cross_validation_score_after)
         );
     }
+}
 
+/// The improved model's parameters with their confidence intervals.
+fn parameters(out: &mut String, a: &Analysis) {
     out.push_str("<h2>Fitted parameters and their confidence intervals</h2>");
     let _ = write!(
         out,
@@ -217,7 +241,10 @@ pub fn html(a: &Analysis) -> String {
         );
     }
     out.push_str("</table>");
+}
 
+/// What the improved model still leaves unexplained, what cannot be told apart, and what is not determined.
+fn unexplained(out: &mut String, a: &Analysis) {
     out.push_str("<h2>What the improved model still leaves unexplained</h2>");
     if a.unexplained.is_empty() {
         out.push_str(
@@ -261,16 +288,21 @@ pub fn html(a: &Analysis) -> String {
         }
         out.push_str("</ul>");
     }
+}
 
+/// Measured, nominal and improved traces on the validation segment.
+fn traces(out: &mut String, a: &Analysis) {
+    let tr = &a.traces;
+    let (v, n) = (tr.split, tr.t_s.len());
     out.push_str("<h2>Measured, nominal and improved on the validation segment</h2>");
     out.push_str(&chart(
         "speed",
         "t (s)",
         "ω (rad/s)",
         &[
-            ("measured", gray, decimated(&tr.t_s, &tr.omega_meas, v, n)),
-            ("nominal", red, decimated(&tr.t_s, &tr.omega_baseline, v, n)),
-            ("improved", blue, decimated(&tr.t_s, &tr.omega_improved, v, n)),
+            ("measured", GRAY, decimated(&tr.t_s, &tr.omega_meas, v, n)),
+            ("nominal", RED, decimated(&tr.t_s, &tr.omega_baseline, v, n)),
+            ("improved", BLUE, decimated(&tr.t_s, &tr.omega_improved, v, n)),
         ],
         false,
     ));
@@ -279,9 +311,9 @@ pub fn html(a: &Analysis) -> String {
         "t (s)",
         tr.effort_name,
         &[
-            ("measured", gray, decimated(&tr.t_s, &tr.effort_meas, v, n)),
-            ("nominal", red, decimated(&tr.t_s, &tr.effort_baseline, v, n)),
-            ("improved", blue, decimated(&tr.t_s, &tr.effort_improved, v, n)),
+            ("measured", GRAY, decimated(&tr.t_s, &tr.effort_meas, v, n)),
+            ("nominal", RED, decimated(&tr.t_s, &tr.effort_baseline, v, n)),
+            ("improved", BLUE, decimated(&tr.t_s, &tr.effort_improved, v, n)),
         ],
         false,
     ));
@@ -292,14 +324,18 @@ pub fn html(a: &Analysis) -> String {
             "t (s)",
             "f (Hz)",
             &[
-                ("measured", gray, decimated(&tr.t_s, &tr.drive_meas, v, n)),
-                ("nominal", red, decimated(&tr.t_s, &tr.drive_baseline, v, n)),
-                ("improved", blue, decimated(&tr.t_s, &tr.drive_improved, v, n)),
+                ("measured", GRAY, decimated(&tr.t_s, &tr.drive_meas, v, n)),
+                ("nominal", RED, decimated(&tr.t_s, &tr.drive_baseline, v, n)),
+                ("improved", BLUE, decimated(&tr.t_s, &tr.drive_improved, v, n)),
             ],
             false,
         ));
     }
+}
 
+/// The residual maps over the operating point (whole recording).
+fn residual_maps(out: &mut String, a: &Analysis) {
+    let tr = &a.traces;
     out.push_str(
         "<h2>Residual maps (whole recording)</h2><p>Mean residual (measured − model) in bins of the \
                   operating point: a systematic pattern is physics the model leaves out.</p>",
@@ -311,14 +347,14 @@ pub fn html(a: &Analysis) -> String {
         "residual against speed",
         "ω (rad/s, low-passed)",
         &label,
-        &[("nominal", red, binned(&tr.omega_f, &rb)), ("improved", blue, binned(&tr.omega_f, &ri))],
+        &[("nominal", RED, binned(&tr.omega_f, &rb)), ("improved", BLUE, binned(&tr.omega_f, &ri))],
         true,
     ));
     out.push_str(&chart(
         &format!("residual against {}", tr.effort_name),
         tr.effort_name,
         &label,
-        &[("nominal", red, binned(&tr.effort_meas, &rb)), ("improved", blue, binned(&tr.effort_meas, &ri))],
+        &[("nominal", RED, binned(&tr.effort_meas, &rb)), ("improved", BLUE, binned(&tr.effort_meas, &ri))],
         true,
     ));
     let wres = |model: &[f64]| -> Vec<f64> { tr.omega_meas.iter().zip(model).map(|(m, p)| m - p).collect() };
@@ -327,12 +363,15 @@ pub fn html(a: &Analysis) -> String {
         tr.effort_name,
         "ω residual (rad/s)",
         &[
-            ("nominal", red, binned(&tr.effort_meas, &wres(&tr.omega_baseline))),
-            ("improved", blue, binned(&tr.effort_meas, &wres(&tr.omega_improved))),
+            ("nominal", RED, binned(&tr.effort_meas, &wres(&tr.omega_baseline))),
+            ("improved", BLUE, binned(&tr.effort_meas, &wres(&tr.omega_improved))),
         ],
         true,
     ));
+}
 
+/// The windows where the nominal model misses.
+fn mismatches(out: &mut String, a: &Analysis) {
     out.push_str("<h2>Where the nominal model misses</h2>");
     if a.mismatches.is_empty() {
         out.push_str("<p>No window stands out from the rest.</p>");
@@ -351,6 +390,10 @@ pub fn html(a: &Analysis) -> String {
         }
         out.push_str("</table>");
     }
+}
+
+/// Every candidate tried, with its scores.
+fn candidates(out: &mut String, a: &Analysis) {
     out.push_str(
         "<h2>Every candidate tried</h2><table><tr><th>round</th><th>effect</th><th>validation score</th>\
                   <th>ΔBIC</th><th>cross-validation score</th><th>regime drop</th><th>kept</th></tr>",
@@ -369,6 +412,4 @@ pub fn html(a: &Analysis) -> String {
             if c.kept { "yes" } else { "" }
         );
     }
-    out.push_str("</table></body></html>\n");
-    out
 }
