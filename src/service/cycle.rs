@@ -357,7 +357,7 @@ impl DriveCycle {
 
     /// No fresh sample for longer than `stale_ms` before `now`.
     pub fn stale_at(&self, now: Instant) -> bool {
-        self.last_fresh_at.is_none_or(|t| now.saturating_duration_since(t) > self.stale_after)
+        super::freshness::is_stale(self.last_fresh_at.map(|t| now.saturating_duration_since(t)), self.stale_after)
     }
 }
 

@@ -5,6 +5,12 @@
 //!
 //! At the bottom of the service's layout (see [`super`]): it uses no other module of the service.
 
+/// The one staleness verdict, for the poll loop ([`super::cycle::DriveCycle::stale_at`]) and for readers of the
+/// drive's state alike: no fresh sample yet (`age` None), or the last one older than `stale_after`.
+pub fn is_stale(age: Option<std::time::Duration>, stale_after: std::time::Duration) -> bool {
+    age.is_none_or(|a| a > stale_after)
+}
+
 /// A decoded sample whose values are in range.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sample {

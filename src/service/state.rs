@@ -262,7 +262,7 @@ impl DriveState {
     fn freshness(&self) -> (bool, Option<Duration>) {
         let ns = self.last_fresh_ns.load(Ordering::Acquire);
         let age = (ns > 0).then(|| (self.epoch + Duration::from_nanos(ns - 1)).elapsed());
-        (age.is_none_or(|a| a > self.stale_after), age)
+        (super::freshness::is_stale(age, self.stale_after), age)
     }
 
     /// Ready: connected and fresh.
