@@ -197,19 +197,27 @@ async fn a_silent_device_does_not_starve_its_neighbour_on_the_line() {
         // unit 2 stops answering: it goes stale and trips; unit 1 keeps being polled and regulated throughout
         two.lock().faults.no_reply = true;
         let polls_before = status(&url).await["drives"][0]["link"]["polls"].as_u64().unwrap_or(0);
-        let fresh_checks = std::sync::atomic::AtomicUsize::new(0);
-        let tripped = wait_for(Duration::from_secs(5), || {
-            let (url, two, checks) = (&url, &two, &fresh_checks);
+        // vfd1 fresh at (almost) every look: a starved vfd1 would be stale at most of them; one or two stale looks
+        // are a machine that stalled the test beyond vfd1's stale_ms, not the line
+        let (fresh_checks, stale_checks) =
+            (std::sync::atomic::AtomicUsize::new(0), std::sync::atomic::AtomicUsize::new(0));
+        let tripped = wait_for(Duration::from_secs(10), || {
+            let (url, two, fresh, stale) = (&url, &two, &fresh_checks, &stale_checks);
             async move {
                 let s = status(url).await;
-                assert_eq!(s["drives"][0]["link"]["stale"], false, "vfd1 went stale beside a silent vfd2: {s}");
-                checks.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let counter = if s["drives"][0]["link"]["stale"] == false { fresh } else { stale };
+                counter.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                 s["drives"][1]["link"]["stale"] == true && two.lock().truth().tripped
             }
         })
         .await;
-        let fresh_checks = fresh_checks.into_inner();
+        let (fresh_checks, stale_checks) = (fresh_checks.into_inner(), stale_checks.into_inner());
         assert!(tripped.is_some(), "vfd2 stale and tripped: {}", status(&url).await);
+        assert!(
+            stale_checks <= 2,
+            "vfd1 stale at {stale_checks} of {} looks beside a silent vfd2",
+            fresh_checks + stale_checks
+        );
         let s = status(&url).await;
         assert!(s["drives"][1]["link"]["errors"].as_u64().unwrap_or(0) >= 1, "vfd2's timeouts counted: {s}");
         assert!(s["drives"][0]["link"]["polls"].as_u64().unwrap_or(0) > polls_before + 10, "{s}");
@@ -244,7 +252,7 @@ async fn an_unplugged_line_goes_stale_trips_the_drive_and_comes_back() {
         assert!(regulates(&url, 0, &drive, 30.0, Duration::from_secs(15)).await, "regulates before the fault");
 
         line.unplug();
-        let down = wait_for(Duration::from_secs(3), || async {
+        let down = wait_for(Duration::from_secs(10), || async {
             let s = status(&url).await;
             readyz(&url).await == 503 && s["drives"][0]["link"]["stale"] == true
         })
@@ -252,14 +260,14 @@ async fn an_unplugged_line_goes_stale_trips_the_drive_and_comes_back() {
         assert!(down.is_some(), "stale and not ready without the line: {}", status(&url).await);
         // nothing reaches the drive, so its own watchdog trips it and it ramps down: its safe state
         let writes = drive.lock().writes;
-        let tripped = wait_for(Duration::from_secs(4), || async { drive.lock().truth().tripped }).await;
+        let tripped = wait_for(Duration::from_secs(10), || async { drive.lock().truth().tripped }).await;
         assert!(tripped.is_some(), "the drive's watchdog trips without writes");
         assert_eq!(drive.lock().writes, writes, "nothing written while the line is down");
         let s = status(&url).await;
         assert_eq!(s["drives"][0]["link"]["connected"], false, "{s}");
 
         line.replug();
-        let back = wait_for(Duration::from_secs(5), || async {
+        let back = wait_for(Duration::from_secs(10), || async {
             let s = status(&url).await;
             readyz(&url).await == 200 && s["drives"][0]["link"]["stale"] == false
         })
@@ -281,7 +289,7 @@ async fn an_unplugged_line_goes_stale_trips_the_drive_and_comes_back() {
         sim_stop.cancel();
         tokio::time::timeout(Duration::from_secs(5), sim_task).await.expect("sim stops").expect("sim task");
     };
-    tokio::time::timeout(Duration::from_secs(40), run).await.expect("within 40 s");
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("within 60 s");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
