@@ -16,6 +16,7 @@ mod paper;
 mod periodic;
 mod rls_sgd;
 pub mod settings;
+mod windows;
 
 pub use guard::{Identification, Identified, LoadCharacter, Verdict};
 pub use kalman::Kalman;
