@@ -252,17 +252,23 @@ mod tests {
     }
 
     #[test]
-    fn one_check_gone_astray_moves_the_line_little() {
-        // 0.01 + 1e-5/s, one check reading 0 (a check that missed the effect): Theil–Sen's crossing stays near 4000 s
-        let mut pts = line(12, 0.01, 1e-5, &NOISE);
+    fn one_check_gone_astray_moves_the_line_little_and_widens_its_uncertainty() {
+        // 0.01 + 1e-5/s (0.864 a day), one check reading 0 (a check that missed the effect)
+        let clean = line(12, 0.01, 1e-5, &NOISE);
+        let mut pts = clean.clone();
         pts[8].value = 0.0;
         let tr = trend(&pts, 0.05, false, 60.0, 660.0);
-        assert_eq!(tr.state, TrendState::Rising, "{tr:?}");
-        let at = 660.0 + tr.seconds_to_limit.expect("crossing");
-        assert!((at - 4000.0).abs() < 0.05 * 4000.0, "{at}");
-        // least squares through the same points would put it near 4500 s
-        let (hi, lo) = (tr.seconds_to_limit_high.expect("high"), tr.seconds_to_limit_low.expect("low"));
-        assert!(lo + 660.0 < 4000.0 && 4000.0 < hi + 660.0, "{lo} … {hi}");
+        let ts_err = (tr.slope_per_day.expect("slope") - 0.864).abs() / 0.864;
+        // least squares through the same points
+        let n = pts.len() as f64;
+        let (tm, ym) = (pts.iter().map(|p| p.t_s).sum::<f64>() / n, pts.iter().map(|p| p.value).sum::<f64>() / n);
+        let sxy: f64 = pts.iter().map(|p| (p.t_s - tm) * (p.value - ym)).sum();
+        let sxx: f64 = pts.iter().map(|p| (p.t_s - tm).powi(2)).sum();
+        let ls_err = (sxy / sxx * 86_400.0 - 0.864).abs() / 0.864;
+        assert!(ts_err < 0.2 && ts_err < 0.5 * ls_err, "Theil–Sen {ts_err:.3} off, least squares {ls_err:.3}");
+        // its scatter is not hidden: the slope is less sure than without it
+        let sd = |t: &Trend| t.slope_sd_per_day.expect("sd");
+        assert!(sd(&tr) > 2.0 * sd(&trend(&clean, 0.05, false, 60.0, 660.0)), "{tr:?}");
     }
 
     #[test]

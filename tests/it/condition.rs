@@ -472,9 +472,12 @@ const WEAR_PER_HOUR: f64 = 0.2;
 const WEAR_LIMIT: f64 = 0.05;
 const WEAR_RUN_S: f64 = 840.0;
 
-/// The checks of a run, each followed by the tracked leak's trend: (check time, trend), the checks' wall times set
-/// to their service times (the offline run takes seconds).
-fn projections(growth_per_hour: f64, seed: u64) -> Vec<(f64, hydrolens::condition::Tracked, Option<(f64, f64)>)> {
+/// After a check: its time, the tracked leak with its trend, and the check's own 95 % interval of the leak.
+type Projection = (f64, hydrolens::condition::Tracked, Option<(f64, f64)>);
+
+/// The checks of a run, each followed by the tracked leak's trend, the checks' wall times set to their service times
+/// (the offline run takes seconds).
+fn projections(growth_per_hour: f64, seed: u64) -> Vec<Projection> {
     let truth = plant(growth_per_hour);
     let rec = hydrolens::recording::simulated::test_stand(&truth, WEAR_RUN_S, seed, &mut |_| {}).expect("simulable");
     let rec = as_the_service_records(&rec, POLL_MS, seed);
