@@ -1,5 +1,6 @@
 //! The plant simulator: the plant model behind the default register map, served in real time over Modbus TCP, RTU
-//! on a serial device, or RTU framing over TCP.
+//! on a serial device, or RTU framing over TCP. Input register 6 holds the drive's output power ([`DRIVE_POWER_W`],
+//! the optional `drive_power_w` entry of the map), through the simulated motor's [`MOTOR_EFFICIENCY`].
 //!
 //! [`DriveSim`] is the drive and plant as a pure state machine stepped one sample at a time; [`Simulator`] adds the
 //! clock and the Modbus server (`serve_until`, so it stops cleanly on a signal). It serves one plant at any unit
@@ -615,6 +616,29 @@ mod tests {
         assert_eq!(d.read(Table::Input, 5, 1).expect("counter")[0], c0.wrapping_add(2));
         assert_eq!(d.read(Table::Input, 5, 3), Err(ExceptionCode::IllegalDataAddress));
         assert_eq!(d.write(3, &[1]), Err(ExceptionCode::IllegalDataAddress));
+    }
+
+    #[test]
+    fn register_6_is_the_drives_output_power_and_its_energy_is_integrated() {
+        let mut model = PlantModel::reference();
+        model.load = crate::plant::load::LoadSpec::Constant { torque_nm: 8.0 };
+        let mut d = DriveSim::new(model, 1).expect("reference is hydraulic");
+        d.write(0, &[2500]).expect("setpoint 25 Hz");
+        d.write(1, &[control::RUN]).expect("run");
+        for _ in 0..3000 {
+            d.step();
+        }
+        let t = d.truth();
+        let c = Coefficients::from_model(&PlantModel::reference()).expect("hydraulic");
+        let air_gap_w =
+            c.pump_m3_rad * (t.p_in_bar * 1e5 - c.back_pressure_pa) * 2.0 * std::f64::consts::PI * t.f_drive_hz
+                / c.pole_pairs;
+        assert!((t.drive_power_w - air_gap_w / MOTOR_EFFICIENCY).abs() < 1e-9 * air_gap_w, "{t:?}");
+        let read = DRIVE_POWER_W.decode(&d.read(Table::Input, 6, 1).expect("register 6")).expect("decodes");
+        assert!((read - t.drive_power_w).abs() <= 0.5, "{read} W read, {} W true", t.drive_power_w);
+        assert!(t.drive_power_w > 100.0 && t.drive_energy_j > 100.0 && t.load_energy_j > 0.0, "{t:?}");
+        assert!(t.load_energy_j < t.drive_energy_j, "the load gets less than the drive gives");
+        assert_eq!(drive_power_w(-100.0), -100.0 * MOTOR_EFFICIENCY, "braking: the drive takes back less");
     }
 
     #[test]
