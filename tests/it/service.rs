@@ -209,7 +209,7 @@ async fn recordings_hold_every_fresh_sample_and_are_readable() {
         assert_eq!(live.status(), 200);
         let text = live.text().await.expect("text");
         assert!(
-            text.starts_with("t_s,f_set_hz,f_drive_hz,p_in_bar,p_out_bar,omega_rad_s,omega_hat_rad_s"),
+            text.starts_with("t_s,f_set_hz,f_drive_hz,p_in_bar,p_out_bar,omega_rad_s,drive_power_w,omega_hat_rad_s"),
             "{text:.80}"
         );
         let bad = reqwest::get(format!("{}/api/recordings/..%2Fsecret.csv", stack.url)).await.expect("GET");
