@@ -64,6 +64,14 @@ impl Check {
         self.findings.as_array()?.iter().find(|f| f["effect"] == effect)?["parameters"][parameter].as_f64()
     }
 
+    /// The 95 % interval the analysis gives `parameter` of `effect` (its `confidence_intervals`), if the check names
+    /// the effect and the analysis could bound it.
+    pub fn interval(&self, effect: &str, parameter: &str) -> Option<(f64, f64)> {
+        let f = self.findings.as_array()?.iter().find(|f| f["effect"] == effect)?;
+        let i = &f["confidence_intervals"][parameter];
+        Some((i["low"].as_f64()?, i["high"].as_f64()?)).filter(|(lo, hi)| lo.is_finite() && hi.is_finite() && lo <= hi)
+    }
+
     /// Every fitted effect parameter of the check: (effect, parameter, value).
     pub fn parameters(&self) -> Vec<(String, String, f64)> {
         let mut out = Vec::new();
@@ -249,7 +257,11 @@ impl Monitor {
                 let points: Vec<trend::Point> = self
                     .checks
                     .iter()
-                    .filter_map(|c| value_of(c).map(|v| trend::Point { t_s: time(c) - c.window_s / 2.0, value: v }))
+                    .filter_map(|c| {
+                        // the check's own standard error, from the analysis's 95 % interval of the parameter
+                        let sd = c.interval(effect, parameter).map(|(lo, hi)| (hi - lo) / (2.0 * 1.96));
+                        value_of(c).map(|v| trend::Point { t_s: time(c) - c.window_s / 2.0, value: v, sd })
+                    })
                     .collect();
                 let last = self.checks.back();
                 let window_s = last.map_or(0.0, |c| c.window_s);

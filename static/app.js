@@ -1,7 +1,8 @@
 // hydrolens dashboard: a card per drive and live charts, fed by /api/history once and /api/events (SSE) after.
 // Test hooks: each card carries data-link (up, stale, tripped, down; unknown while the page has lost the service),
-// data-mode, data-tripped; each chart box data-points (points plotted); #events data-events counts the snapshots
-// received.
+// data-mode, data-tripped; each chart box data-points (points plotted); the speed chart's box data-target-history
+// (the lowest and highest target drawn from the history, "min max"; empty when none); #events data-events counts the
+// snapshots received.
 "use strict";
 
 const WINDOW_S = 60;
@@ -68,11 +69,11 @@ function makeChart(parent, title, series) {
 }
 
 // The charts, each a list of series named by the recording's columns (what /api/history sends, and what a
-// snapshot's `sample` and `estimate` carry); "target" is the speed target, not a column.
+// snapshot's `sample` and `estimate` carry, with the snapshot's target in speed mode).
 const CHARTS = {
   pressure: ["pressures (bar)", [["p_in_bar", "p_in", "#c62828"], ["p_out_bar", "p_out", "#1565c0"]]],
   speed: ["speed (rad/s)", [["omega_rad_s", "ω measured", "#9e9e9e"], ["omega_hat_rad_s", "ω̂ estimated", "#1a7f37"],
-    ["target", "target", "#000", [6, 4]]]],
+    ["target_omega_rad_s", "target", "#000", [6, 4]]]],
   load: ["load (N·m) and setpoint (Hz)", [["load_hat_nm", "T̂ load", "#6a1b9a"], ["f_set_hz", "f set", "#ef6c00"],
     ["f_drive_hz", "f drive", "#0097a7"]]],
 };
@@ -89,7 +90,7 @@ function makeDrive(d) {
     charts[key] = makeChart(row, title, series.map(([, label, stroke, dash]) => [label, stroke, dash]));
     charts[key].columns = series.map(([column]) => column);
   }
-  const entry = { card: makeCard(d), charts, lastT: -Infinity, target: d.mode === "speed" ? d.target_omega_rad_s : null };
+  const entry = { card: makeCard(d), charts, lastT: -Infinity, historyT: -Infinity };
   drives.set(d.name, entry);
   return entry;
 }
@@ -98,9 +99,8 @@ function finite(v) {
   return Number.isFinite(v) ? v : null;
 }
 
-/// Fills the charts with the last minute from the in-memory history ring: its columns are the charts' columns. The
-/// ring does not keep the speed target, so the target line starts with the live points: a constant drawn over the
-/// history would show the program's target flat while it moved.
+/// Fills the charts with the last minute from the in-memory history ring: its columns are the charts' columns, the
+/// speed target among them (as it was at each row: a target program's steps show in the history too).
 async function loadHistory(entry, name) {
   const r = await fetch(`/api/history?drive=${encodeURIComponent(name)}&seconds=${WINDOW_S}&max_points=600`);
   if (!r.ok) return;
@@ -108,20 +108,20 @@ async function loadHistory(entry, name) {
   const n = h.t_s.length;
   if (n === 0) return;
   for (const c of Object.values(entry.charts)) {
-    c.data = [h.t_s.slice(), ...c.columns.map(col =>
-      col === "target" ? new Array(n).fill(null) : h[col].map(finite))];
+    c.data = [h.t_s.slice(), ...c.columns.map(col => (h[col] || new Array(n).fill(null)).map(finite))];
   }
-  entry.lastT = h.t_s[n - 1];
+  entry.lastT = entry.historyT = h.t_s[n - 1];
   redraw(entry);
 }
 
-/// Appends one point (an object holding the columns, as a snapshot's `sample` and `estimate` together are).
-function push(entry, p, target) {
+/// Appends one point (an object holding the columns, as a snapshot's `sample` and `estimate` together are, and the
+/// target).
+function push(entry, p) {
   if (!p || !(p.t_s > entry.lastT)) return;
   entry.lastT = p.t_s;
   for (const c of Object.values(entry.charts)) {
     c.data[0].push(p.t_s);
-    c.columns.forEach((col, i) => c.data[i + 1].push(finite(col === "target" ? target : p[col])));
+    c.columns.forEach((col, i) => c.data[i + 1].push(finite(p[col])));
     while (c.data[0].length > 0 && c.data[0][0] < p.t_s - WINDOW_S) c.data.forEach(col => col.shift());
   }
 }
@@ -131,6 +131,11 @@ function redraw(entry) {
     c.plot.setData(c.data);
     c.box.dataset.points = String(c.data[0].length);
   }
+  // the target line as drawn (uPlot's own data), over the points that came from the history
+  const speed = entry.charts.speed;
+  const [t, target] = [speed.plot.data[0], speed.plot.data[1 + speed.columns.indexOf("target_omega_rad_s")]];
+  const drawn = target.filter((v, i) => v !== null && t[i] <= entry.historyT);
+  speed.box.dataset.targetHistory = drawn.length ? `${Math.min(...drawn)} ${Math.max(...drawn)}` : "";
 }
 
 // J and B count as identified once their standard deviation is within these fractions of the value
@@ -207,9 +212,9 @@ function onSnapshot(status) {
   document.getElementById("uptime").textContent = `up ${status.uptime_s.toFixed(0)} s`;
   for (const d of status.drives) {
     const entry = drives.get(d.name) || makeDrive(d);
-    entry.target = d.target_omega_rad_s;
     updateCard(entry, d);
-    push(entry, d.sample && { ...d.sample, ...d.estimate }, d.mode === "speed" ? d.target_omega_rad_s : null);
+    const target = d.mode === "speed" ? d.target_omega_rad_s : null;
+    push(entry, d.sample && { ...d.sample, ...d.estimate, target_omega_rad_s: target });
     redraw(entry);
   }
 }

@@ -4,11 +4,14 @@
 // Each tracked effect (one with a limit) is drawn in its own units under a human title, with its limit, the
 // least-squares trend line and the projected crossing (/api/status drives[].condition[].trend), and a check that
 // found nothing drawn as a grey point at the nominal value ("checked, nothing found"). Above the charts, where the
-// power goes since the start (drives[].energy): load, friction, leakage and slip as shares of the input power.
+// power goes since the start (drives[].energy): load, friction, leakage and slip as shares of the input power, or,
+// where the drive's output power is read, of the drive's output, with the motor's own losses beside them and the
+// overall efficiency.
 // Test hooks: each panel carries data-drive, data-checks (checks shown) and data-alarms (alarms raised); each chart
 // box data-parameter ("effect.parameter"), data-points (checks that named it), data-nothing-found (checks that did
 // not), data-alarm-marks (checks marked), data-y-ticks (the value axis's labels, "|" apart), data-state (the trend's state) and data-crossing-unix-s; .last-check
-// carries data-t-s (the last check's service time); each .flow of the power bar data-flow and data-share.
+// carries data-t-s (the last check's service time); each .flow of the power bar data-flow and data-share; the
+// .power-flow box data-base ("input" or "drive") and data-overall-efficiency (empty where not read).
 "use strict";
 
 (function () {
@@ -200,7 +203,8 @@
     chart.caption.textContent = `${now}limit ${fmtNum(limit)} · ${trendText(t)}`;
   }
 
-  // The power bar: each flow as a share of the input power, since the start.
+  // The power bar: each flow as a share of the input power since the start, or of the drive's output where it is
+  // read (then the motor's copper and iron losses, drive output less input, are a flow of their own).
   const FLOWS = [
     ["load_w", "load", "#2e7d32"],
     ["viscous_w", "viscous friction", "#f9a825"],
@@ -219,9 +223,16 @@
       panel.section.insertBefore(box, panel.section.querySelector(".chart-row"));
     }
     const input = e.energy_j.input_w;
+    const drive = e.drive_energy_j;
+    const byDrive = Number.isFinite(drive) && drive > 0;
+    const base = byDrive ? drive : input;
+    const energies = { ...e.energy_j, motor_w: byDrive ? drive - input : 0 };
+    const flows = byDrive ? [...FLOWS, ["motor_w", "motor (copper, iron)", "#6d4c41"]] : FLOWS;
+    box.dataset.base = byDrive ? "drive" : "input";
+    box.dataset.overallEfficiency = Number.isFinite(e.overall_efficiency) ? String(e.overall_efficiency) : "";
     const bar = box.querySelector(".bar");
-    const parts = FLOWS.map(([k, label, color]) => {
-      const share = input > 0 ? Math.max(0, e.energy_j[k]) / input : 0;
+    const parts = flows.map(([k, label, color]) => {
+      const share = base > 0 ? Math.max(0, energies[k]) / base : 0;
       const d = document.createElement("span");
       d.className = "flow";
       d.dataset.flow = k.replace(/_w$/, "");
@@ -237,7 +248,10 @@
     const eff = v => (Number.isFinite(v) ? `${(100 * v).toFixed(1)} %` : "–");
     const cost = (e.effects || []).map(x => `${x.effect.replace(/_/g, " ")} ${fmtNum(x.power_w)} W, ` +
       `${fmtNum(x.kwh_per_day)} kWh/day` + (Number.isFinite(x.cost_per_year) ? `, ${fmtNum(x.cost_per_year)} a year` : ""));
-    box.querySelector(".legend").textContent =
+    const overall = byDrive
+      ? `drive output ${fmtNum(e.drive_power_w)} W now, overall efficiency ${eff(e.overall_efficiency)} · `
+      : "overall efficiency: the drive's output power is not read · ";
+    box.querySelector(".legend").textContent = overall +
       `input ${fmtNum(e.power_w.input_w)} W now, ${fmtNum(input / 3.6e6)} kWh over ${fmtDuration(e.span_s)} · ` +
       `volumetric efficiency ${eff(e.volumetric_efficiency)}, mechanical ${eff(e.mechanical_efficiency)}` +
       (cost.length ? ` · above the nominal model: ${cost.join("; ")}` : " · nothing above the nominal model");

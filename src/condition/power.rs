@@ -14,6 +14,10 @@
 //! load                 P_load  = T_L · ω                            = P_motor − P_visc − P_dry − J ω dω/dt
 //! ```
 //!
+//! Where the register map reads the drive's output power P_drive (`[drives.registers.drive_power_w]`), the
+//! overall efficiency is η = ∫ P_load dt / ∫ P_drive dt over the samples that carry it: everything between the
+//! drive's terminals and the load (the motor's copper and iron, slip, pump, leakage, friction) in one ratio.
+//!
 //! The compression term and the kinetic term store energy and give it back: over a run they sum to the change of
 //! the stored energy, so the integrated budget closes without them. The load torque is the estimator's resisting
 //! torque split by the model: `T̂_L + B̂·ω̂` is what the estimator sees resist the motor beside `J dω/dt` whichever
@@ -112,6 +116,8 @@ pub struct Operating {
     pub omega_rad_s: f64,
     /// `T̂_L + B̂ ω̂`: all the estimator sees resist the motor beside inertia (N·m).
     pub resisting_torque_nm: f64,
+    /// The drive's output power (W) as its register reads it; None where the map does not read it.
+    pub drive_power_w: Option<f64>,
 }
 
 crate::units::columns! {
@@ -258,7 +264,26 @@ pub struct Ledger {
     /// The mean power over the last [`Ledger::add_all`] call (W), and its span.
     pub recent: Flows,
     pub recent_s: f64,
+    /// Over the samples that carry the drive's output power: its energy, and the load's over the same samples (J).
+    pub drive: Option<DriveEnergy>,
+    /// The drive's mean output power over the last [`Ledger::add_all`] call (W), where read.
+    pub recent_drive_w: Option<f64>,
     last_t_s: Option<f64>,
+}
+
+/// The drive's output energy and the load's, both over the samples that carry the drive's output power.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct DriveEnergy {
+    pub span_s: f64,
+    pub drive_j: f64,
+    pub load_j: f64,
+}
+
+impl DriveEnergy {
+    /// Overall efficiency: the share of the drive's output energy that reached the load.
+    pub fn overall_efficiency(&self) -> Option<f64> {
+        ratio(self.load_j, self.drive_j)
+    }
 }
 
 impl Ledger {
@@ -271,6 +296,7 @@ impl Ledger {
     pub fn add_all(&mut self, model: &PowerModel, points: impl IntoIterator<Item = Operating>) {
         let mut recent = Flows::default();
         let mut recent_s = 0.0;
+        let mut recent_drive = DriveEnergy::default();
         for x in points {
             let Some(prev) = self.last_t_s else {
                 self.last_t_s = Some(x.t_s);
@@ -292,6 +318,13 @@ impl Ledger {
             for (id, w) in model.above_nominal(&x) {
                 *self.above_nominal_j.entry(id).or_insert(0.0) += w * dt;
             }
+            if let Some(p) = x.drive_power_w.filter(|p| p.is_finite()) {
+                for d in [self.drive.get_or_insert_default(), &mut recent_drive] {
+                    d.span_s += dt;
+                    d.drive_j += p * dt;
+                    d.load_j += f.load_w * dt;
+                }
+            }
             self.span_s += dt;
             recent_s += dt;
         }
@@ -299,6 +332,7 @@ impl Ledger {
             self.recent = Flows::default();
             self.recent.add_scaled(&recent, 1.0 / recent_s);
             self.recent_s = recent_s;
+            self.recent_drive_w = (recent_drive.span_s > 0.0).then(|| recent_drive.drive_j / recent_drive.span_s);
         }
     }
 
@@ -324,11 +358,15 @@ impl Ledger {
         let e = &self.energy_j;
         EnergyReport {
             span_s: self.span_s,
+            up_to_t_s: self.last_t_s,
             power_w: self.recent,
             energy_j: self.energy_j,
             kwh_per_day: Flows::from_values(e.values().map(per_day)),
             volumetric_efficiency: e.volumetric_efficiency(),
             mechanical_efficiency: e.mechanical_efficiency(),
+            drive_power_w: self.recent_drive_w,
+            drive_energy_j: self.drive.map(|d| d.drive_j),
+            overall_efficiency: self.drive.and_then(|d| d.overall_efficiency()),
             effects,
             energy_price_per_kwh: price_per_kwh,
         }
@@ -353,6 +391,8 @@ pub struct EffectCost {
 pub struct EnergyReport {
     /// Seconds of data integrated (since the service started, gaps left out).
     pub span_s: f64,
+    /// The service time (`t_s`) of the last sample taken: the report is up to date with the rows up to it.
+    pub up_to_t_s: Option<f64>,
     /// Mean power of each flow over the last integration step (about a second).
     pub power_w: Flows,
     /// Energy of each flow since the start.
@@ -362,6 +402,12 @@ pub struct EnergyReport {
     /// Over the span; null while nothing flowed.
     pub volumetric_efficiency: Option<f64>,
     pub mechanical_efficiency: Option<f64>,
+    /// The drive's output power (W), mean over the last integration step, and its energy since the start (J),
+    /// where `[drives.registers.drive_power_w]` reads it; null where not read.
+    pub drive_power_w: Option<f64>,
+    pub drive_energy_j: Option<f64>,
+    /// The load's energy over the drive's output energy, over the samples that carry it; null where not read.
+    pub overall_efficiency: Option<f64>,
     /// The effects above the nominal model that cost power, and what.
     pub effects: Vec<EffectCost>,
     pub energy_price_per_kwh: Option<f64>,
@@ -378,7 +424,14 @@ mod tests {
     use crate::plant::effects::{CoulombFriction, InternalLeakage, MotorSlip};
 
     fn at(dp_bar: f64, f_hz: f64, omega: f64, resisting: f64) -> Operating {
-        Operating { t_s: 0.0, dp_bar, f_drive_hz: f_hz, omega_rad_s: omega, resisting_torque_nm: resisting }
+        Operating {
+            t_s: 0.0,
+            dp_bar,
+            f_drive_hz: f_hz,
+            omega_rad_s: omega,
+            resisting_torque_nm: resisting,
+            drive_power_w: None,
+        }
     }
 
     #[test]
@@ -446,6 +499,35 @@ mod tests {
         assert_close(e.kwh_per_day, leak_w * 24.0 / 1e3, 1e-9);
         assert_close(e.cost_per_year.expect("priced"), 0.25 * leak_w * 24.0 / 1e3 * 365.0, 1e-9);
         assert!(l.report(None).effects[0].cost_per_day.is_none());
+        assert_eq!((r.drive_power_w, r.drive_energy_j, r.overall_efficiency), (None, None, None), "not read");
+    }
+
+    #[test]
+    fn the_overall_efficiency_is_the_loads_share_of_the_drives_energy_where_it_was_read() {
+        let pm = PowerModel::new(&PlantModel::reference(), &Effects::default()).expect("hydraulic");
+        let x = at(100.0, 25.0, 30.0, 40.0);
+        let load_w = pm.fitted.flows(&x).load_w;
+        let mut l = Ledger::default();
+        // 1 s without the drive's power, then 1 s at 1500 W, then 1 s at 1000 W
+        let pts = (0..=3000).map(|k| Operating {
+            t_s: k as f64 * 1e-3,
+            drive_power_w: match k {
+                0..=1000 => None,
+                1001..=2000 => Some(1500.0),
+                _ => Some(1000.0),
+            },
+            ..x
+        });
+        l.add_all(&pm, pts.take(2001));
+        let r = l.report(None);
+        assert_close(r.drive_energy_j.expect("read"), 1500.0, 1e-9);
+        assert_close(r.overall_efficiency.expect("read"), load_w / 1500.0, 1e-9);
+        let pts = (2001..=3000).map(|k| Operating { t_s: k as f64 * 1e-3, drive_power_w: Some(1000.0), ..x });
+        l.add_all(&pm, pts);
+        let r = l.report(None);
+        assert_close(r.drive_power_w.expect("read"), 1000.0, 1e-9);
+        assert_close(r.overall_efficiency.expect("read"), 2.0 * load_w / 2500.0, 1e-9);
+        assert_close(l.span_s, 3.0, 1e-9);
     }
 
     #[test]

@@ -171,7 +171,16 @@ pub struct RegisterMap {
     pub frequency_setpoint_hz: RegisterSpec,
     pub control_word: RegisterSpec,
     pub watchdog: RegisterSpec,
+    /// The drive's output power (W; a drive that counts in kW has `scale` 1000 × its step), where the drive exposes
+    /// it: optional, absent by default (then not read, and the overall efficiency is unknown). `sim` serves it at
+    /// [`DRIVE_POWER_W`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drive_power_w: Option<RegisterSpec>,
 }
+
+/// Where `sim` serves the drive's output power, and the entry `[drives.registers.drive_power_w]` starts from:
+/// input register 6, i16, 1 W per step (negative while the drive brakes the motor).
+pub const DRIVE_POWER_W: RegisterSpec = RegisterSpec::new(Table::Input, 6, ValueType::I16, 1.0);
 
 /// Status word bits.
 pub mod status {
@@ -201,6 +210,7 @@ impl Default for RegisterMap {
             frequency_setpoint_hz: RegisterSpec::new(Holding, 0, U16, 0.01),
             control_word: RegisterSpec::new(Holding, 1, U16, 1.0),
             watchdog: RegisterSpec::new(Holding, 2, U16, 1.0),
+            drive_power_w: None,
         }
     }
 }
@@ -227,9 +237,18 @@ impl RegisterMap {
         [e[0], e[1], e[2], e[3], e[4], e[5]]
     }
 
-    /// The smallest block (first address, count) covering every entry of a table, for one batched read.
+    /// The entries the service reads each cycle: [`RegisterMap::measured`], then the optional ones configured.
+    pub fn read_entries(&self) -> Vec<(&'static str, RegisterSpec)> {
+        let mut out = self.measured().to_vec();
+        out.extend(self.drive_power_w.map(|s| ("drive_power_w", s)));
+        out
+    }
+
+    /// The smallest block (first address, count) covering every entry of a table, the optional ones configured
+    /// included, for one batched read.
     pub fn span(&self, table: Table) -> Option<(u16, u16)> {
-        span_of(self.entries().into_iter().map(|(_, s)| s), table)
+        let optional = self.drive_power_w.into_iter();
+        span_of(self.entries().into_iter().map(|(_, s)| s).chain(optional), table)
     }
 
     /// Decodes an entry from a block read at `block_start`.
@@ -253,7 +272,7 @@ fn span_of(specs: impl Iterator<Item = RegisterSpec>, table: Table) -> Option<(u
 pub fn read_plan(map: &RegisterMap) -> Vec<(Table, u16, u16)> {
     [Table::Input, Table::Holding]
         .into_iter()
-        .filter_map(|t| span_of(map.measured().into_iter().map(|(_, s)| s), t).map(|(start, n)| (t, start, n)))
+        .filter_map(|t| span_of(map.read_entries().into_iter().map(|(_, s)| s), t).map(|(start, n)| (t, start, n)))
         .collect()
 }
 
@@ -267,6 +286,8 @@ pub struct Reading {
     pub drive_frequency_hz: f64,
     pub status_word: f64,
     pub sample_counter: f64,
+    /// The drive's output power (W); None when the map does not read it.
+    pub drive_power_w: Option<f64>,
 }
 
 /// A measured entry that could not be decoded from a cycle's blocks.
@@ -279,14 +300,17 @@ pub struct DecodeError {
 
 /// Decodes the measured entries from the blocks of [`read_plan`] (table, first address, words). Pure.
 pub fn decode_sample(map: &RegisterMap, blocks: &[(Table, u16, Vec<u16>)]) -> Result<Reading, DecodeError> {
-    let mut v = [0.0; 6];
-    for (x, (entry, spec)) in v.iter_mut().zip(map.measured()) {
+    let decode = |entry: &'static str, spec: RegisterSpec| {
         let Some((_, start, words)) = blocks.iter().find(|(t, _, _)| *t == spec.table) else {
             return Err(DecodeError { entry, message: "its table was not read".into() });
         };
-        *x = RegisterMap::decode_from(&spec, *start, words)
-            .map_err(|e| DecodeError { entry, message: e.to_string() })?;
+        RegisterMap::decode_from(&spec, *start, words).map_err(|e| DecodeError { entry, message: e.to_string() })
+    };
+    let mut v = [0.0; 6];
+    for (x, (entry, spec)) in v.iter_mut().zip(map.measured()) {
+        *x = decode(entry, spec)?;
     }
+    let drive_power_w = map.drive_power_w.map(|spec| decode("drive_power_w", spec)).transpose()?;
     let [inlet_pressure_bar, outlet_pressure_bar, shaft_speed_rpm, drive_frequency_hz, status_word, sample_counter] = v;
     Ok(Reading {
         inlet_pressure_bar,
@@ -295,6 +319,7 @@ pub fn decode_sample(map: &RegisterMap, blocks: &[(Table, u16, Vec<u16>)]) -> Re
         drive_frequency_hz,
         status_word,
         sample_counter,
+        drive_power_w,
     })
 }
 
@@ -408,5 +433,28 @@ mod tests {
         assert_eq!(e.entry, "sample_counter");
         let short = vec![(Table::Input, 0u16, vec![1, 2, 3]), blocks[1].clone()];
         assert_eq!(decode_sample(&map, &short).expect_err("too short").entry, "drive_frequency_hz");
+        assert_eq!(r.drive_power_w, None, "not in the map: not read");
+    }
+
+    #[test]
+    fn the_drive_power_is_read_only_where_the_map_has_it() {
+        let map = RegisterMap { drive_power_w: Some(DRIVE_POWER_W), ..RegisterMap::default() };
+        assert_eq!(read_plan(&map), vec![(Table::Input, 0, 7)], "still one read");
+        let blocks = vec![(Table::Input, 0u16, vec![3512, 300, 3820, 2550, 3, 9, (-250i16) as u16])];
+        assert_eq!(decode_sample(&map, &blocks).expect("decodes").drive_power_w, Some(-250.0));
+        let short = vec![(Table::Input, 0u16, vec![3512, 300, 3820, 2550, 3, 9])];
+        assert_eq!(decode_sample(&map, &short).expect_err("too short").entry, "drive_power_w");
+        // a drive counting in 0.01 kW, far from the other registers: a read of its own
+        let kw = RegisterSpec::new(Table::Holding, 300, ValueType::U16, 10.0);
+        let map = RegisterMap { drive_power_w: Some(kw), ..RegisterMap::default() };
+        assert_eq!(read_plan(&map), vec![(Table::Input, 0, 6), (Table::Holding, 300, 1)]);
+        let blocks = vec![(Table::Input, 0u16, vec![0; 6]), (Table::Holding, 300, vec![55])];
+        assert_eq!(decode_sample(&map, &blocks).expect("decodes").drive_power_w, Some(550.0));
+        assert_eq!(map.span(Table::Holding), Some((0, 301)));
+        // absent from the map's TOML by default, and back when written
+        let text = toml::to_string(&RegisterMap::default()).expect("serialises");
+        assert!(!text.contains("drive_power_w"), "{text}");
+        let text = toml::to_string(&map).expect("serialises");
+        assert_eq!(toml::from_str::<RegisterMap>(&text).expect("parses"), map);
     }
 }

@@ -1,5 +1,6 @@
 //! The plant simulator: the plant model behind the default register map, served in real time over Modbus TCP, RTU
-//! on a serial device, or RTU framing over TCP.
+//! on a serial device, or RTU framing over TCP. Input register 6 holds the drive's output power ([`DRIVE_POWER_W`],
+//! the optional `drive_power_w` entry of the map), through the simulated motor's [`MOTOR_EFFICIENCY`].
 //!
 //! [`DriveSim`] is the drive and plant as a pure state machine stepped one sample at a time; [`Simulator`] adds the
 //! clock and the Modbus server (`serve_until`, so it stops cleanly on a signal). It serves one plant at any unit
@@ -20,7 +21,7 @@ use tokio_modbus::{ExceptionCode, Request, Response, SlaveRequest};
 use tokio_util::sync::CancellationToken;
 
 use super::line::SerialLine;
-use super::map::{RegisterMap, Table, control, status};
+use super::map::{DRIVE_POWER_W, RegisterMap, Table, control, status};
 use crate::plant::dynamics::{Coefficients, Plant};
 use crate::plant::model::PlantModel;
 use crate::plant::simulate::SensorNoise;
@@ -43,6 +44,16 @@ pub struct Faults {
     pub local_hz: Option<f64>,
 }
 
+/// Efficiency of the simulated induction motor, copper and iron (its slip is the plant's `motor_slip`): the drive
+/// delivers the air-gap power T_p·ω_sync divided by it while motoring, and takes back T_p·ω_sync times it while
+/// the pump drives the motor (braking). About that of a 1 kW four-pole IE3 motor at full load.
+pub const MOTOR_EFFICIENCY: f64 = 0.85;
+
+/// The drive's output power (W) for an air-gap power `air_gap_w` (T_p·ω_sync), through [`MOTOR_EFFICIENCY`].
+pub fn drive_power_w(air_gap_w: f64) -> f64 {
+    if air_gap_w >= 0.0 { air_gap_w / MOTOR_EFFICIENCY } else { air_gap_w * MOTOR_EFFICIENCY }
+}
+
 /// The ground truth at the current sample, for tests and the demo.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Truth {
@@ -55,6 +66,12 @@ pub struct Truth {
     pub f_drive_hz: f64,
     pub f_set_hz: f64,
     pub tripped: bool,
+    /// The drive's output power (W): what its register 6 serves, before quantisation.
+    pub drive_power_w: f64,
+    /// Since the start (J): the drive's output energy, and the energy given to the load (∫ T_L ω dt), each sample
+    /// integrated by the trapezoid.
+    pub drive_energy_j: f64,
+    pub load_energy_j: f64,
 }
 
 /// The drive and plant, stepped one sample at a time, with the register image a PLC would show.
@@ -77,6 +94,9 @@ pub struct DriveSim {
     load_nm: f64,
     /// The motor's shaft angle since the start (rad): ω integrated by the trapezoid over each sample.
     shaft_angle_rad: f64,
+    /// The drive's output energy and the load's since the start (J), for [`Truth`].
+    drive_energy_j: f64,
+    load_energy_j: f64,
     pub faults: Faults,
     /// Writes accepted (all holding-register writes), for tests that check a client wrote nothing.
     pub writes: u64,
@@ -110,9 +130,11 @@ impl DriveSim {
             watchdog_changed_at: None,
             tripped: false,
             fault: false,
-            input_image: vec![0; 6],
+            input_image: vec![0; 7],
             load_nm: 0.0,
             shaft_angle_rad: 0.0,
+            drive_energy_j: 0.0,
+            load_energy_j: 0.0,
             faults: Faults::default(),
             writes: 0,
             clock: None,
@@ -186,15 +208,27 @@ impl DriveSim {
         };
         let t = self.plant.t_s();
         let omega_rad_s = self.plant.state().omega_rad_s;
+        let drive_before_w = self.drive_power_w();
         self.load_nm = self.model.load.torque_at(t, omega_rad_s, self.shaft_angle_rad);
         self.plant.wear(&self.model);
         self.plant.advance(self.sample_s(), f_cmd, self.load_nm);
-        self.shaft_angle_rad += 0.5 * (omega_rad_s + self.plant.state().omega_rad_s) * self.sample_s();
+        let omega_mean = 0.5 * (omega_rad_s + self.plant.state().omega_rad_s);
+        self.shaft_angle_rad += omega_mean * self.sample_s();
+        self.drive_energy_j += 0.5 * (drive_before_w + self.drive_power_w()) * self.sample_s();
+        self.load_energy_j += self.load_nm * omega_mean * self.sample_s();
         self.sample += 1;
         if !self.faults.freeze_counter {
             self.counter = self.counter.wrapping_add(1);
         }
         self.refresh_image();
+    }
+
+    /// The drive's output power now (W): the pump's torque T_p = D_p ΔP at the synchronous speed 2π f / pole_pairs,
+    /// through [`MOTOR_EFFICIENCY`].
+    fn drive_power_w(&self) -> f64 {
+        let (s, c) = (self.plant.state(), self.plant.coefficients());
+        let pump_torque_nm = c.pump_m3_rad * (s.p_in_pa - c.back_pressure_pa);
+        drive_power_w(pump_torque_nm * 2.0 * std::f64::consts::PI * s.f_hz / c.pole_pairs)
     }
 
     fn refresh_image(&mut self) {
@@ -209,6 +243,7 @@ impl DriveSim {
             (self.map.drive_frequency_hz, s.f_hz),
             (self.map.status_word, f64::from(self.status_word())),
             (self.map.sample_counter, f64::from(self.counter)),
+            (DRIVE_POWER_W, self.drive_power_w()),
         ];
         for (spec, v) in values {
             let words = spec.encode_saturating(v);
@@ -229,6 +264,9 @@ impl DriveSim {
             f_drive_hz: s.f_hz,
             f_set_hz: self.setpoint_hz,
             tripped: self.tripped,
+            drive_power_w: self.drive_power_w(),
+            drive_energy_j: self.drive_energy_j,
+            load_energy_j: self.load_energy_j,
         }
     }
 
@@ -576,8 +614,31 @@ mod tests {
         d.step();
         d.step();
         assert_eq!(d.read(Table::Input, 5, 1).expect("counter")[0], c0.wrapping_add(2));
-        assert_eq!(d.read(Table::Input, 4, 3), Err(ExceptionCode::IllegalDataAddress));
+        assert_eq!(d.read(Table::Input, 5, 3), Err(ExceptionCode::IllegalDataAddress));
         assert_eq!(d.write(3, &[1]), Err(ExceptionCode::IllegalDataAddress));
+    }
+
+    #[test]
+    fn register_6_is_the_drives_output_power_and_its_energy_is_integrated() {
+        let mut model = PlantModel::reference();
+        model.load = crate::plant::load::LoadSpec::Constant { torque_nm: 8.0 };
+        let mut d = DriveSim::new(model, 1).expect("reference is hydraulic");
+        d.write(0, &[2500]).expect("setpoint 25 Hz");
+        d.write(1, &[control::RUN]).expect("run");
+        for _ in 0..3000 {
+            d.step();
+        }
+        let t = d.truth();
+        let c = Coefficients::from_model(&PlantModel::reference()).expect("hydraulic");
+        let air_gap_w =
+            c.pump_m3_rad * (t.p_in_bar * 1e5 - c.back_pressure_pa) * 2.0 * std::f64::consts::PI * t.f_drive_hz
+                / c.pole_pairs;
+        assert!((t.drive_power_w - air_gap_w / MOTOR_EFFICIENCY).abs() < 1e-9 * air_gap_w, "{t:?}");
+        let read = DRIVE_POWER_W.decode(&d.read(Table::Input, 6, 1).expect("register 6")).expect("decodes");
+        assert!((read - t.drive_power_w).abs() <= 0.5, "{read} W read, {} W true", t.drive_power_w);
+        assert!(t.drive_power_w > 100.0 && t.drive_energy_j > 100.0 && t.load_energy_j > 0.0, "{t:?}");
+        assert!(t.load_energy_j < t.drive_energy_j, "the load gets less than the drive gives");
+        assert_eq!(drive_power_w(-100.0), -100.0 * MOTOR_EFFICIENCY, "braking: the drive takes back less");
     }
 
     #[test]

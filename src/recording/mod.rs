@@ -28,12 +28,13 @@ pub const ESTIMATE_COLUMNS: [&str; 9] = [
 ];
 
 /// The columns the contract names; anything else in a file is kept but reported once as unknown.
-pub const KNOWN_COLUMNS: [&str; 19] = concat(
+pub const KNOWN_COLUMNS: [&str; 21] = concat(
     concat::<9, 9, 18>(
         ["t_s", "f_set_hz", "f_drive_hz", "p_in_bar", "p_out_bar", "omega_rad_s", "theta_rad", "load_nm", "torque_nm"],
         ESTIMATE_COLUMNS,
     ),
-    ["status_word"],
+    // service recordings: the drive's output power where the register map reads it, the speed target
+    ["status_word", "drive_power_w", "target_omega_rad_s"],
 );
 
 /// Inlet and outlet pressure a sensor reads (bar, gauge): the service's `[drives.limits]` defaults too.

@@ -130,14 +130,14 @@ pub struct EffectLabels {
 pub struct FlowLabels {
     pub drive: String,
     /// A flow of the power budget (`input`, `slip`, `pump_hydraulic`, `leakage`, `internal_leakage`,
-    /// `motor_hydraulic`, `viscous`, `dry_friction`, `load`).
+    /// `motor_hydraulic`, `viscous`, `dry_friction`, `load`), or `drive`: the drive's output power as read.
     pub flow: String,
 }
 
 #[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
 pub struct EfficiencyLabels {
     pub drive: String,
-    /// `volumetric` or `mechanical`.
+    /// `volumetric`, `mechanical`, or `overall` (where the drive's output power is read).
     pub kind: String,
 }
 
@@ -210,7 +210,7 @@ impl ConditionMetrics {
         );
         r.register_with_unit(
             "efficiency",
-            "Volumetric and mechanical efficiency",
+            "Volumetric, mechanical and overall efficiency (overall: the load's energy over the drive's output)",
             Unit::Other("ratio".into()),
             m.efficiency.clone(),
         );
@@ -224,12 +224,28 @@ impl ConditionMetrics {
             self.power.get_or_create(&flow(name)).set(p);
             self.energy.get_or_create(&flow(name)).set(e);
         }
+        let output = flow("drive_w");
+        match (r.drive_power_w, r.drive_energy_j) {
+            (Some(p), Some(e)) => {
+                self.power.get_or_create(&output).set(p);
+                self.energy.get_or_create(&output).set(e);
+            }
+            _ => {
+                self.power.remove(&output);
+                self.energy.remove(&output);
+            }
+        }
         for c in &r.effects {
             self.effect_loss
                 .get_or_create(&EffectLabels { drive: drive.into(), effect: c.effect.clone() })
                 .set(c.power_w);
         }
-        for (kind, v) in [("volumetric", r.volumetric_efficiency), ("mechanical", r.mechanical_efficiency)] {
+        let kinds = [
+            ("volumetric", r.volumetric_efficiency),
+            ("mechanical", r.mechanical_efficiency),
+            ("overall", r.overall_efficiency),
+        ];
+        for (kind, v) in kinds {
             let l = EfficiencyLabels { drive: drive.into(), kind: kind.into() };
             match v {
                 Some(v) => {
@@ -435,6 +451,7 @@ fn operating(p: &Point) -> Operating {
         f_drive_hz: m.f_drive_hz,
         omega_rad_s: e.omega_hat_rad_s,
         resisting_torque_nm: e.load_hat_nm + e.viscous_hat_nm_s_rad * e.omega_hat_rad_s,
+        drive_power_w: Some(m.drive_power_w).filter(|p| p.is_finite()),
     }
 }
 

@@ -1126,7 +1126,8 @@ fn resolve(p: &str, base: Option<&Path>) -> PathBuf {
 /// Applies `[drives.registers.<entry>]` overrides to the default map, checking entry names and tables.
 fn apply_overrides(overrides: BTreeMap<String, RawRegister>, key: &str) -> Result<RegisterMap, Invalid> {
     let mut map = RegisterMap::default();
-    let names: Vec<&str> = map.entries().iter().map(|(n, _)| *n).collect();
+    let mut names: Vec<&str> = map.entries().iter().map(|(n, _)| *n).collect();
+    names.push("drive_power_w");
     for (name, o) in overrides {
         let slot: &mut RegisterSpec = match name.as_str() {
             "inlet_pressure_bar" => &mut map.inlet_pressure_bar,
@@ -1138,6 +1139,8 @@ fn apply_overrides(overrides: BTreeMap<String, RawRegister>, key: &str) -> Resul
             "frequency_setpoint_hz" => &mut map.frequency_setpoint_hz,
             "control_word" => &mut map.control_word,
             "watchdog" => &mut map.watchdog,
+            // optional: named, it is read, from `sim`'s register unless the keys say otherwise
+            "drive_power_w" => map.drive_power_w.get_or_insert(crate::modbus::map::DRIVE_POWER_W),
             _ => {
                 return Err(KeyError::new(
                     format!("{key}.{name}"),
@@ -1168,7 +1171,7 @@ fn apply_overrides(overrides: BTreeMap<String, RawRegister>, key: &str) -> Resul
             slot.word_order = w;
         }
     }
-    for (name, spec) in map.entries() {
+    for (name, spec) in map.entries().into_iter().chain(map.drive_power_w.map(|s| ("drive_power_w", s))) {
         let writable = matches!(name, "frequency_setpoint_hz" | "control_word" | "watchdog");
         if writable && spec.table != Table::Holding {
             return Err(KeyError::new(
@@ -1254,6 +1257,20 @@ address = "127.0.0.1:5020"
         assert_eq!(m.inlet_pressure_bar.word_order, WordOrder::Cdab);
         assert_eq!(m.inlet_pressure_bar.table, Table::Input);
         assert_eq!(m.span(Table::Input), Some((1, 11)));
+        assert_eq!(m.drive_power_w, None, "the drive's power is not read unless named");
+    }
+
+    #[test]
+    fn the_drive_power_register_is_read_once_named() {
+        let s = parse(&format!("{MINIMAL}[drives.registers.drive_power_w]\n"), "t.toml", None).expect("valid");
+        assert_eq!(s.drives[0].registers.drive_power_w, Some(crate::modbus::map::DRIVE_POWER_W));
+        let text = format!("{MINIMAL}[drives.registers.drive_power_w]\naddress = 40\ntype = \"u16\"\nscale = 10.0\n");
+        let p = parse(&text, "t.toml", None).expect("valid").drives[0].registers.drive_power_w.expect("read");
+        assert_eq!((p.table, p.address, p.kind, p.scale), (Table::Input, 40, ValueType::U16, 10.0));
+        let e = err(&format!("{MINIMAL}[drives.registers.drive_power_w]\naddress = 65535\ntype = \"f32\"\n"));
+        assert!(e.contains("drive_power_w.address"), "{e}");
+        let e = err(&format!("{MINIMAL}[drives.registers.drive_power]\n"));
+        assert!(e.contains("drive_power_w"), "the message names the entry: {e}");
     }
 
     fn rtu(name: &str, unit: u8, extra: &str) -> String {

@@ -36,6 +36,9 @@ pub fn validate(r: &Reading, ranges: &ValidRanges) -> Result<Sample, Rejected> {
     if let Some(&(entry, value)) = entries.iter().find(|(_, v)| !v.is_finite()) {
         return Err(Rejected::Range { entry, value });
     }
+    if let Some(p) = r.drive_power_w.filter(|p| !p.is_finite()) {
+        return Err(Rejected::Range { entry: "drive_power_w", value: p });
+    }
     let pressure_ok = |p: f64| (ranges.min_pressure_bar..=ranges.max_pressure_bar).contains(&p);
     if !pressure_ok(r.inlet_pressure_bar) {
         return Err(Rejected::Range { entry: "inlet_pressure_bar", value: r.inlet_pressure_bar });
@@ -63,6 +66,7 @@ pub fn validate(r: &Reading, ranges: &ValidRanges) -> Result<Sample, Rejected> {
         f_drive_hz: r.drive_frequency_hz,
         status_word: r.status_word as u16,
         counter: r.sample_counter as u64,
+        drive_power_w: r.drive_power_w,
     })
 }
 
@@ -261,9 +265,12 @@ impl DriveCycle {
             p_in_bar: sample.p_in_bar,
             p_out_bar: sample.p_out_bar,
             omega_rad_s: sample.omega_rad_s,
+            drive_power_w: sample.drive_power_w.unwrap_or(f64::NAN),
         };
         self.measured = Some(measured);
-        let point = Point { sample: measured, estimate: est, status_word: sample.status_word };
+        // the target the law regulated to; none (NaN) outside speed mode, where no target is followed
+        let target_omega_rad_s = if self.mode == Mode::Speed { self.law.target_omega_rad_s } else { f64::NAN };
+        let point = Point { sample: measured, estimate: est, status_word: sample.status_word, target_omega_rad_s };
         Step { verdict: Verdict::Fresh, writes, point: Some(point), encode_error }
     }
 
@@ -385,7 +392,7 @@ mod tests {
     }
 
     fn sample(counter: u64, omega_rad_s: f64, f_drive_hz: f64, status_word: u16) -> Sample {
-        Sample { p_in_bar: 40.0, p_out_bar: 5.0, omega_rad_s, f_drive_hz, status_word, counter }
+        Sample { p_in_bar: 40.0, p_out_bar: 5.0, omega_rad_s, f_drive_hz, status_word, counter, drive_power_w: None }
     }
 
     /// Steps samples `k0 .. k0 + n` (counter k read at k·10 ms after `t0`, replied 1 ms later), confirming each

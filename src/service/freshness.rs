@@ -20,6 +20,8 @@ pub struct Sample {
     pub f_drive_hz: f64,
     pub status_word: u16,
     pub counter: u64,
+    /// The drive's output power (W), where the register map reads it.
+    pub drive_power_w: Option<f64>,
 }
 
 /// Why a read's values were refused.
@@ -169,8 +171,15 @@ mod tests {
 
     #[test]
     fn jumps_beyond_the_rate_are_rejected() {
-        let a =
-            Sample { p_in_bar: 50.0, p_out_bar: 3.0, omega_rad_s: 40.0, f_drive_hz: 25.0, status_word: 3, counter: 1 };
+        let a = Sample {
+            p_in_bar: 50.0,
+            p_out_bar: 3.0,
+            omega_rad_s: 40.0,
+            f_drive_hz: 25.0,
+            status_word: 3,
+            counter: 1,
+            drive_power_w: None,
+        };
         let b = Sample { omega_rad_s: 343.0, ..a };
         let r = implausible_jump(&a, &b, 0.01, &ranges());
         assert!(matches!(r, Some(Rejected::Jump { entry: "omega_rad_s", .. })), "{r:?}");

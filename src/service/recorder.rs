@@ -452,8 +452,16 @@ mod tests {
             viscous_identified: 1.0,
             load_character: 1.0,
         };
-        let sample = Measured { t_s, f_set_hz: 1.0, f_drive_hz: 1.0, p_in_bar: 8.0, p_out_bar: 2.0, omega_rad_s: 10.0 };
-        Point { sample, estimate, status_word: 3 }
+        let sample = Measured {
+            t_s,
+            f_set_hz: 1.0,
+            f_drive_hz: 1.0,
+            p_in_bar: 8.0,
+            p_out_bar: 2.0,
+            omega_rad_s: 10.0,
+            drive_power_w: f64::NAN,
+        };
+        Point { sample, estimate, status_word: 3, target_omega_rad_s: f64::NAN }
     }
 
     /// The drive's plain files in `dir` that hold rows.

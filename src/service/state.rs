@@ -43,6 +43,8 @@ crate::units::columns! {
         pub p_in_bar: f64,
         pub p_out_bar: f64,
         pub omega_rad_s: f64,
+        /// The drive's output power (W) where `[drives.registers.drive_power_w]` reads it; NaN (null) otherwise.
+        pub drive_power_w: f64,
     }
 }
 
@@ -52,18 +54,32 @@ pub struct Point {
     pub sample: Measured,
     pub estimate: Estimate,
     pub status_word: u16,
+    /// The speed target the law regulated to in this cycle (speed mode; NaN otherwise): kept with the row so that
+    /// the history draws the target as it moved.
+    pub target_omega_rad_s: f64,
 }
 
-/// The recording's columns, in [`Point::values`] order: the measured ones, the estimates, the status word.
-pub const COLUMNS: [&str; 16] =
-    recording::concat(recording::concat::<6, 9, 15>(Measured::COLUMNS, Estimate::COLUMNS), ["status_word"]);
+/// The measured and estimated columns together.
+const SAMPLE_AND_ESTIMATE: usize = Measured::COLUMNS.len() + Estimate::COLUMNS.len();
+
+/// The recording's columns, in [`Point::values`] order: the measured ones, the estimates, the status word, the
+/// target.
+pub const COLUMNS: [&str; SAMPLE_AND_ESTIMATE + 2] = recording::concat(
+    recording::concat::<{ Measured::COLUMNS.len() }, { Estimate::COLUMNS.len() }, SAMPLE_AND_ESTIMATE>(
+        Measured::COLUMNS,
+        Estimate::COLUMNS,
+    ),
+    ["status_word", "target_omega_rad_s"],
+);
 
 impl Point {
     pub fn values(&self) -> [f64; COLUMNS.len()] {
         let mut v = [0.0; COLUMNS.len()];
-        v[..6].copy_from_slice(&self.sample.values());
-        v[6..15].copy_from_slice(&self.estimate.values());
-        v[15] = f64::from(self.status_word);
+        let m = Measured::COLUMNS.len();
+        v[..m].copy_from_slice(&self.sample.values());
+        v[m..SAMPLE_AND_ESTIMATE].copy_from_slice(&self.estimate.values());
+        v[SAMPLE_AND_ESTIMATE] = f64::from(self.status_word);
+        v[SAMPLE_AND_ESTIMATE + 1] = self.target_omega_rad_s;
         v
     }
 }
@@ -361,14 +377,22 @@ mod tests {
             viscous_identified: -2.0,
             load_character: 5.0,
         };
-        let sample =
-            Measured { t_s: t, f_set_hz: f64::NAN, f_drive_hz: 7.0, p_in_bar: 8.0, p_out_bar: 9.0, omega_rad_s: 10.0 };
-        Point { sample, estimate, status_word: 11 }
+        let sample = Measured {
+            t_s: t,
+            f_set_hz: f64::NAN,
+            f_drive_hz: 7.0,
+            p_in_bar: 8.0,
+            p_out_bar: 9.0,
+            omega_rad_s: 10.0,
+            drive_power_w: 12.0,
+        };
+        Point { sample, estimate, status_word: 11, target_omega_rad_s: 13.0 }
     }
 
     #[test]
     fn one_shape_for_the_row_the_recording_and_the_history() {
-        assert_eq!(COLUMNS[6..15], recording::ESTIMATE_COLUMNS, "the estimator's columns are the recording's");
+        let m = Measured::COLUMNS.len();
+        assert_eq!(COLUMNS[m..m + 9], recording::ESTIMATE_COLUMNS, "the estimator's columns are the recording's");
         assert!(COLUMNS.iter().all(|c| recording::KNOWN_COLUMNS.contains(c)), "every column is the contract's");
         let p = point(0.5);
         let json = serde_json::to_value(PointColumns(&[p, point(0.6)])).expect("serialises");

@@ -86,7 +86,12 @@ fn text_after<'a>(dom: &'a str, anchor: &str) -> Option<&'a str> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn dashboard_shows_live_points_and_the_drive_state() {
     let stack = Stack::start(8.0, 10, "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 35.0\n").await;
-    tokio::time::sleep(Duration::from_secs(2)).await; // some history to load
+    // some history to load, its target moving (35, 30, 40, 35 rad/s, 60 polls each): the history keeps it
+    let drive = &stack.state.drives[0];
+    for target in [35.0, 30.0, 40.0, 35.0] {
+        drive.set_target(target);
+        stack.wait_polls(60, "a step of the target program").await;
+    }
     // the page closes its event stream after 15 snapshots (≈1.5 s) so that the virtual-time budget can run out
     let url = format!("{}/?close_after=15", stack.url);
     let dom = tokio::task::spawn_blocking(move || {
@@ -100,6 +105,15 @@ async fn dashboard_shows_live_points_and_the_drive_state() {
         .collect();
     assert_eq!(points.len(), 3, "three charts: {dom:.2000}");
     assert!(points.iter().all(|&n| n > 50), "charts got history and live points: {points:?}");
+    // the speed chart's target line, drawn from the history, moves as the target did: 30 to 40 rad/s, not flat
+    let drawn: Vec<f64> = dom
+        .split("data-target-history=\"")
+        .nth(1)
+        .and_then(|rest| rest.split('"').next())
+        .map(|v| v.split(' ').filter_map(|x| x.parse().ok()).collect())
+        .unwrap_or_default();
+    assert_eq!(drawn.len(), 2, "the target drawn over the history (min max): {dom:.3000}");
+    assert!((drawn[0] - 30.0).abs() < 1e-9 && (drawn[1] - 40.0).abs() < 1e-9, "drawn from 30 to 40 rad/s: {drawn:?}");
     assert_eq!(attr_after(&dom, "data-drive=\"pump1\"", "data-link"), Some("up"), "{dom:.2000}");
     assert_eq!(attr_after(&dom, "data-drive=\"pump1\"", "data-mode"), Some("speed"));
     assert_eq!(attr_after(&dom, "id=\"ready\"", "data-ready"), Some("true"));

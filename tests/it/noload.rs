@@ -36,13 +36,16 @@ pub fn as_the_service_records(rec: &Recording, poll_ms: usize, seed: u64) -> Rec
         if next() < 0.005 || (outage.0..outage.1).contains(&t[k]) {
             continue;
         }
-        let row = [
+        // in COLUMNS order (the compiler holds the length to it): the measured columns (the drive's power not read),
+        // estimates that are nonsense (never used), the status word, no target
+        let row: [f64; hydrolens::service::state::COLUMNS.len()] = [
             t[k],
             q(f_set[k], 0.01),
             q(f_drive[k], 0.01),
             q(p_in[k].max(0.0), 0.01),
             q(p_out[k].max(0.0), 0.01),
             q(omega[k] * rpm, 0.1) / rpm,
+            f64::NAN,
             -omega[k],
             1e3,
             -1.0,
@@ -53,6 +56,7 @@ pub fn as_the_service_records(rec: &Recording, poll_ms: usize, seed: u64) -> Rec
             -2.0,
             5.0,
             3.0,
+            f64::NAN,
         ];
         for (c, v) in cols.iter_mut().zip(row) {
             c.push(v);

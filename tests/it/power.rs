@@ -54,6 +54,7 @@ fn truth(rec: &Recording, model: &PlantModel) -> Flows {
         omega_rad_s: w[k],
         // what resists the motor beside inertia: the load, viscous and dry friction
         resisting_torque_nm: load[k] + c.mechanics.viscous_nm_s_rad * w[k] + c.mechanics.coulomb_nm * smooth_sign(w[k]),
+        drive_power_w: None,
     });
     let mut l = Ledger::default();
     l.add_all(&PowerModel { fitted: budget, nominal: budget }, points);
@@ -95,6 +96,7 @@ fn estimated(rec: &Recording, nominal: &PlantModel) -> (Flows, String) {
             f_drive_hz: f[k],
             omega_rad_s: e.omega_hat_rad_s,
             resisting_torque_nm: e.load_hat_nm + e.viscous_hat_nm_s_rad * e.omega_hat_rad_s,
+            drive_power_w: None,
         }
     });
     let mut l = Ledger::default();
@@ -168,4 +170,106 @@ fn the_power_by_effect_matches_the_simulators_truth_within_5_percent_on_three_pl
         failures.extend(compare(name, &t, &e, &named));
     }
     assert!(failures.is_empty(), "{failures:#?}");
+}
+
+// ---- the overall efficiency over real TCP: `sim` serves the drive's output power, the service reads it ----
+
+/// The service polls the simulator over Modbus TCP, with `[drives.registers.drive_power_w]` (`sim`'s register 6:
+/// the air-gap power T_p·ω_sync through its motor's efficiency, 0.85), its target moving through the demo program;
+/// then the simulator stops, and the service's integrals up to its last sample are held against the simulator's
+/// own (its true drive output and load energy, sample by sample at 1 kHz). Without the register, all of it is
+/// null ("not read").
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn over_tcp_the_overall_efficiency_is_the_simulators_within_5_percent() {
+    use std::time::Duration;
+
+    use crate::support::{self, Stack, wait_for};
+
+    const CONDITION: &str = "[drives.condition]\nenabled = true\nwindow_s = 60.0\nevery_s = 86400.0\n";
+    let control = "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 40.0\nmax_hz = 50.0\n";
+    let run = async {
+        let extra = format!("{control}\n[drives.registers.drive_power_w]\n\n{CONDITION}");
+        let stack = Stack::start(8.0, 10, &extra).await;
+        let drive = stack.state.drives[0].clone();
+        let program = tokio_util::sync::CancellationToken::new();
+        let mover = {
+            let (drive, stop) = (drive.clone(), program.clone());
+            tokio::spawn(async move {
+                let start = std::time::Instant::now();
+                while !stop.is_cancelled() {
+                    let t = 2.0 * start.elapsed().as_secs_f64();
+                    let target = hydrolens::service::program::demo_target_rad_s(t, 40.0, drive.max_target_omega_rad_s);
+                    drive.set_target(target);
+                    tokio::time::sleep(Duration::from_millis(100)).await;
+                }
+            })
+        };
+        let span = |s: &serde_json::Value| s["energy"]["span_s"].as_f64().unwrap_or(0.0);
+        // 20 s of integrated data: more than a cycle of the program (15 s)
+        wait_for(Duration::from_secs(90), || async { span(&stack.status().await) >= 20.0 })
+            .await
+            .expect("20 s integrated");
+        let now = stack.status().await;
+        let read = now["sample"]["drive_power_w"].as_f64().expect("the sample carries the drive's power");
+        let metrics = stack.metrics().await;
+        program.cancel();
+        mover.await.expect("joins");
+        // the simulator stops: no new rows; the ledger catches up with the last one the ring holds
+        stack.sim_stop.cancel();
+        let last_row_t = || drive.history(1.0, 1).last().map(|p| p.sample.t_s);
+        wait_for(Duration::from_secs(10), || async { drive.snapshot().link.stale }).await.expect("stale");
+        wait_for(Duration::from_secs(10), || async {
+            stack.status().await["energy"]["up_to_t_s"].as_f64() >= last_row_t()
+        })
+        .await
+        .expect("the ledger takes the last row");
+        let e = stack.status().await["energy"].clone();
+        let truth = stack.sim.lock().truth();
+        let drive_j = e["drive_energy_j"].as_f64().expect("the drive's energy");
+        let overall = e["overall_efficiency"].as_f64().expect("the overall efficiency");
+        let true_overall = truth.load_energy_j / truth.drive_energy_j;
+        let (drive_err, overall_err) =
+            ((drive_j - truth.drive_energy_j) / truth.drive_energy_j, (overall - true_overall) / true_overall);
+        let input_share = e["energy_j"]["input_w"].as_f64().expect("input") / drive_j;
+        eprintln!(
+            "over {:.1} s: drive output {drive_j:.0} J (true {:.0} J, {:+.2} %), load {:.0} J (true {:.0} J), \
+             overall efficiency {overall:.4} (true {true_overall:.4}, {:+.2} %); input / drive output {input_share:.4} \
+             (the simulated motor's {})",
+            e["span_s"].as_f64().unwrap_or(f64::NAN),
+            truth.drive_energy_j,
+            100.0 * drive_err,
+            e["energy_j"]["load_w"].as_f64().unwrap_or(f64::NAN),
+            truth.load_energy_j,
+            100.0 * overall_err,
+            hydrolens::modbus::simulator::MOTOR_EFFICIENCY,
+        );
+        assert!(read.is_finite() && read > 0.0, "{read} W read while running");
+        assert!(drive_err.abs() < 0.02, "the drive's energy {:+.2} % off", 100.0 * drive_err);
+        assert!(overall_err.abs() < 0.05, "the overall efficiency {:+.2} % off", 100.0 * overall_err);
+        assert!(e["drive_power_w"].as_f64().is_some(), "{e}");
+        for (series, what) in [
+            ("hydrolens_efficiency_ratio{drive=\"pump1\",kind=\"overall\"}", "overall efficiency"),
+            ("hydrolens_power_watts{drive=\"pump1\",flow=\"drive\"}", "drive power"),
+            ("hydrolens_energy_joules{drive=\"pump1\",flow=\"drive\"}", "drive energy"),
+        ] {
+            let v = support::metric(&metrics, series);
+            assert!(v.is_some_and(|v| v > 0.0 && v.is_finite()), "{what}: {v:?}");
+        }
+        stack.stop().await;
+
+        // the register not in the map: not read, null everywhere, no series
+        let stack = Stack::start(8.0, 10, &format!("{control}\n{CONDITION}")).await;
+        wait_for(Duration::from_secs(30), || async { span(&stack.status().await) > 0.0 })
+            .await
+            .expect("an energy report");
+        let s = stack.status().await;
+        assert!(s["sample"]["drive_power_w"].is_null(), "{s}");
+        for key in ["drive_power_w", "drive_energy_j", "overall_efficiency"] {
+            assert!(s["energy"][key].is_null(), "{key}: {}", s["energy"]);
+        }
+        let metrics = stack.metrics().await;
+        assert!(!metrics.contains("kind=\"overall\"") && !metrics.contains("flow=\"drive\""), "{metrics}");
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(180), run).await.expect("bounded");
 }

@@ -198,7 +198,8 @@ async fn monitor_mode_writes_nothing_and_refuses_write_routes() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn recordings_hold_every_fresh_sample_and_are_readable() {
     let run = async {
-        let stack = Stack::start(6.0, 10, SPEED).await;
+        // the drive's output power read too, so that every column of the row holds values
+        let stack = Stack::start(6.0, 10, &format!("{SPEED}\n[drives.registers.drive_power_w]\n")).await;
         wait_for(Duration::from_secs(5), || async { stack.state.ready() }).await.expect("fresh data");
         stack.wait_polls(150, "recording").await; // more than the 100 rows asserted below, if every sample is kept
         let list = support::get_json(format!("{}/api/recordings", stack.url)).await;
@@ -208,7 +209,7 @@ async fn recordings_hold_every_fresh_sample_and_are_readable() {
         assert_eq!(live.status(), 200);
         let text = live.text().await.expect("text");
         assert!(
-            text.starts_with("t_s,f_set_hz,f_drive_hz,p_in_bar,p_out_bar,omega_rad_s,omega_hat_rad_s"),
+            text.starts_with("t_s,f_set_hz,f_drive_hz,p_in_bar,p_out_bar,omega_rad_s,drive_power_w,omega_hat_rad_s"),
             "{text:.80}"
         );
         let bad = reqwest::get(format!("{}/api/recordings/..%2Fsecret.csv", stack.url)).await.expect("GET");
