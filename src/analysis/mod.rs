@@ -719,8 +719,9 @@ struct Kept {
 /// The backward half of the search: after an addition, where B is still beyond `viscous_plausible_factor` of the
 /// nominal model's with both dry terms named, the Coulomb level is split out of the breakaway again beside what
 /// came since, on the standard rows and on every fold's, and kept where the free run fits better. A Coulomb level
-/// found before a dead time was in was fitted against a free run the dead time distorted. True when a fold model
-/// changed (the out-of-fold score must then be taken again).
+/// found before a dead time was in was fitted against a free run the dead time distorted. Likewise a named Stribeck
+/// friction (with B) and a named dead time beside it ([`search::refit_low_speed`]). True when a fold model changed
+/// (the out-of-fold score must then be taken again).
 fn refit_named(
     current: &mut Scored,
     fold_current: &mut [Option<(PlantModel, MechTerms)>],
@@ -752,6 +753,22 @@ fn refit_named(
             && r.search_cost(&n.0, s) < r.search_cost(m, s)
         {
             *fold = Some(n);
+            folds_changed = true;
+        }
+    }
+    // the backward step for low-speed friction: refined again beside what was named since (a dead time)
+    if let Some(m) = search::refit_low_speed(&current.model, current.terms, s, rows) {
+        let refitted = Scored::evaluate(m, current.terms, s)?;
+        if rows.search_cost(&refitted.model, s) < rows.search_cost(&current.model, s) {
+            *current = refitted;
+        }
+    }
+    for (fold, r) in fold_current.iter_mut().zip(folds) {
+        if let Some((m, t)) = fold.as_ref()
+            && let Some(n) = search::refit_low_speed(m, *t, s, r)
+            && r.search_cost(&n, s) < r.search_cost(m, s)
+        {
+            *fold = Some((n, *t));
             folds_changed = true;
         }
     }

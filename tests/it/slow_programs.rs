@@ -168,6 +168,13 @@ fn sweep() {
     let programs =
         [((1.5, 12.0), (1.5, 4.0)), ((1.0, 8.0), (3.0, 8.0)), ((2.0, 20.0), (0.8, 2.5)), ((1.5, 30.0), (2.0, 5.0))];
     let mut failures = Vec::new();
+    // SLOW_CASES="seed:program,…" runs only those cases (diagnosis), printing each candidate and the improved model
+    let only: Option<Vec<(u64, usize)>> = std::env::var("SLOW_CASES").ok().map(|v| {
+        v.split(',')
+            .filter_map(|c| c.split_once(':'))
+            .filter_map(|(a, b)| Some((a.trim().parse().ok()?, b.trim().parse().ok()?)))
+            .collect()
+    });
     for (set, seeds) in [("tuned", 1u64..=3), ("held-out", 101u64..=106)] {
         println!(
             "\n**{set}**\n\n| seed | program Hz, dwell s | hidden | named | errors | B |\n|---|---|---|---|---|---|"
@@ -185,8 +192,39 @@ fn sweep() {
                     stribeck: (kind & 2 != 0).then_some((6.0 * scale, draw(&mut rng, 2.0, 4.5))),
                     dead_time: (kind & 4 != 0).then_some(draw(&mut rng, 12.0, 40.0)),
                 };
+                if only.as_ref().is_some_and(|o| !o.contains(&(seed, k))) {
+                    continue;
+                }
                 let program = Program::generate(seed * 10 + k as u64, range, dwell, 60.0);
                 let a = analysed(&hidden.truth(), &program, seed * 10 + k as u64, 60.0);
+                if only.is_some() {
+                    println!("hidden {hidden:?}");
+                    for c in &a.candidates {
+                        println!(
+                            "  round {} {} val {:?} ΔBIC {:?} cv {:?} regime {:?} kept {}",
+                            c.round,
+                            c.effect,
+                            c.validation_score,
+                            c.delta_bic,
+                            c.cross_validation_score,
+                            c.regime_drop,
+                            c.kept
+                        );
+                    }
+                    println!(
+                        "  baseline cv {:?} improved cv {:?}",
+                        a.baseline.cross_validation_score, a.improved.cross_validation_score
+                    );
+                    for u in &a.unexplained {
+                        println!("  unexplained {u:?}");
+                    }
+                    println!("  improved errors {:?}", a.improved.validation);
+                    let m = &a.improved_model;
+                    println!(
+                        "  improved J {} B {} effects {:?}",
+                        m.motor.inertia_kg_m2, m.motor.viscous_nm_s_rad, m.effects
+                    );
+                }
                 let o = judge(&a, &hidden);
                 let ok = o.holds(&hidden);
                 b_ok += usize::from(o.viscous_error.abs() <= 0.25);
