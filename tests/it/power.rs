@@ -216,10 +216,12 @@ async fn over_tcp_the_overall_efficiency_is_the_simulators_within_5_percent() {
         mover.await.expect("joins");
         // the simulator stops: no new rows; the ledger catches up with the last one the ring holds
         stack.sim_stop.cancel();
-        let last_row_t = || drive.history(1.0, 1).last().map(|p| p.sample.t_s);
         wait_for(Duration::from_secs(10), || async { drive.snapshot().link.stale }).await.expect("stale");
-        wait_for(Duration::from_secs(10), || async {
-            stack.status().await["energy"]["up_to_t_s"].as_f64() >= last_row_t()
+        // the newest row once stale, taken once: the ledger's time only grows, so waiting for it to reach a fixed
+        // row cannot miss (a moving target could, were any row added after)
+        let last_row_t = drive.history(1.0, 1).last().map(|p| p.sample.t_s);
+        wait_for(Duration::from_secs(20), || async {
+            stack.status().await["energy"]["up_to_t_s"].as_f64() >= last_row_t
         })
         .await
         .expect("the ledger takes the last row");
