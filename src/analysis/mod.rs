@@ -716,6 +716,9 @@ struct Kept {
     validated_on: String,
 }
 
+/// A re-fit of a named effect on given rows (None: nothing to re-fit).
+type Refit<'a> = dyn Fn(&PlantModel, MechTerms, &Rows) -> Option<PlantModel> + 'a;
+
 /// The backward half of the search: after an addition, where B is still beyond `viscous_plausible_factor` of the
 /// nominal model's with both dry terms named, the Coulomb level is split out of the breakaway again beside what
 /// came since, on the standard rows and on every fold's, and kept where the free run fits better. A Coulomb level
@@ -730,46 +733,34 @@ fn refit_named(
     rows: &Rows,
     (nominal, opts): (&PlantModel, &Options),
 ) -> Result<bool, BadInput> {
-    let again = |m: &PlantModel, t: MechTerms, r: &Rows| -> Option<(PlantModel, MechTerms)> {
+    let coulomb_again = |m: &PlantModel, t: MechTerms, r: &Rows| -> Option<PlantModel> {
         m.effects.coulomb_friction.and(m.effects.stribeck_friction)?;
         if viscous_plausible(m, nominal, opts) {
             return None;
         }
         let mut stripped = m.clone();
         stripped.effects.coulomb_friction = None;
-        search::coulomb_beside_stribeck(&stripped, t, s, r).map(|n| (n, t))
+        search::coulomb_beside_stribeck(&stripped, t, s, r)
     };
-    if let Some((m, t)) = again(&current.model, current.terms, rows) {
-        let refitted = Scored::evaluate(m, t, s)?;
-        let cost = |x: &Scored| rows.search_cost(&x.model, s);
-        if cost(&refitted) < cost(current) {
-            *current = refitted;
-        }
-    }
-    let mut folds_changed = false;
-    for (fold, r) in fold_current.iter_mut().zip(folds) {
-        if let Some((m, t)) = fold.as_ref()
-            && let Some(n) = again(m, *t, r)
-            && r.search_cost(&n.0, s) < r.search_cost(m, s)
-        {
-            *fold = Some(n);
-            folds_changed = true;
-        }
-    }
     // the backward step for low-speed friction: refined again beside what was named since (a dead time)
-    if let Some(m) = search::refit_low_speed(&current.model, current.terms, s, rows) {
-        let refitted = Scored::evaluate(m, current.terms, s)?;
-        if rows.search_cost(&refitted.model, s) < rows.search_cost(&current.model, s) {
-            *current = refitted;
+    let low_speed_again = |m: &PlantModel, t: MechTerms, r: &Rows| search::refit_low_speed(m, t, s, r);
+    let refits: [&Refit; 2] = [&coulomb_again, &low_speed_again];
+    let mut folds_changed = false;
+    for refit in refits {
+        if let Some(m) = refit(&current.model, current.terms, rows) {
+            let refitted = Scored::evaluate(m, current.terms, s)?;
+            if rows.search_cost(&refitted.model, s) < rows.search_cost(&current.model, s) {
+                *current = refitted;
+            }
         }
-    }
-    for (fold, r) in fold_current.iter_mut().zip(folds) {
-        if let Some((m, t)) = fold.as_ref()
-            && let Some(n) = search::refit_low_speed(m, *t, s, r)
-            && r.search_cost(&n, s) < r.search_cost(m, s)
-        {
-            *fold = Some((n, *t));
-            folds_changed = true;
+        for (fold, r) in fold_current.iter_mut().zip(folds) {
+            if let Some((m, t)) = fold.as_ref()
+                && let Some(n) = refit(m, *t, r)
+                && r.search_cost(&n, s) < r.search_cost(m, s)
+            {
+                *fold = Some((n, *t));
+                folds_changed = true;
+            }
         }
     }
     Ok(folds_changed)

@@ -107,6 +107,19 @@ async fn at_the_default_10_ms_poll_kalman_regulates_and_estimates_near_truth() {
     tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
 }
 
+/// Writes the reference plant (config/plant.toml) with J and B replaced into `dir`; the `model = …` line of a drive's
+/// `[drives.estimator]` that points at it.
+fn wrong_model(dir: &std::path::Path, inertia_kg_m2: &str, viscous_nm_s_rad: &str) -> String {
+    let reference = std::fs::read_to_string(support::root().join("config/plant.toml")).expect("plant.toml");
+    let text = reference
+        .replace("inertia_kg_m2 = 0.08", &format!("inertia_kg_m2 = {inertia_kg_m2}"))
+        .replace("viscous_nm_s_rad = 0.04", &format!("viscous_nm_s_rad = {viscous_nm_s_rad}"));
+    assert_ne!(text, reference);
+    let model = dir.join("wrong.toml");
+    std::fs::write(&model, text).expect("write model");
+    format!("model = {:?}\n", model.display().to_string())
+}
+
 /// `sim` and `serve` over TCP at the contract's 10 ms poll, rls-sgd started from a nominal J and B 50 % wrong (the
 /// simulator's truth is 0.08 and 0.04; a nominal equal to the truth cannot be beaten, so the estimator rightly keeps
 /// it with the prior's spread), a random brake program (seeded) the service is not told, and target changes for
@@ -121,15 +134,8 @@ async fn at_a_10_ms_poll_rls_sgd_identifies_inertia_under_a_random_brake_program
         let levels: Vec<f64> = (0..8).map(|k| brake.load.torque_at(1.0 + 2.5 * k as f64, 0.0, 0.0)).collect();
         plant.load = hydrolens::plant::LoadSpec::Steps { levels_nm: levels.clone(), period_s: 2.5 };
         let dir = tempfile::tempdir().expect("tmp");
-        let reference = std::fs::read_to_string(support::root().join("config/plant.toml")).expect("plant.toml");
-        let text = reference
-            .replace("inertia_kg_m2 = 0.08", "inertia_kg_m2 = 0.12")
-            .replace("viscous_nm_s_rad = 0.04", "viscous_nm_s_rad = 0.06");
-        assert_ne!(text, reference);
-        let model = dir.path().join("wrong.toml");
-        std::fs::write(&model, text).expect("write model");
         let extra =
-            format!("{SPEED}[drives.estimator]\nmethod = \"rls-sgd\"\nmodel = {:?}\n", model.display().to_string());
+            format!("{SPEED}[drives.estimator]\nmethod = \"rls-sgd\"\n{}", wrong_model(dir.path(), "0.12", "0.06"));
         let stack = Stack::start_on(plant, 10, &extra).await;
         let identified = |s: &serde_json::Value| s["identification"]["inertia"]["state"] == "identified";
         let targets = [30.0, 45.0, 20.0, 40.0, 25.0, 50.0, 35.0];
@@ -374,14 +380,7 @@ async fn speed_mode_with_adaptation_follows_a_fan_and_a_random_load_as_well_as_w
     let run = async {
         // the service's nominal model: the reference plant with J and B wrong (×1.6, ×2.2)
         let dir = tempfile::tempdir().expect("tmp");
-        let reference = std::fs::read_to_string(support::root().join("config/plant.toml")).expect("plant.toml");
-        let text = reference
-            .replace("inertia_kg_m2 = 0.08", "inertia_kg_m2 = 0.13")
-            .replace("viscous_nm_s_rad = 0.04", "viscous_nm_s_rad = 0.09");
-        assert_ne!(text, reference);
-        let model = dir.path().join("wrong.toml");
-        std::fs::write(&model, text).expect("write model");
-        let wrong = format!("model = {:?}\n", model.display().to_string());
+        let wrong = wrong_model(dir.path(), "0.13", "0.09");
         for load in [
             hydrolens::plant::LoadSpec::Centrifugal { torque_nm: 12.0, at_rad_s: 60.0 },
             hydrolens::plant::LoadSpec::Random { mean_nm: 8.0, sd_nm: 4.0, correlation_s: 1.0, seed: 5 },
