@@ -52,6 +52,8 @@ pub struct DriveCondition {
     tracked: Mutex<Vec<condition::Tracked>>,
     /// The power budget's report as of the last integration.
     energy: Mutex<Option<EnergyReport>>,
+    /// Times a check came due and found no sample newer than the last check's (the link down, say).
+    idle_looks: std::sync::atomic::AtomicU64,
 }
 
 impl DriveCondition {
@@ -63,6 +65,7 @@ impl DriveCondition {
             last_error: Mutex::new(None),
             tracked: Mutex::new(Vec::new()),
             energy: Mutex::new(None),
+            idle_looks: std::sync::atomic::AtomicU64::new(0),
         }
     }
 
@@ -92,12 +95,13 @@ impl DriveCondition {
     }
 
     /// The body of `GET /api/drives/{name}/condition` (CONTRACT.md "Extensions"), plus `enabled`, `limits`,
-    /// `last_error` and each check's `alarms`.
+    /// `last_error`, `idle_looks` and each check's `alarms`.
     pub fn to_json(&self) -> serde_json::Value {
         let mut v = lock(&self.monitor).to_json(&self.drive);
         if let Some(o) = v.as_object_mut() {
             o.insert("enabled".into(), self.enabled.into());
             o.insert("last_error".into(), lock(&self.last_error).clone().into());
+            o.insert("idle_looks".into(), self.idle_looks.load(std::sync::atomic::Ordering::Relaxed).into());
         }
         v
     }
@@ -385,6 +389,7 @@ impl Job {
         let span = last.sample.t_s - first.sample.t_s;
         if self.checked_up_to_s.is_some_and(|t| last.sample.t_s <= t) {
             tracing::debug!(drive = %self.drive.name, "no new data since the last condition check");
+            self.condition.idle_looks.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             return true;
         }
         if span < MIN_WINDOW_FRACTION * window_s {

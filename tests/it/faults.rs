@@ -168,7 +168,7 @@ async fn a_drive_in_local_mode_raises_an_alarm_and_no_overspeed_follows() {
         assert_eq!(stack.readyz().await, 503, "not ready while the drive does not follow");
         let m = stack.metrics().await;
         assert_eq!(metric(&m, "hydrolens_drive_not_following{drive=\"pump1\"}"), Some(1.0), "{m}");
-        tokio::time::sleep(Duration::from_secs(5)).await;
+        stack.wait_polls(500, "in local mode").await; // 5 s of the loop's own 10 ms cycles
         let highest_setpoint = stack.status().await["setpoint_hz"].as_f64().expect("setpoint");
         set(&stack, |f| f.local_hz = None);
         let mut peak: f64 = 0.0;

@@ -624,7 +624,12 @@ fn demo_on_a_leaking_plant_then_analyze_names_the_leak() {
     assert!(String::from_utf8_lossy(&missing.stderr).contains("nope.toml"));
 
     let mut child = demo(&plant);
-    std::thread::sleep(Duration::from_secs(35));
+    // 35 s of the service's own time in the recording, however fast this machine runs the demo
+    let recorded = support::wait_for_sync(Duration::from_secs(120), || {
+        std::thread::sleep(Duration::from_millis(200));
+        recorded_up_to_s(&recordings) >= 35.0
+    });
+    assert!(recorded.is_some(), "the demo recorded 35 s within 120 s: {} s", recorded_up_to_s(&recordings));
     let _ = Command::new("kill").args(["-TERM", &child.id().to_string()]).status();
     assert!(support::wait_exit(&mut child, Duration::from_secs(10)).is_some(), "demo did not stop on SIGTERM");
     let out = Command::new(support::bin())
@@ -643,6 +648,32 @@ fn demo_on_a_leaking_plant_then_analyze_names_the_leak() {
     let l = v["findings"][0]["parameters"]["l_min_per_bar"].as_f64().expect("size");
     eprintln!("demo --plant (35 s at 1 ms) → analyze: internal_leakage {l:.5} L/min/bar (truth 0.012)");
     assert!((l - 0.012).abs() <= 0.3 * 0.012, "leak {l}");
+}
+
+/// The newest `t_s` in the CSV files of `dir` (their last complete line), 0 while there is none.
+fn recorded_up_to_s(dir: &Path) -> f64 {
+    use std::io::{Read, Seek, SeekFrom};
+    let last_t = |path: &Path| -> Option<f64> {
+        let mut f = std::fs::File::open(path).ok()?;
+        let mut head = String::new();
+        std::io::BufRead::read_line(&mut std::io::BufReader::new(&f), &mut head).ok()?;
+        let col = head.trim_end().split(',').position(|c| c == "t_s")?;
+        let len = f.metadata().ok()?.len();
+        f.seek(SeekFrom::Start(len.saturating_sub(4096))).ok()?;
+        let mut tail = String::new();
+        f.read_to_string(&mut tail).ok()?;
+        let complete = &tail[..tail.rfind('\n')?];
+        complete.rsplit('\n').next()?.split(',').nth(col)?.parse().ok()
+    };
+    std::fs::read_dir(dir)
+        .map(|d| {
+            d.filter_map(Result::ok)
+                .map(|e| e.path())
+                .filter(|p| p.extension().is_some_and(|x| x == "csv"))
+                .filter_map(|p| last_t(&p))
+                .fold(0.0, f64::max)
+        })
+        .unwrap_or(0.0)
 }
 
 /// Several files: joined in time order; files of two service runs (overlapping `t_s`) and a directory without
