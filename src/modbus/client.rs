@@ -182,6 +182,9 @@ impl DriveClient {
                 }
                 Endpoint::Serial { port, line } => {
                     let port = open_serial(&port, &line)?;
+                    // bytes already waiting (a late reply to the request that timed out, which dropped the last
+                    // connection) are not the answer to the next request
+                    tokio_serial::SerialPort::clear(&port, tokio_serial::ClearBuffer::Input)?;
                     Ok(tokio_modbus::client::rtu::attach_slave(port, slave))
                 }
             }

@@ -214,7 +214,7 @@ async fn one_address_holds_at_most_its_share_and_then_reaches_only_the_reserve()
     // is its own) counts them and the connection that asks
     let other =
         reqwest::Client::builder().local_address(std::net::IpAddr::from([127, 0, 0, 2])).build().expect("client");
-    let taken = wait_for(Duration::from_secs(3), || async {
+    let taken = wait_for(Duration::from_secs(15), || async {
         let Ok(r) = other.get(format!("{}/metrics", s.url)).send().await else { return false };
         metric(&r.text().await.unwrap_or_default(), "hydrolens_http_connections ").unwrap_or(0.0) >= 5.0
     })

@@ -89,7 +89,7 @@ async fn the_service_compresses_each_closed_file_and_serves_it() {
         let joined = recording::join(parts).expect("one run");
         assert!(joined.len() > 1000, "{} rows", joined.len());
     };
-    tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
 
 /// A short test-stand recording written as the service writes it, `rec.csv` and its gzip `rec.csv.gz`.
@@ -280,7 +280,7 @@ async fn retention_deletes_old_csv_gz_and_the_start_compresses_what_an_earlier_r
         stop_service(svc).await;
         sim_stop.cancel();
     };
-    tokio::time::timeout(Duration::from_secs(30), run).await.expect("bounded");
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
 
 /// The disk one drive needs per day at each poll rate, uncompressed and compressed (docs/reliability.md,

@@ -24,14 +24,14 @@ async fn stalled_replies_time_out_drop_the_link_and_reconnect() {
         let stack = Stack::start(5.0, 10, SPEED).await;
         ready_within(&stack, Duration::from_secs(5)).await.expect("ready");
         set(&stack, |f| f.reply_delay = Some(Duration::from_millis(400))); // > timeout_ms = 100
-        wait_for(Duration::from_secs(3), || async { stack.readyz().await == 503 })
+        wait_for(Duration::from_secs(15), || async { stack.readyz().await == 503 })
             .await
             .expect("not ready while stalled");
         let writes_stalled = stack.sim.lock().writes;
         // requests may still land while the replies are held; none may carry a new setpoint from stale data
         let timeouts = |m: &str| metric(m, "hydrolens_errors_total{drive=\"pump1\",kind=\"timeout\"}");
         let counted =
-            wait_for(Duration::from_secs(3), || async { timeouts(&stack.metrics().await).is_some_and(|t| t >= 1.0) })
+            wait_for(Duration::from_secs(15), || async { timeouts(&stack.metrics().await).is_some_and(|t| t >= 1.0) })
                 .await;
         let m = stack.metrics().await;
         assert!(counted.is_some(), "no timeout counted: {m}");
@@ -44,7 +44,7 @@ async fn stalled_replies_time_out_drop_the_link_and_reconnect() {
         assert!(stack.sim.lock().writes >= writes_stalled);
         stack.stop().await;
     };
-    tokio::time::timeout(Duration::from_secs(25), run).await.expect("bounded");
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -53,7 +53,7 @@ async fn frozen_counter_is_stale_and_nothing_is_written() {
         let stack = Stack::start(5.0, 10, SPEED).await;
         ready_within(&stack, Duration::from_secs(5)).await.expect("ready");
         set(&stack, |f| f.freeze_counter = true);
-        wait_for(Duration::from_secs(2), || async { stack.state.drives[0].snapshot().link.stale })
+        wait_for(Duration::from_secs(15), || async { stack.state.drives[0].snapshot().link.stale })
             .await
             .expect("stale once the counter stands");
         stack.wait_polls(2, "a write in flight lands").await;
@@ -66,10 +66,10 @@ async fn frozen_counter_is_stale_and_nothing_is_written() {
         assert_eq!(s["link"]["connected"], true);
         set(&stack, |f| f.freeze_counter = false);
         ready_within(&stack, Duration::from_secs(2)).await.expect("fresh again");
-        wait_for(Duration::from_secs(2), || async { stack.sim.lock().writes > before }).await.expect("writes resume");
+        wait_for(Duration::from_secs(15), || async { stack.sim.lock().writes > before }).await.expect("writes resume");
         stack.stop().await;
     };
-    tokio::time::timeout(Duration::from_secs(20), run).await.expect("bounded");
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -79,9 +79,10 @@ async fn exceptions_and_out_of_range_values_are_counted_and_rejected() {
         ready_within(&stack, Duration::from_secs(5)).await.expect("ready");
         set(&stack, |f| f.exception = Some(ExceptionCode::ServerDeviceBusy));
         let exceptions = |m: &str| metric(m, "hydrolens_errors_total{drive=\"pump1\",kind=\"exception\"}");
-        let counted =
-            wait_for(Duration::from_secs(3), || async { exceptions(&stack.metrics().await).is_some_and(|e| e >= 5.0) })
-                .await;
+        let counted = wait_for(Duration::from_secs(15), || async {
+            exceptions(&stack.metrics().await).is_some_and(|e| e >= 5.0)
+        })
+        .await;
         let m = stack.metrics().await;
         assert!(counted.is_some(), "fewer than 5 exceptions counted: {m}");
         assert_eq!(
@@ -95,7 +96,7 @@ async fn exceptions_and_out_of_range_values_are_counted_and_rejected() {
         let hat_before = stack.state.drives[0].snapshot().estimate.expect("estimate");
         set(&stack, |f| f.inlet_pressure_override_bar = Some(600.0)); // beyond limits.max_pressure_bar = 400
         let rejected_from = stack.state.drives[0].snapshot().link.rejected_samples;
-        wait_for(Duration::from_secs(2), || async {
+        wait_for(Duration::from_secs(15), || async {
             stack.state.drives[0].snapshot().link.rejected_samples > rejected_from
         })
         .await
@@ -113,7 +114,7 @@ async fn exceptions_and_out_of_range_values_are_counted_and_rejected() {
         ready_within(&stack, Duration::from_secs(2)).await.expect("ready again");
         stack.stop().await;
     };
-    tokio::time::timeout(Duration::from_secs(20), run).await.expect("bounded");
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -125,12 +126,12 @@ async fn a_restarted_server_is_reconnected_within_a_second() {
         if let Some(t) = stack.sim_task.take() {
             tokio::time::timeout(Duration::from_secs(5), t).await.expect("simulator stops").expect("joins");
         }
-        wait_for(Duration::from_secs(3), || async { stack.readyz().await == 503 }).await.expect("down");
+        wait_for(Duration::from_secs(15), || async { stack.readyz().await == 503 }).await.expect("down");
         assert_eq!(stack.status().await["link"]["connected"], false);
         // the back-off reaches its cap: it doubles from 50 ms with each failed connect, to 500 ms at the fifth
         let connects = |m: &str| metric(m, "hydrolens_errors_total{drive=\"pump1\",kind=\"connect\"}");
         let capped =
-            wait_for(Duration::from_secs(5), || async { connects(&stack.metrics().await).is_some_and(|c| c >= 5.0) })
+            wait_for(Duration::from_secs(15), || async { connects(&stack.metrics().await).is_some_and(|c| c >= 5.0) })
                 .await;
         assert!(capped.is_some(), "fewer than 5 failed connects: {}", stack.metrics().await);
         let (sim, _, stop, task) = support::start_sim(support::test_plant(5.0), stack.modbus_addr.port()).await;
@@ -145,7 +146,7 @@ async fn a_restarted_server_is_reconnected_within_a_second() {
         assert!(metric(&m, "hydrolens_errors_total{drive=\"pump1\",kind=\"connect\"}").expect("connect errors") >= 1.0);
         stack.stop().await;
     };
-    tokio::time::timeout(Duration::from_secs(25), run).await.expect("bounded");
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
 
 /// A drive in local mode (it answers every setpoint write OK but runs 10 Hz) for 6 s under a 40 rad/s target it
@@ -162,7 +163,7 @@ async fn a_drive_in_local_mode_raises_an_alarm_and_no_overspeed_follows() {
             .await
             .expect("settles at the target");
         set(&stack, |f| f.local_hz = Some(10.0));
-        wait_for(Duration::from_secs(3), || async { stack.status().await["status"]["not_following"] == true })
+        wait_for(Duration::from_secs(15), || async { stack.status().await["status"]["not_following"] == true })
             .await
             .expect("the alarm is raised");
         assert_eq!(stack.readyz().await, 503, "not ready while the drive does not follow");
@@ -181,12 +182,12 @@ async fn a_drive_in_local_mode_raises_an_alarm_and_no_overspeed_follows() {
             "local mode 10 Hz for 6 s: setpoint {highest_setpoint:.1} Hz at the end of it; peak speed after {peak:.1} rad/s (target 40)"
         );
         assert!(peak <= 44.0, "overspeed after the drive followed again: {peak} rad/s");
-        wait_for(Duration::from_secs(5), || async { stack.status().await["status"]["not_following"] == false })
+        wait_for(Duration::from_secs(15), || async { stack.status().await["status"]["not_following"] == false })
             .await
             .expect("the alarm ends once the drive follows");
         stack.stop().await;
     };
-    tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
 
 /// A 0.8 s link gap with a higher target posted meanwhile: when the link comes back, the setpoints climb from what
@@ -231,5 +232,5 @@ async fn after_a_link_gap_the_ramp_is_not_spent_in_one_write() {
         assert!(last > 26.0, "the setpoint climbed towards the new target: {last}");
         stack.stop().await;
     };
-    tokio::time::timeout(Duration::from_secs(30), run).await.expect("bounded");
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }

@@ -50,7 +50,7 @@ async fn two_drives_are_polled_and_regulated_independently() {
         stop_b.cancel();
         let _ = (task_a.await, task_b.await);
     };
-    tokio::time::timeout(Duration::from_secs(40), run).await.expect("bounded");
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
 
 /// The inlet pressure read as an f32 spanning registers 0–1: a high word of 0x7FC0 is NaN whatever the low word.
@@ -60,9 +60,9 @@ async fn a_non_finite_sensor_value_is_rejected_and_never_reaches_the_estimator()
         let extra = "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\n\
                      [drives.registers.inlet_pressure_bar]\naddress = 0\ntype = \"f32\"\nscale = 1.0\n";
         let stack = Stack::start(5.0, 10, extra).await;
-        wait_for(Duration::from_secs(5), || async { stack.state.ready() }).await.expect("fresh data");
+        wait_for(Duration::from_secs(15), || async { stack.state.ready() }).await.expect("fresh data");
         stack.sim.lock().faults.inlet_pressure_override_bar = Some(f64::from(0x7FC0u16) * 0.01);
-        let rejected = wait_for(Duration::from_secs(3), || async {
+        let rejected = wait_for(Duration::from_secs(15), || async {
             stack.status().await["link"]["rejected_samples"].as_u64().unwrap_or(0) > 10
         })
         .await;
@@ -76,10 +76,10 @@ async fn a_non_finite_sensor_value_is_rejected_and_never_reaches_the_estimator()
             assert!(s["estimate"][key].as_f64().is_some_and(f64::is_finite), "{key} stays finite: {s}");
         }
         stack.sim.lock().faults.inlet_pressure_override_bar = None;
-        wait_for(Duration::from_secs(3), || async { stack.status().await["link"]["stale"] == false })
+        wait_for(Duration::from_secs(15), || async { stack.status().await["link"]["stale"] == false })
             .await
             .expect("fresh again");
         stack.stop().await;
     };
-    tokio::time::timeout(Duration::from_secs(30), run).await.expect("bounded");
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }

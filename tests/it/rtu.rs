@@ -72,9 +72,19 @@ impl Drop for SocatLine {
 /// The test line's settings (a pty ignores them, but both ends set them as a real line would).
 const LINE: SerialLine = SerialLine { baud_rate: 115_200, parity: Parity::Even, stop_bits: 1 };
 
+/// The simulated drives' own watchdog (ms). Longer than the plant file's 1 s: the simulator, the service and the
+/// pty relay share this test process's two cores with the rest of the suite, and a second without a write while the
+/// machine is loaded tripped the drives before they had regulated once (seen at load 7, every run). A trip still
+/// comes within this much of the last write.
+const WATCHDOG_MS: u64 = 3000;
+
 /// A simulator with one plant per unit id, and the token that stops it.
 fn serial_sim(units: &[u8]) -> (Simulator, CancellationToken) {
-    (Simulator::with_units(test_plant(5.0), 7, units).expect("a hydraulic model"), CancellationToken::new())
+    let mut model = test_plant(5.0);
+    if let Some(d) = model.drive.as_mut() {
+        d.comm_timeout_ms = WATCHDOG_MS;
+    }
+    (Simulator::with_units(model, 7, units).expect("a hydraulic model"), CancellationToken::new())
 }
 
 fn plant(sim: &Simulator, unit: u8) -> SimHandle {
@@ -117,7 +127,7 @@ async fn readyz(url: &str) -> u16 {
 
 /// The service's drive `i` regulates its own plant to `target` and its estimate follows.
 async fn regulates(url: &str, i: usize, sim: &SimHandle, target: f64, limit: Duration) -> bool {
-    wait_for(limit, || async {
+    let held = wait_for(limit, || async {
         let truth = sim.lock().truth();
         let s = status(url).await;
         let d = &s["drives"][i];
@@ -128,7 +138,12 @@ async fn regulates(url: &str, i: usize, sim: &SimHandle, target: f64, limit: Dur
             && d["link"]["stale"] == false
     })
     .await
-    .is_some()
+    .is_some();
+    if !held {
+        let s = status(url).await;
+        eprintln!("drive {i} does not regulate to {target}: truth {:?}; status {}", sim.lock().truth(), s["drives"][i]);
+    }
+    held
 }
 
 /// Two drives on one RTU line (units 1 and 2 of one serial simulator, polled every 40 ms), each asserted to regulate
@@ -185,7 +200,7 @@ async fn two_drives_on_one_line_take_turns() {
         assert_eq!(readyz(&url).await, 200);
         pair.stop().await;
     };
-    tokio::time::timeout(Duration::from_secs(30), run).await.expect("within 30 s");
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("within 60 s");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -201,7 +216,7 @@ async fn a_silent_device_does_not_starve_its_neighbour_on_the_line() {
         // are a machine that stalled the test beyond vfd1's stale_ms, not the line
         let (fresh_checks, stale_checks) =
             (std::sync::atomic::AtomicUsize::new(0), std::sync::atomic::AtomicUsize::new(0));
-        let tripped = wait_for(Duration::from_secs(10), || {
+        let tripped = wait_for(Duration::from_secs(15), || {
             let (url, two, fresh, stale) = (&url, &two, &fresh_checks, &stale_checks);
             async move {
                 let s = status(url).await;
@@ -213,8 +228,10 @@ async fn a_silent_device_does_not_starve_its_neighbour_on_the_line() {
         .await;
         let (fresh_checks, stale_checks) = (fresh_checks.into_inner(), stale_checks.into_inner());
         assert!(tripped.is_some(), "vfd2 stale and tripped: {}", status(&url).await);
+        // a starved vfd1 is stale at most looks; a machine that stalls this process (seen at load 12: 6 of 115)
+        // makes it stale at a few
         assert!(
-            stale_checks <= 2,
+            10 * stale_checks <= fresh_checks + stale_checks,
             "vfd1 stale at {stale_checks} of {} looks beside a silent vfd2",
             fresh_checks + stale_checks
         );
@@ -228,14 +245,15 @@ async fn a_silent_device_does_not_starve_its_neighbour_on_the_line() {
         tokio::time::sleep(Duration::from_secs(1)).await;
         let h = get_json(format!("{url}/api/history?drive=vfd1&seconds=1")).await;
         let samples = h["t_s"].as_array().map_or(0, Vec::len);
-        // measured: 25 with the device held back alone, 7 when the whole line backs off after each of its timeouts
+        // measured: 25 with the device held back alone, 7 when the whole line backs off after each of its timeouts;
+        // 14 with this process starved at load 12. The bound lies between the two designs, not near either.
         eprintln!("vfd1 kept {samples} polls (of about 25) in the last second beside a silent vfd2");
-        assert!(samples >= 17, "vfd1 kept {samples} polls (of about 25) in the last second");
+        assert!(samples >= 12, "vfd1 kept {samples} polls (of about 25) in the last second");
         assert_eq!(readyz(&url).await, 503, "not ready while vfd2 is stale");
 
         pair.stop().await;
     };
-    tokio::time::timeout(Duration::from_secs(40), run).await.expect("within 40 s");
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("within 120 s");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -260,7 +278,7 @@ async fn an_unplugged_line_goes_stale_trips_the_drive_and_comes_back() {
         assert!(down.is_some(), "stale and not ready without the line: {}", status(&url).await);
         // nothing reaches the drive, so its own watchdog trips it and it ramps down: its safe state
         let writes = drive.lock().writes;
-        let tripped = wait_for(Duration::from_secs(10), || async { drive.lock().truth().tripped }).await;
+        let tripped = wait_for(Duration::from_secs(15), || async { drive.lock().truth().tripped }).await;
         assert!(tripped.is_some(), "the drive's watchdog trips without writes");
         assert_eq!(drive.lock().writes, writes, "nothing written while the line is down");
         let s = status(&url).await;
@@ -317,7 +335,7 @@ async fn rtu_over_tcp_reaches_the_simulator() {
         sim_stop.cancel();
         tokio::time::timeout(Duration::from_secs(5), sim_task).await.expect("sim stops").expect("sim task");
     };
-    tokio::time::timeout(Duration::from_secs(30), run).await.expect("within 30 s");
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("within 60 s");
 }
 
 /// `hydrolens serve` on a config it must refuse: exit 2, and the message.
@@ -414,7 +432,7 @@ async fn requests_on_a_line_keep_the_inter_frame_gap() {
         assert!(shortest >= gap, "requests {shortest:?} apart, the gap is {gap:?}");
         drop(line);
     };
-    tokio::time::timeout(Duration::from_secs(20), run).await.expect("within 20 s");
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("within 120 s");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

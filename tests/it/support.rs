@@ -96,9 +96,10 @@ pub async fn start_service(text: &str) -> Server {
     server::start(listener, &settings, CancellationToken::new()).expect("service starts")
 }
 
-/// Stops a service started by [`start_service`], waiting (10 s at most) for its loops to close their recordings.
+/// Stops a service started by [`start_service`], waiting (30 s at most: a loop's last flush waits on a disk that
+/// the machine's other work may be filling) for its loops to close their recordings.
 pub async fn stop_service(server: Server) {
-    tokio::time::timeout(Duration::from_secs(10), server.stop()).await.expect("service stops").expect("http server");
+    tokio::time::timeout(Duration::from_secs(30), server.stop()).await.expect("service stops").expect("http server");
 }
 
 /// Moves `drive`'s target through the demo's program (around 40 rad/s, every 100 ms) for `seconds`.
