@@ -314,6 +314,7 @@ impl Origin {
     }
 }
 
+/// The pipeline on the extracted signals: baseline, forward selection, intervals, and what the report shows.
 fn analyze_series(
     s: Series,
     rec: Origin,
@@ -322,7 +323,71 @@ fn analyze_series(
     progress: &mut dyn FnMut(f64),
 ) -> Result<Analysis, BadInput> {
     let family = s.family;
-    // The nominal model's effects are part of the nominal model: the search adds to them.
+    let (start, nominal_terms) = search_start(nominal);
+    let baseline = fit_baseline(&start, nominal_terms, &s, &rec.source)?;
+    progress(0.05);
+
+    let mut sel = Selection::new(&s, nominal, opts, (&start, nominal_terms), &baseline);
+    let total_rounds = sel.remaining.len().max(1);
+    for round in 1..=total_rounds {
+        if !sel.round(round, progress)? {
+            break;
+        }
+    }
+    sel.final_fold_models();
+    let baseline_intervals =
+        jackknife(&baseline.model, &sel.fold_baseline, &interval_keys(&baseline.model, family, &sel.kept));
+    let improved_intervals =
+        jackknife(&sel.current.model, &sel.fold_current, &interval_keys(&sel.current.model, family, &sel.kept));
+    progress(0.95);
+
+    let conditions = mismatch::Conditions::new(&s);
+    let mismatches = mismatches(&s, &conditions, &baseline);
+    let unexplained = unexplained(&s, &conditions, &sel.current);
+    let findings = findings(&sel.kept, &sel.current, &improved_intervals, &s, &conditions);
+    let named: Vec<&str> = sel.kept.iter().map(|k| k.id).collect();
+    let ambiguities = ambiguities(&named, &sel.ties, &sel.current.model, &s);
+    let not_identified = not_identified(&s);
+
+    let traces = traces(&baseline, &sel.current, &s);
+    progress(1.0);
+    let validation_rule = validation_rule(opts, sel.cv, sel.n_folds);
+    let interval_method = interval_method(sel.n_folds);
+    let mut base_summary = summary(&baseline, &s);
+    base_summary.cross_validation_score = sel.cv_baseline;
+    base_summary.confidence_intervals = baseline_intervals;
+    let mut improved_summary = summary(&sel.current, &s);
+    improved_summary.cross_validation_score = if sel.cv { sel.cv_before } else { None };
+    improved_summary.confidence_intervals = improved_intervals;
+    let Selection { current, candidates, .. } = sel;
+    Ok(Analysis {
+        recording: rec.source.clone(),
+        samples: s.len(),
+        validation_from_s: s.t_s[s.split],
+        family: family.name(),
+        speed_source: s.speed_source,
+        load: s.load,
+        baseline: base_summary,
+        mismatches,
+        findings,
+        ambiguities,
+        not_identified,
+        improved: improved_summary,
+        unexplained,
+        out_of_range: rec.out_of_range.clone(),
+        outliers: s.outliers.clone(),
+        gaps: gaps(&s),
+        validation_rule,
+        interval_method,
+        candidates,
+        improved_model: with_nominal_load(current.model, nominal),
+        traces,
+    })
+}
+
+/// Where the search starts: the nominal model (its effects are part of it: the search adds to them) with the load
+/// taken from the recording, and the torque-balance terms it already has.
+fn search_start(nominal: &PlantModel) -> (PlantModel, MechTerms) {
     let mut start = nominal.clone();
     let nominal_terms = MechTerms {
         coulomb: start.effects.coulomb_friction.is_some(),
@@ -330,125 +395,223 @@ fn analyze_series(
         stribeck: start.effects.stribeck_friction.is_some(),
     };
     start.load = crate::plant::LoadSpec::Recorded;
-    // with the load unknown the torque balance is not fitted: J and B keep the nominal values
-    let base_model = if family == Family::Flow {
+    (start, nominal_terms)
+}
+
+/// The baseline: the start model with J and B fitted on the fitting segment (with the load unknown the torque
+/// balance is not fitted: J and B keep the nominal values), scored on the whole recording.
+fn fit_baseline(start: &PlantModel, nominal_terms: MechTerms, s: &Series, source: &str) -> Result<Scored, BadInput> {
+    let base_model = if s.family == Family::Flow {
         start.clone()
     } else {
-        search::fit_mechanics(&start, &s, nominal_terms).ok_or_else(|| {
+        search::fit_mechanics(start, s, nominal_terms).ok_or_else(|| {
             BadInput(format!(
                 "recording {}: inertia and viscous friction cannot be fitted: the speed hardly changes on the \
                  fitting segment (it needs accelerations and several speeds)",
-                rec.source
+                source
             ))
         })?
     };
-    let baseline = Scored::evaluate(base_model, nominal_terms, &s)?;
-    progress(0.05);
+    Scored::evaluate(base_model, nominal_terms, s)
+}
 
-    let search_end = s.split.min((opts.search_window_s * s.sample_hz) as usize).max(100);
-    let std_rows = Rows::standard(&s, search_end);
-    let n_bic = s.split as f64 / 10.0;
-    // Blocked cross-validation: the recording cut into `folds` blocks; fold k fits on the others and runs block k
-    // free from its measured state. The fold models are chained like the selection (each fold keeps the effects
-    // kept so far, fitted on its own rows), and give the jackknife intervals.
-    let n_folds = if opts.folds >= 2 && s.len() >= 200 * opts.folds { opts.folds } else { 0 };
-    let folds: Vec<Rows> = (0..n_folds).map(|k| Rows::fold(&s, k, n_folds, search_end)).collect();
-    let cv = family == Family::Hydraulic && !folds.is_empty();
-    let fold_baseline: Vec<Option<(PlantModel, MechTerms)>> = folds
-        .iter()
-        .map(|r| {
-            if family == Family::Flow {
-                Some((start.clone(), nominal_terms))
-            } else {
-                search::fit_mechanics_on(&start, &s, nominal_terms, &r.ls).map(|m| (m, nominal_terms))
-            }
-        })
-        .collect();
-    let mut fold_current = fold_baseline.clone();
-    let mut cv_before = if cv { out_of_fold_score(&fold_current, &folds, &s) } else { None };
-    let cv_baseline = cv_before;
-    let mut current = baseline.clone();
-    let mut remaining: Vec<&'static str> =
-        search::applicable(&s).into_iter().filter(|id| !nominal.effects.active_ids().contains(id)).collect();
-    let mut kept: Vec<Kept> = Vec::new();
-    let mut candidates = Vec::new();
-    let mut ties: Vec<(&'static str, &'static str)> = Vec::new();
-    let total_rounds = remaining.len().max(1);
-    for round in 1..=total_rounds {
+/// The greedy forward selection over the catalogue: the model so far and its fold models, what was kept and why,
+/// and what is left to try.
+struct Selection<'a> {
+    s: &'a Series,
+    nominal: &'a PlantModel,
+    opts: &'a Options,
+    /// The rows of the fitting segment the free-run parameter search uses.
+    std_rows: Rows,
+    /// The sample count BIC is taken over.
+    n_bic: f64,
+    /// Blocked cross-validation: the recording cut into `n_folds` blocks; fold k fits on the others and runs block
+    /// k free from its measured state. The fold models are chained like the selection (each fold keeps the
+    /// effects kept so far, fitted on its own rows), and give the jackknife intervals.
+    n_folds: usize,
+    folds: Vec<Rows>,
+    /// Whether the out-of-fold score decides (hydraulic family with folds), rather than the validation tail.
+    cv: bool,
+    fold_baseline: Vec<Option<(PlantModel, MechTerms)>>,
+    fold_current: Vec<Option<(PlantModel, MechTerms)>>,
+    /// The out-of-fold score of the baseline, and of the model so far.
+    cv_baseline: Option<f64>,
+    cv_before: Option<f64>,
+    current: Scored,
+    remaining: Vec<&'static str>,
+    kept: Vec<Kept>,
+    candidates: Vec<CandidateScore>,
+    /// Candidates whose gain came within `tie_fraction` of a kept one's: (kept, other).
+    ties: Vec<(&'static str, &'static str)>,
+}
+
+impl<'a> Selection<'a> {
+    /// The search's rows and blocks, the baseline fitted on every fold, and the catalogue effects the nominal model
+    /// lacks.
+    fn new(
+        s: &'a Series,
+        nominal: &'a PlantModel,
+        opts: &'a Options,
+        (start, nominal_terms): (&PlantModel, MechTerms),
+        baseline: &Scored,
+    ) -> Selection<'a> {
+        let family = s.family;
+        let search_end = s.split.min((opts.search_window_s * s.sample_hz) as usize).max(100);
+        let std_rows = Rows::standard(s, search_end);
+        let n_bic = s.split as f64 / 10.0;
+        let n_folds = if opts.folds >= 2 && s.len() >= 200 * opts.folds { opts.folds } else { 0 };
+        let folds: Vec<Rows> = (0..n_folds).map(|k| Rows::fold(s, k, n_folds, search_end)).collect();
+        let cv = family == Family::Hydraulic && !folds.is_empty();
+        let fold_baseline: Vec<Option<(PlantModel, MechTerms)>> = folds
+            .iter()
+            .map(|r| {
+                if family == Family::Flow {
+                    Some((start.clone(), nominal_terms))
+                } else {
+                    search::fit_mechanics_on(start, s, nominal_terms, &r.ls).map(|m| (m, nominal_terms))
+                }
+            })
+            .collect();
+        let fold_current = fold_baseline.clone();
+        let cv_before = if cv { out_of_fold_score(&fold_current, &folds, s) } else { None };
+        let remaining: Vec<&'static str> =
+            search::applicable(s).into_iter().filter(|id| !nominal.effects.active_ids().contains(id)).collect();
+        Selection {
+            s,
+            nominal,
+            opts,
+            std_rows,
+            n_bic,
+            n_folds,
+            folds,
+            cv,
+            fold_baseline,
+            fold_current,
+            cv_baseline: cv_before,
+            cv_before,
+            current: baseline.clone(),
+            remaining,
+            kept: Vec::new(),
+            candidates: Vec::new(),
+            ties: Vec::new(),
+        }
+    }
+
+    /// One round: every remaining candidate tried, the best that passes the rule kept, else a pair that passes
+    /// together. False when the search is over.
+    fn round(&mut self, round: usize, progress: &mut dyn FnMut(f64)) -> Result<bool, BadInput> {
+        let mut tried = self.try_remaining(round, progress);
+        if self.cv {
+            self.cross_validate_best(&mut tried);
+        }
+        let accept = self.accepted(&tried);
+        self.record(round, &tried, accept);
+        match accept {
+            Some(i) => self.keep_winner(&tried, i),
+            None => self.keep_pair(&tried),
+        }
+    }
+
+    /// Each remaining candidate fitted on the standard rows on top of the current model, with its ΔBIC.
+    fn try_remaining(&self, round: usize, progress: &mut dyn FnMut(f64)) -> Vec<Tried> {
+        let (s, current, family) = (self.s, &self.current, self.s.family);
         let mut tried: Vec<Tried> = Vec::new();
-        for (i, &id) in remaining.iter().enumerate() {
-            let scored = search::candidate(id, &current.model, current.terms, &s, &std_rows, None)
-                .and_then(|(m, terms)| Scored::evaluate(m, terms, &s).ok())
+        for (i, &id) in self.remaining.iter().enumerate() {
+            let scored = search::candidate(id, &current.model, current.terms, s, &self.std_rows, None)
+                .and_then(|(m, terms)| Scored::evaluate(m, terms, s).ok())
                 .map(Scored::without_prediction)
                 .map(|sc| {
                     let db = search::delta_bic(
                         current.fit.score(family),
                         sc.fit.score(family),
                         search::parameter_count(id),
-                        n_bic,
+                        self.n_bic,
                     );
                     (sc, db)
                 });
             tried.push(Tried { id, scored, cv: None });
             // round r fills the r-th half of what is left: monotonic without knowing how many rounds there will be
             let (start, end) = (1.0 - 0.5f64.powi(round as i32 - 1), 1.0 - 0.5f64.powi(round as i32));
-            let within = (i + 1) as f64 / remaining.len() as f64;
+            let within = (i + 1) as f64 / self.remaining.len() as f64;
             progress(0.05 + 0.9 * (start + (end - start) * within));
         }
-        // the candidates that pass the BIC margin, the largest ΔBIC first, are cross-validated (at most
-        // `max_cross_validated` a round: the cost of the folds stays bounded)
-        if cv {
-            let mut order: Vec<usize> = (0..tried.len())
-                .filter(|&i| tried[i].scored.as_ref().is_some_and(|x| x.1 >= opts.min_delta_bic))
-                .collect();
-            order.sort_by(|&a, &b| {
-                let db = |i: usize| tried[i].scored.as_ref().map_or(f64::NEG_INFINITY, |x| x.1);
-                db(b).total_cmp(&db(a))
-            });
-            for &i in order.iter().take(opts.max_cross_validated) {
-                if let Some((sc, _)) = &tried[i].scored {
-                    tried[i].cv = cross_validate(tried[i].id, sc, &fold_current, &folds, &s, opts);
-                }
+        tried
+    }
+
+    /// Cross-validates the candidates that pass the BIC margin, the largest ΔBIC first (at most
+    /// `max_cross_validated` a round: the cost of the folds stays bounded).
+    fn cross_validate_best(&self, tried: &mut [Tried]) {
+        let opts = self.opts;
+        let mut order: Vec<usize> = (0..tried.len())
+            .filter(|&i| tried[i].scored.as_ref().is_some_and(|x| x.1 >= opts.min_delta_bic))
+            .collect();
+        order.sort_by(|&a, &b| {
+            let db = |i: usize| tried[i].scored.as_ref().map_or(f64::NEG_INFINITY, |x| x.1);
+            db(b).total_cmp(&db(a))
+        });
+        for &i in order.iter().take(opts.max_cross_validated) {
+            if let Some((sc, _)) = &tried[i].scored {
+                tried[i].cv = cross_validate(tried[i].id, sc, &self.fold_current, &self.folds, self.s, opts);
             }
         }
-        let before = current.validation.score(family);
-        // the score a candidate is ranked by, and whether it passes the rule
-        let rank = |t: &Tried| -> Option<f64> {
-            if cv { t.cv.as_ref().map(|c| c.score) } else { t.scored.as_ref().map(|x| x.0.validation.score(family)) }
-        };
-        let passes = |t: &Tried| -> bool {
-            let Some((sc, db)) = &t.scored else { return false };
-            if *db < opts.min_delta_bic {
-                return false;
-            }
-            if !resolved(t.id, &sc.model, &current.model, &s, opts) {
-                return false;
-            }
-            let restores_b = restores_viscous(t.id, &sc.model, &current.model, nominal, opts);
-            if cv {
-                let (Some(c), Some(b)) = (&t.cv, cv_before) else { return false };
-                let drop = 1.0 - (c.score / b).sqrt();
-                drop >= opts.min_relative_drop
-                    || (c.score < b && c.regime.as_ref().is_some_and(|r| r.drop >= opts.min_relative_drop))
-                    || (c.score < b && restores_b)
-            } else {
-                let after = t.scored.as_ref().map_or(f64::INFINITY, |x| x.0.validation.score(family));
-                1.0 - (after / before).sqrt() >= opts.min_relative_drop || (after < before && restores_b)
-            }
-        };
-        let lowest = tried.iter().filter_map(rank).fold(f64::INFINITY, f64::min);
-        let accept: Option<usize> = if cv {
+    }
+
+    /// The score a candidate is ranked by: out of fold under cross-validation, else on the validation segment.
+    fn rank(&self, t: &Tried) -> Option<f64> {
+        if self.cv {
+            t.cv.as_ref().map(|c| c.score)
+        } else {
+            t.scored.as_ref().map(|x| x.0.validation.score(self.s.family))
+        }
+    }
+
+    /// Whether a candidate passes the rule: the BIC margin, resolved by the recording, and the error down by
+    /// `min_relative_drop` (overall, on its regime, or at all when it brings B back within reason).
+    fn passes(&self, t: &Tried) -> bool {
+        let (s, opts, family) = (self.s, self.opts, self.s.family);
+        let current = &self.current;
+        let Some((sc, db)) = &t.scored else { return false };
+        if *db < opts.min_delta_bic {
+            return false;
+        }
+        if !resolved(t.id, &sc.model, &current.model, s, opts) {
+            return false;
+        }
+        let restores_b = restores_viscous(t.id, &sc.model, &current.model, self.nominal, opts);
+        if self.cv {
+            let (Some(c), Some(b)) = (&t.cv, self.cv_before) else { return false };
+            let drop = 1.0 - (c.score / b).sqrt();
+            drop >= opts.min_relative_drop
+                || (c.score < b && c.regime.as_ref().is_some_and(|r| r.drop >= opts.min_relative_drop))
+                || (c.score < b && restores_b)
+        } else {
+            let before = current.validation.score(family);
+            let after = t.scored.as_ref().map_or(f64::INFINITY, |x| x.0.validation.score(family));
+            1.0 - (after / before).sqrt() >= opts.min_relative_drop || (after < before && restores_b)
+        }
+    }
+
+    /// The candidate this round keeps, if one passes the rule alone.
+    fn accepted(&self, tried: &[Tried]) -> Option<usize> {
+        let lowest = tried.iter().filter_map(|t| self.rank(t)).fold(f64::INFINITY, f64::min);
+        if self.cv {
             // among the candidates that pass, the lowest out-of-fold score (within 0.5 %: the first in catalogue
             // order)
-            let low = tried.iter().filter(|t| passes(t)).filter_map(rank).fold(f64::INFINITY, f64::min);
-            tried.iter().position(|t| passes(t) && rank(t).is_some_and(|r| r <= low * 1.005))
+            let low =
+                tried.iter().filter(|t| self.passes(t)).filter_map(|t| self.rank(t)).fold(f64::INFINITY, f64::min);
+            tried.iter().position(|t| self.passes(t) && self.rank(t).is_some_and(|r| r <= low * 1.005))
         } else {
             // Among candidates indistinguishable in score (within 0.5 %), the first in catalogue order, so that
             // exactly equivalent effects (leakage and slip) are named the same way every time.
-            tried.iter().position(|t| rank(t).is_some_and(|r| r <= lowest * 1.005)).filter(|&i| passes(&tried[i]))
-        };
+            tried.iter().position(|t| self.rank(t).is_some_and(|r| r <= lowest * 1.005)).filter(|&i| self.passes(&tried[i]))
+        }
+    }
+
+    /// The round's candidates into the report's list, `accept` marked kept.
+    fn record(&mut self, round: usize, tried: &[Tried], accept: Option<usize>) {
+        let family = self.s.family;
         for (i, t) in tried.iter().enumerate() {
-            candidates.push(CandidateScore {
+            self.candidates.push(CandidateScore {
                 round,
                 effect: t.id.to_string(),
                 validation_score: t.scored.as_ref().map(|x| x.0.validation.score(family)),
@@ -458,61 +621,99 @@ fn analyze_series(
                 kept: accept == Some(i),
             });
         }
-        let Some(i) = accept else {
-            // No effect earns its place alone: two that do together, each adding to the other (an effect that shows
-            // once another is modelled: a dead time behind a dry friction the viscous term had taken).
-            let pair =
-                if cv { joint_pair(&tried, &current, cv_before, &folds, &s, &std_rows, opts, n_bic) } else { None };
-            let Some(p) = pair else { break };
-            let (a, b) = (&tried[p.first], &tried[p.second]);
-            let (Some((first, first_db)), Some(first_cv)) = (a.scored.clone(), a.cv.as_ref()) else { break };
-            let first = Scored::evaluate(first.model, first.terms, &s)?;
-            let pair_sc = Scored::evaluate(p.scored.model, p.scored.terms, &s)?;
-            for c in candidates.iter_mut().rev().take(tried.len()) {
-                c.kept |= c.effect == a.id || c.effect == b.id;
-            }
-            let jointly = |other: &str| format!("jointly with {other}: out-of-fold free runs of all {n_folds} blocks");
-            kept.push(Kept {
-                id: a.id,
-                before: current.clone(),
-                after: first.clone(),
-                delta_bic: first_db,
-                cv_before,
-                cv_after: Some(first_cv.score),
-                validated_on: jointly(b.id),
-            });
-            kept.push(Kept {
-                id: b.id,
-                before: first.clone(),
-                after: pair_sc.clone(),
-                delta_bic: search::delta_bic(
-                    first.fit.score(family),
-                    pair_sc.fit.score(family),
-                    search::parameter_count(b.id),
-                    n_bic,
-                ),
-                cv_before: Some(first_cv.score),
-                cv_after: Some(p.cv.score),
-                validated_on: jointly(a.id),
-            });
-            fold_current = p.cv.models;
-            cv_before = Some(p.cv.score);
-            current = pair_sc;
-            if refit_named(&mut current, &mut fold_current, &folds, &s, &std_rows, (nominal, opts))? {
-                cv_before = out_of_fold_score(&fold_current, &folds, &s);
-            }
-            let (ia, ib) = (a.id, b.id);
-            remaining.retain(|r| *r != ia && *r != ib);
-            if remaining.is_empty() {
-                break;
-            }
-            continue;
+    }
+
+    /// No effect earns its place alone: two that do together, each adding to the other (an effect that shows once
+    /// another is modelled: a dead time behind a dry friction the viscous term had taken). False when there is no
+    /// such pair, or nothing is left to try.
+    fn keep_pair(&mut self, tried: &[Tried]) -> Result<bool, BadInput> {
+        let (s, family, n_folds) = (self.s, self.s.family, self.n_folds);
+        let pair = if self.cv {
+            joint_pair(tried, &self.current, self.cv_before, &self.folds, s, &self.std_rows, self.opts, self.n_bic)
+        } else {
+            None
         };
+        let Some(p) = pair else { return Ok(false) };
+        let (a, b) = (&tried[p.first], &tried[p.second]);
+        let (Some((first, first_db)), Some(first_cv)) = (a.scored.clone(), a.cv.as_ref()) else { return Ok(false) };
+        let first = Scored::evaluate(first.model, first.terms, s)?;
+        let pair_sc = Scored::evaluate(p.scored.model, p.scored.terms, s)?;
+        for c in self.candidates.iter_mut().rev().take(tried.len()) {
+            c.kept |= c.effect == a.id || c.effect == b.id;
+        }
+        let jointly = |other: &str| format!("jointly with {other}: out-of-fold free runs of all {n_folds} blocks");
+        self.kept.push(Kept {
+            id: a.id,
+            before: self.current.clone(),
+            after: first.clone(),
+            delta_bic: first_db,
+            cv_before: self.cv_before,
+            cv_after: Some(first_cv.score),
+            validated_on: jointly(b.id),
+        });
+        self.kept.push(Kept {
+            id: b.id,
+            before: first.clone(),
+            after: pair_sc.clone(),
+            delta_bic: search::delta_bic(
+                first.fit.score(family),
+                pair_sc.fit.score(family),
+                search::parameter_count(b.id),
+                self.n_bic,
+            ),
+            cv_before: Some(first_cv.score),
+            cv_after: Some(p.cv.score),
+            validated_on: jointly(a.id),
+        });
+        self.fold_current = p.cv.models;
+        self.cv_before = Some(p.cv.score);
+        self.current = pair_sc;
+        if self.refit_named()? {
+            self.cv_before = out_of_fold_score(&self.fold_current, &self.folds, s);
+        }
+        let (ia, ib) = (a.id, b.id);
+        self.remaining.retain(|r| *r != ia && *r != ib);
+        Ok(!self.remaining.is_empty())
+    }
+
+    /// Keeps candidate `i` of the round: the evidence for it, its model and fold models, and the candidates that
+    /// tie with it. False when nothing is left to try.
+    fn keep_winner(&mut self, tried: &[Tried], i: usize) -> Result<bool, BadInput> {
+        let s = self.s;
         let winner = &tried[i];
-        let Some((sc, db)) = winner.scored.clone() else { break };
+        let Some((sc, db)) = winner.scored.clone() else { return Ok(false) };
         // the winner's prediction again (candidates keep only their errors): the findings need it
-        let sc = Scored::evaluate(sc.model, sc.terms, &s)?;
+        let sc = Scored::evaluate(sc.model, sc.terms, s)?;
         let id = winner.id;
+        self.note_ties(tried, winner);
+        let cv_after = winner.cv.as_ref().map(|c| c.score);
+        let validated_on = self.validated_on(winner);
+        self.kept.push(Kept {
+            id,
+            before: self.current.clone(),
+            after: sc.clone(),
+            delta_bic: db,
+            cv_before: self.cv_before,
+            cv_after,
+            validated_on,
+        });
+        if let Some(c) = &winner.cv {
+            self.fold_current = c.models.clone();
+            self.cv_before = Some(c.score);
+        }
+        self.current = sc;
+        if self.refit_named()? && self.cv {
+            self.cv_before = out_of_fold_score(&self.fold_current, &self.folds, s);
+        }
+        self.remaining.retain(|r| *r != id);
+        Ok(!self.remaining.is_empty())
+    }
+
+    /// The candidates whose gain over the current model comes within `tie_fraction` of the winner's.
+    fn note_ties(&mut self, tried: &[Tried], winner: &Tried) {
+        let family = self.s.family;
+        let before = self.current.validation.score(family);
+        let (cv, cv_before) = (self.cv, self.cv_before);
         let gain_of = |t: &Tried| -> Option<f64> {
             if cv {
                 cv_before.zip(t.cv.as_ref()).map(|(b, c)| b - c.score)
@@ -521,122 +722,132 @@ fn analyze_series(
             }
         };
         if let Some(gain) = gain_of(winner) {
-            for t in &tried {
-                if t.id != id && gain_of(t).is_some_and(|g| g >= opts.tie_fraction * gain) {
-                    ties.push((id, t.id));
+            for t in tried {
+                if t.id != winner.id && gain_of(t).is_some_and(|g| g >= self.opts.tie_fraction * gain) {
+                    self.ties.push((winner.id, t.id));
                 }
             }
         }
-        let cv_after = winner.cv.as_ref().map(|c| c.score);
-        let validated_on = match &winner.cv {
-            Some(c) if 1.0 - (c.score / cv_before.unwrap_or(f64::NAN)).sqrt() < opts.min_relative_drop => {
+    }
+
+    /// What the winner was judged on: the out-of-fold rows of its regime (when it passed there only), all blocks,
+    /// or the validation segment.
+    fn validated_on(&self, winner: &Tried) -> String {
+        let n_folds = self.n_folds;
+        match &winner.cv {
+            Some(c) if 1.0 - (c.score / self.cv_before.unwrap_or(f64::NAN)).sqrt() < self.opts.min_relative_drop => {
                 c.regime.as_ref().map_or_else(String::new, |r| {
                     format!("out-of-fold rows at {} ({:.1} s of the recording)", r.name, r.seconds)
                 })
             }
             Some(_) => format!("out-of-fold free runs of all {n_folds} blocks"),
             None => "the validation segment (last part of the recording)".to_string(),
-        };
-        kept.push(Kept {
-            id,
-            before: current.clone(),
-            after: sc.clone(),
-            delta_bic: db,
-            cv_before,
-            cv_after,
-            validated_on,
-        });
-        if let Some(c) = &winner.cv {
-            fold_current = c.models.clone();
-            cv_before = Some(c.score);
-        }
-        current = sc;
-        if refit_named(&mut current, &mut fold_current, &folds, &s, &std_rows, (nominal, opts))? && cv {
-            cv_before = out_of_fold_score(&fold_current, &folds, &s);
-        }
-        remaining.retain(|r| *r != id);
-        if remaining.is_empty() {
-            break;
         }
     }
-    // the fold models of the final set, for the intervals (the other families: the named effects fitted on each
-    // fold in the order they were named)
-    if !cv {
-        fold_current = fold_baseline
+
+    /// The backward half of the search after an addition ([`refit_named`]); true when a fold model changed.
+    fn refit_named(&mut self) -> Result<bool, BadInput> {
+        let (nominal, opts) = (self.nominal, self.opts);
+        refit_named(&mut self.current, &mut self.fold_current, &self.folds, self.s, &self.std_rows, (nominal, opts))
+    }
+
+    /// The fold models of the final set, for the intervals: under cross-validation those chained through the
+    /// selection; otherwise the named effects fitted on each fold in the order they were named.
+    fn final_fold_models(&mut self) {
+        if self.cv {
+            return;
+        }
+        let s = self.s;
+        self.fold_current = self
+            .fold_baseline
             .iter()
-            .zip(&folds)
+            .zip(&self.folds)
             .map(|(fb, r)| {
                 let (mut m, mut t) = fb.clone()?;
-                for k in &kept {
-                    (m, t) = search::candidate(k.id, &m, t, &s, r, Some(&k.after.model))?;
+                for k in &self.kept {
+                    (m, t) = search::candidate(k.id, &m, t, s, r, Some(&k.after.model))?;
                 }
                 Some((m, t))
             })
             .collect();
     }
-    let fitted_keys = |m: &PlantModel| -> Vec<String> {
-        parameters(m)
-            .into_keys()
-            .filter(|k| family != Family::Flow || !(k == "inertia_kg_m2" || k == "viscous_nm_s_rad"))
-            .filter(|k| {
-                !k.contains('.')
-                    || kept.iter().any(|x| k.starts_with(&format!("{}.", x.id)))
-                    || (["coulomb_friction.", "torque_offset.", "stribeck_friction."].iter().any(|p| k.starts_with(p))
-                        && family != Family::Flow)
-            })
-            .collect()
-    };
-    let baseline_intervals = jackknife(&baseline.model, &fold_baseline, &fitted_keys(&baseline.model));
-    let improved_intervals = jackknife(&current.model, &fold_current, &fitted_keys(&current.model));
-    progress(0.95);
+}
 
-    let conditions = mismatch::Conditions::new(&s);
-    let residuals = residual_signals(&baseline, &s);
+/// The parameters the jackknife gives intervals for: J and B (unless the load is unknown), the named effects', and
+/// the torque-balance terms refitted with them.
+fn interval_keys(m: &PlantModel, family: Family, kept: &[Kept]) -> Vec<String> {
+    parameters(m)
+        .into_keys()
+        .filter(|k| family != Family::Flow || !(k == "inertia_kg_m2" || k == "viscous_nm_s_rad"))
+        .filter(|k| {
+            !k.contains('.')
+                || kept.iter().any(|x| k.starts_with(&format!("{}.", x.id)))
+                || (["coulomb_friction.", "torque_offset.", "stribeck_friction."].iter().any(|p| k.starts_with(p))
+                    && family != Family::Flow)
+        })
+        .collect()
+}
+
+/// The baseline's mismatch windows: the largest `MAX_MISMATCHES` by RMS, in time order.
+fn mismatches(s: &Series, conditions: &mismatch::Conditions, baseline: &Scored) -> Vec<Mismatch> {
+    let residuals = residual_signals(baseline, s);
     let mut mismatches: Vec<Mismatch> =
-        residuals.iter().flat_map(|(name, r)| mismatch::locate(&s, &conditions, name, r)).collect();
+        residuals.iter().flat_map(|(name, r)| mismatch::locate(s, conditions, name, r)).collect();
     mismatches.sort_by(|a, b| b.rms.total_cmp(&a.rms));
     mismatches.truncate(mismatch::MAX_MISMATCHES);
     mismatches.sort_by(|a, b| a.t_start_s.total_cmp(&b.t_start_s));
+    mismatches
+}
 
-    let floors = noise_floors(&s, &current);
-    let timing = timing_variance(&s, &current);
-    let mut unexplained: Vec<mismatch::Unexplained> = residual_signals(&current, &s)
+/// Where the improved model's residual still exceeds the noise floor, the largest share first.
+fn unexplained(s: &Series, conditions: &mismatch::Conditions, improved: &Scored) -> Vec<mismatch::Unexplained> {
+    let floors = noise_floors(s, improved);
+    let timing = timing_variance(s, improved);
+    let mut unexplained: Vec<mismatch::Unexplained> = residual_signals(improved, s)
         .iter()
         .filter_map(|(name, r)| floors.iter().find(|f| f.0 == *name).map(|f| (name, r, f.1)))
         .flat_map(|(name, r, floor)| {
             let timing = (*name == "f_drive").then_some(timing.as_deref()).flatten();
-            mismatch::unexplained(&s, &conditions, name, r, floor, timing)
+            mismatch::unexplained(s, conditions, name, r, floor, timing)
         })
         .collect();
     unexplained.sort_by(|a, b| b.share.total_cmp(&a.share));
+    unexplained
+}
 
-    let findings: Vec<Finding> = kept
-        .iter()
+/// A finding per kept effect, its values and intervals those of the improved model.
+fn findings(
+    kept: &[Kept],
+    improved: &Scored,
+    intervals: &BTreeMap<String, Interval>,
+    s: &Series,
+    conditions: &mismatch::Conditions,
+) -> Vec<Finding> {
+    let family = s.family;
+    kept.iter()
         .map(|k| {
-            let mut f = finding(k.id, &k.before, &k.after, k.delta_bic, &s, &conditions);
+            let mut f = finding(k.id, &k.before, &k.after, k.delta_bic, s, conditions);
             // the torque-balance terms are refitted with every effect named after them: a finding reports its
             // values in the improved model (as `improved.parameters` and the fitted TOML), with their intervals
-            f.parameters = effect_parameters(&current.model, k.id);
+            f.parameters = effect_parameters(&improved.model, k.id);
             let (b, a) = (k.before.validation.score(family), k.after.validation.score(family));
-            f.explanation = explain(k.id, &current.model, &s, b, a);
+            f.explanation = explain(k.id, &improved.model, s, b, a);
             f.evidence.cross_validation_score_before = k.cv_before;
             f.evidence.cross_validation_score_after = k.cv_after;
             f.evidence.validated_on = k.validated_on.clone();
             let prefix = format!("{}.", k.id);
-            f.confidence_intervals = improved_intervals
+            f.confidence_intervals = intervals
                 .iter()
                 .filter_map(|(key, v)| key.strip_prefix(&prefix).map(|p| (p.to_string(), *v)))
                 .collect();
             f
         })
-        .collect();
-    let named: Vec<&str> = kept.iter().map(|k| k.id).collect();
-    let ambiguities = ambiguities(&named, &ties, &current.model, &s);
-    let not_identified = not_identified(&s);
+        .collect()
+}
 
-    let traces = traces(&baseline, &current, &s);
-    progress(1.0);
-    let validation_rule = if cv {
+/// How effects were validated, in words, with the figures of `opts`.
+fn validation_rule(opts: &Options, cv: bool, n_folds: usize) -> String {
+    if cv {
         format!(
             "blocked cross-validation: {n_folds} blocks, each run free from its measured state with the model fitted \
              on the other blocks; an effect is kept when BIC on the fitting segment improves by ≥ {} and the \
@@ -654,48 +865,26 @@ fn analyze_series(
             100.0 * opts.validation_fraction,
             100.0 * opts.min_relative_drop
         )
-    };
-    let interval_method = if folds.is_empty() {
+    }
+}
+
+/// How the confidence intervals were computed, in words.
+fn interval_method(n_folds: usize) -> String {
+    if n_folds == 0 {
         "none (recording too short for the blocks)".to_string()
     } else {
         format!(
             "delete-one-block jackknife over the {n_folds} cross-validation blocks (each fold refits every named \
              effect), 95 %, Student t with folds − 1 degrees of freedom, centred on the reported value"
         )
-    };
-    let mut base_summary = summary(&baseline, &s);
-    base_summary.cross_validation_score = cv_baseline;
-    base_summary.confidence_intervals = baseline_intervals;
-    let mut improved_summary = summary(&current, &s);
-    improved_summary.cross_validation_score = if cv { cv_before } else { None };
-    improved_summary.confidence_intervals = improved_intervals;
-    Ok(Analysis {
-        recording: rec.source.clone(),
-        samples: s.len(),
-        validation_from_s: s.t_s[s.split],
-        family: family.name(),
-        speed_source: s.speed_source,
-        load: s.load,
-        baseline: base_summary,
-        mismatches,
-        findings,
-        ambiguities,
-        not_identified,
-        improved: improved_summary,
-        unexplained,
-        out_of_range: rec.out_of_range.clone(),
-        outliers: s.outliers.clone(),
-        gaps: {
-            let longest =
-                s.restarts.iter().map(|&k| (s.t_s[k] - s.t_s[k - 1], s.t_s[k - 1])).max_by(|a, b| a.0.total_cmp(&b.0));
-            Gaps { count: s.restarts.len(), longest_s: longest.map(|l| l.0), after_t_s: longest.map(|l| l.1) }
-        },
-        validation_rule,
-        interval_method,
-        candidates,
-        improved_model: with_nominal_load(current.model, nominal),
-        traces,
-    })
+    }
+}
+
+/// The recording's gaps in time: how many, and the longest with the `t_s` it follows.
+fn gaps(s: &Series) -> Gaps {
+    let longest =
+        s.restarts.iter().map(|&k| (s.t_s[k] - s.t_s[k - 1], s.t_s[k - 1])).max_by(|a, b| a.0.total_cmp(&b.0));
+    Gaps { count: s.restarts.len(), longest_s: longest.map(|l| l.0), after_t_s: longest.map(|l| l.1) }
 }
 
 /// A candidate of one round: its fit on the fitting segment (with ΔBIC) and, when cross-validated, the folds.
