@@ -19,6 +19,7 @@ use serde::Serialize;
 
 use crate::BadInput;
 use crate::plant::PlantModel;
+use crate::plant::effects::Effects;
 use crate::recording::Recording;
 use crate::units::cm3_per_rev_to_m3_per_rad;
 
@@ -542,9 +543,8 @@ impl<'a> Selection<'a> {
     /// `max_cross_validated` a round: the cost of the folds stays bounded).
     fn cross_validate_best(&self, tried: &mut [Tried]) {
         let opts = self.opts;
-        let mut order: Vec<usize> = (0..tried.len())
-            .filter(|&i| tried[i].scored.as_ref().is_some_and(|x| x.1 >= opts.min_delta_bic))
-            .collect();
+        let mut order: Vec<usize> =
+            (0..tried.len()).filter(|&i| tried[i].scored.as_ref().is_some_and(|x| x.1 >= opts.min_delta_bic)).collect();
         order.sort_by(|&a, &b| {
             let db = |i: usize| tried[i].scored.as_ref().map_or(f64::NEG_INFINITY, |x| x.1);
             db(b).total_cmp(&db(a))
@@ -603,7 +603,10 @@ impl<'a> Selection<'a> {
         } else {
             // Among candidates indistinguishable in score (within 0.5 %), the first in catalogue order, so that
             // exactly equivalent effects (leakage and slip) are named the same way every time.
-            tried.iter().position(|t| self.rank(t).is_some_and(|r| r <= lowest * 1.005)).filter(|&i| self.passes(&tried[i]))
+            tried
+                .iter()
+                .position(|t| self.rank(t).is_some_and(|r| r <= lowest * 1.005))
+                .filter(|&i| self.passes(&tried[i]))
         }
     }
 
@@ -1499,44 +1502,51 @@ fn s_norm(x: &[f64]) -> f64 {
 /// Plain-language physics and evidence for a finding.
 fn explain(id: &str, m: &PlantModel, s: &Series, before: f64, after: f64) -> String {
     let e = &m.effects;
+    let gain = gain_text(s, before, after);
+    // with the load unknown the speed is measured, not predicted: the effects show in the pressure it gives
+    if s.family == Family::Flow
+        && let Some(text) = explain_flow(id, e, &gain)
+    {
+        return text;
+    }
+    let effort = if s.family == Family::Torque { "drive torque" } else { "ΔP" };
+    explain_plant(id, e, effort, gain)
+}
+
+/// The validation error before and after, and the measure it is taken in.
+fn gain_text(s: &Series, before: f64, after: f64) -> String {
     let measure = if s.family == Family::Flow {
         "geometric mean of the ΔP and drive-frequency NRMSE, the speed noise's share taken out"
     } else {
         "root mean squared NRMSE"
     };
-    let gain = format!(
-        "validation error {:.3} → {:.3} ({measure}) on data never used for fitting",
-        before.sqrt(),
-        after.sqrt()
-    );
-    let effort = if s.family == Family::Torque { "drive torque" } else { "ΔP" };
-    // with the load unknown the speed is measured, not predicted: the effects show in the pressure it gives
-    if s.family == Family::Flow {
-        match id {
-            "internal_leakage" => {
-                return format!(
-                    "the pump/motor leak {:.4} L/min per bar more than the model says: for the measured pump and \
-                     motor speeds the model builds more pressure than was measured, in proportion to ΔP; {gain}",
-                    e.internal_leakage.map_or(0.0, |c| c.l_min_per_bar)
-                );
-            }
-            "motor_slip" => {
-                return format!(
-                    "the induction motor slips {:.3} rpm per N·m of pump torque: the pump delivers less than the drive \
-                     frequency says, so less pressure builds than the model predicts, in proportion to ΔP; {gain}",
-                    e.motor_slip.map_or(0.0, |c| c.rpm_per_nm)
-                );
-            }
-            "dead_time" => {
-                return format!(
-                    "the drive answers the setpoint {:.1} ms later than the model: the drive frequency read back lags \
-                     the drive model run from the setpoint after every change; {gain}",
-                    e.dead_time.map_or(0.0, |c| c.ms)
-                );
-            }
-            _ => {}
-        }
+    format!("validation error {:.3} → {:.3} ({measure}) on data never used for fitting", before.sqrt(), after.sqrt())
+}
+
+/// With the load unknown: how a flow-balance effect shows in the pressure and the drive frequency.
+fn explain_flow(id: &str, e: &Effects, gain: &str) -> Option<String> {
+    match id {
+        "internal_leakage" => Some(format!(
+            "the pump/motor leak {:.4} L/min per bar more than the model says: for the measured pump and \
+                 motor speeds the model builds more pressure than was measured, in proportion to ΔP; {gain}",
+            e.internal_leakage.map_or(0.0, |c| c.l_min_per_bar)
+        )),
+        "motor_slip" => Some(format!(
+            "the induction motor slips {:.3} rpm per N·m of pump torque: the pump delivers less than the drive \
+                 frequency says, so less pressure builds than the model predicts, in proportion to ΔP; {gain}",
+            e.motor_slip.map_or(0.0, |c| c.rpm_per_nm)
+        )),
+        "dead_time" => Some(format!(
+            "the drive answers the setpoint {:.1} ms later than the model: the drive frequency read back lags \
+                 the drive model run from the setpoint after every change; {gain}",
+            e.dead_time.map_or(0.0, |c| c.ms)
+        )),
+        _ => None,
     }
+}
+
+/// How an effect shows in the free run of the whole plant (or of the mechanics from a measured torque).
+fn explain_plant(id: &str, e: &Effects, effort: &str, gain: String) -> String {
     match id {
         "coulomb_friction" => format!(
             "dry friction of {:.3} N·m opposes the motion whatever the speed: the model needed that much more {effort} \
