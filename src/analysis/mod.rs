@@ -2,9 +2,10 @@
 //! the proof (validation error on data never used for fitting). `report` renders the result at the edge.
 //!
 //! Pipeline (PHYSICS.md §3): extract the signals ([`series`]) → fit J, B ([`search::fit_mechanics`]) → free-run the
-//! baseline ([`predict`]) → locate mismatch windows ([`mismatch`]) → greedy forward selection over the catalogue,
-//! each candidate fitted on the fitting segment and kept only when it lowers the validation error by a clear margin
-//! and BIC agrees → ambiguities → the improved model.
+//! baseline ([`predict`]) → locate mismatch windows ([`mismatch`]) → greedy forward selection over the catalogue
+//! (`select`), each candidate fitted on the fitting segment and kept only when it lowers the validation error by a
+//! clear margin and BIC agrees (`validate`: the out-of-fold free runs and the intervals) → ambiguities and
+//! explanations (`explain`) → the improved model. The result's types are in `result`, re-exported here.
 
 mod explain;
 pub mod mismatch;
