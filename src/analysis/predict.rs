@@ -357,6 +357,7 @@ struct FlowBalance<'a> {
 }
 
 impl<'a> FlowBalance<'a> {
+    /// The equations with `c`'s coefficients, β/V and 2π/pole pairs taken once.
     fn new(c: &'a Coefficients) -> FlowBalance<'a> {
         FlowBalance { c, beta_v: c.bulk_modulus_pa / c.volume_m3, two_pi_pp: 2.0 * std::f64::consts::PI / c.pole_pairs }
     }
