@@ -2,32 +2,40 @@
 //! the proof (validation error on data never used for fitting). `report` renders the result at the edge.
 //!
 //! Pipeline (PHYSICS.md §3): extract the signals ([`series`]) → fit J, B ([`search::fit_mechanics`]) → free-run the
-//! baseline ([`predict`]) → locate mismatch windows ([`mismatch`]) → greedy forward selection over the catalogue,
-//! each candidate fitted on the fitting segment and kept only when it lowers the validation error by a clear margin
-//! and BIC agrees → ambiguities → the improved model.
+//! baseline ([`predict`]) → locate mismatch windows ([`mismatch`]) → greedy forward selection over the catalogue
+//! (`select`), each candidate fitted on the fitting segment and kept only when it lowers the validation error by a
+//! clear margin and BIC agrees (`validate`: the out-of-fold free runs and the intervals) → ambiguities and
+//! explanations (`explain`) → the improved model. The result's types are in `result`, re-exported here.
 
+mod explain;
 pub mod mismatch;
 pub mod predict;
 pub mod report;
+mod result;
 pub mod search;
+mod select;
 pub mod series;
 pub mod signal;
+mod validate;
 
 use std::collections::BTreeMap;
-
-use serde::Serialize;
 
 use crate::BadInput;
 use crate::plant::PlantModel;
 use crate::recording::Recording;
-use crate::units::cm3_per_rev_to_m3_per_rad;
 
+pub use explain::slip_as_leakage;
 pub use mismatch::Mismatch;
 pub use predict::Errors;
+pub use result::{
+    Ambiguity, Analysis, CandidateScore, Evidence, Finding, Gaps, Interval, NotIdentified, Summary, Traces,
+};
 pub use series::{Family, Series};
 
-use predict::Prediction;
-use search::{MechTerms, Rows, Scored};
+use explain::{ambiguities, explain, not_identified};
+use search::Scored;
+use select::{Kept, Selection, fit_baseline, interval_keys, search_start};
+use validate::jackknife;
 
 /// The recording columns the analysis reads (besides `t_s`); `analyze` holds only these in memory.
 pub const RECORDING_COLUMNS: [&str; 8] =
@@ -90,157 +98,6 @@ impl Default for Options {
             viscous_plausible_factor: 2.0,
         }
     }
-}
-
-/// The analysis JSON of CONTRACT.md, plus what the report draws.
-#[derive(Debug, Clone, Serialize)]
-pub struct Analysis {
-    pub recording: String,
-    pub samples: usize,
-    pub validation_from_s: f64,
-    /// `hydraulic` (free run from setpoint and load) or `torque` (driven by a measured torque).
-    pub family: &'static str,
-    /// Where the speed came from: `omega_rad_s`, or `theta_rad` differentiated after a zero-phase low-pass.
-    pub speed_source: &'static str,
-    /// Where the load torque came from: `recorded` (`load_nm`), `model` (the model's `[load]` profile) or
-    /// `unknown` (the flow balance only).
-    pub load: &'static str,
-    pub baseline: Summary,
-    pub mismatches: Vec<Mismatch>,
-    pub findings: Vec<Finding>,
-    pub ambiguities: Vec<Ambiguity>,
-    /// Parameters this recording does not determine, and why (with the load unknown: J and B).
-    pub not_identified: Vec<NotIdentified>,
-    pub improved: Summary,
-    /// Where the improved model's residual still exceeds the noise floor, grouped by signal and operating
-    /// condition; empty when the model explains the recording down to the sensor noise.
-    pub unexplained: Vec<mismatch::Unexplained>,
-    /// Cells outside their sensor's range, read as missing (per file and column, with the first line).
-    pub out_of_range: Vec<crate::recording::OutOfRange>,
-    /// Lone values far off their neighbours (spikes), taken as missing (per column, with the first `t_s`).
-    pub outliers: Vec<series::Outlier>,
-    /// Steps in `t_s` the free run restarts after (see `series::gaps`): how many, and the longest.
-    pub gaps: Gaps,
-    /// How effects were validated and how the confidence intervals were computed.
-    pub validation_rule: String,
-    pub interval_method: String,
-    /// Every candidate tried, round by round: what the selection saw.
-    pub candidates: Vec<CandidateScore>,
-    #[serde(skip)]
-    pub improved_model: PlantModel,
-    #[serde(skip)]
-    pub traces: Traces,
-}
-
-/// The recording's gaps in time.
-#[derive(Debug, Clone, Default, Serialize)]
-pub struct Gaps {
-    pub count: usize,
-    /// The longest gap (s) and the `t_s` it follows; absent without gaps.
-    pub longest_s: Option<f64>,
-    pub after_t_s: Option<f64>,
-}
-
-/// A model's parameters and its validation errors.
-#[derive(Debug, Clone, Serialize)]
-pub struct Summary {
-    pub parameters: BTreeMap<String, f64>,
-    pub validation: Errors,
-    /// The same errors over the whole recording (fitting and validation segments), to compare with published
-    /// figures computed that way.
-    pub whole_recording: Errors,
-    /// Hydraulic family: the blocked cross-validation score (mean squared NRMSE of the out-of-fold free runs).
-    pub cross_validation_score: Option<f64>,
-    /// 95 % interval of every fitted parameter (`interval_method`); absent when fewer than 3 folds fitted it.
-    pub confidence_intervals: BTreeMap<String, Interval>,
-}
-
-/// A confidence interval.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-pub struct Interval {
-    pub low: f64,
-    pub high: f64,
-}
-
-/// One named effect.
-#[derive(Debug, Clone, Serialize)]
-pub struct Finding {
-    pub effect: String,
-    pub parameters: BTreeMap<String, f64>,
-    /// 95 % interval of each parameter (catalogue names), as in `improved.confidence_intervals`.
-    pub confidence_intervals: BTreeMap<String, Interval>,
-    pub explanation: String,
-    pub evidence: Evidence,
-}
-
-/// Why a finding was kept.
-#[derive(Debug, Clone, Serialize)]
-pub struct Evidence {
-    /// BIC(without) − BIC(with) on the fitting segment; positive favours the effect.
-    pub delta_bic: f64,
-    /// Validation score (mean squared NRMSE) before and after adding the effect.
-    pub validation_score_before: f64,
-    pub validation_score_after: f64,
-    /// 1 − after/before of the validation error (root of the score).
-    pub relative_drop: f64,
-    /// Correlation, on the validation segment, between the residual before the effect and what the effect changes
-    /// in the prediction: near 1 means the effect has the shape of what was missing.
-    pub residual_correlation: f64,
-    /// The conditions of the mismatch windows the effect removes most of.
-    pub where_it_shows: String,
-    /// Hydraulic family: blocked cross-validation score before and after, and what it was judged on.
-    pub cross_validation_score_before: Option<f64>,
-    pub cross_validation_score_after: Option<f64>,
-    pub validated_on: String,
-}
-
-/// Effects this recording cannot tell apart.
-#[derive(Debug, Clone, Serialize)]
-pub struct Ambiguity {
-    pub effects: Vec<String>,
-    pub explanation: String,
-}
-
-/// Parameters the recording leaves undetermined; the model keeps the nominal values.
-#[derive(Debug, Clone, Serialize)]
-pub struct NotIdentified {
-    pub parameters: Vec<String>,
-    pub reason: String,
-}
-
-/// A candidate's score in a selection round.
-#[derive(Debug, Clone, Serialize)]
-pub struct CandidateScore {
-    pub round: usize,
-    pub effect: String,
-    pub validation_score: Option<f64>,
-    pub delta_bic: Option<f64>,
-    /// Hydraulic family, candidates that pass the BIC margin: the out-of-fold score, and on the regime where the
-    /// effect acts (when it has one and the recording holds enough of it).
-    pub cross_validation_score: Option<f64>,
-    pub regime_drop: Option<f64>,
-    pub kept: bool,
-}
-
-/// Signals for the report: the recording, the baseline and the improved model.
-#[derive(Debug, Clone, Default)]
-pub struct Traces {
-    pub t_s: Vec<f64>,
-    pub split: usize,
-    pub omega_meas: Vec<f64>,
-    pub omega_baseline: Vec<f64>,
-    pub omega_improved: Vec<f64>,
-    /// ΔP (bar) or, for a torque-driven recording, torque (N·m): measured, baseline, improved.
-    pub effort_name: &'static str,
-    pub effort_meas: Vec<f64>,
-    pub effort_baseline: Vec<f64>,
-    pub effort_improved: Vec<f64>,
-    /// Low-passed speed, the x axis of the residual maps.
-    pub omega_f: Vec<f64>,
-    /// Flow family: the drive frequency read back and the drive model's (baseline, improved), Hz; empty otherwise.
-    pub drive_meas: Vec<f64>,
-    pub drive_baseline: Vec<f64>,
-    pub drive_improved: Vec<f64>,
 }
 
 /// The parameters of a model the analysis fits, under their contract names.
@@ -314,6 +171,7 @@ impl Origin {
     }
 }
 
+/// The pipeline on the extracted signals: baseline, forward selection, intervals, and what the report shows.
 fn analyze_series(
     s: Series,
     rec: Origin,
@@ -322,321 +180,128 @@ fn analyze_series(
     progress: &mut dyn FnMut(f64),
 ) -> Result<Analysis, BadInput> {
     let family = s.family;
-    // The nominal model's effects are part of the nominal model: the search adds to them.
-    let mut start = nominal.clone();
-    let nominal_terms = MechTerms {
-        coulomb: start.effects.coulomb_friction.is_some(),
-        offset: start.effects.torque_offset.is_some(),
-        stribeck: start.effects.stribeck_friction.is_some(),
-    };
-    start.load = crate::plant::LoadSpec::Recorded;
-    // with the load unknown the torque balance is not fitted: J and B keep the nominal values
-    let base_model = if family == Family::Flow {
-        start.clone()
-    } else {
-        search::fit_mechanics(&start, &s, nominal_terms).ok_or_else(|| {
-            BadInput(format!(
-                "recording {}: inertia and viscous friction cannot be fitted: the speed hardly changes on the \
-                 fitting segment (it needs accelerations and several speeds)",
-                rec.source
-            ))
-        })?
-    };
-    let baseline = Scored::evaluate(base_model, nominal_terms, &s)?;
+    let (start, nominal_terms) = search_start(nominal);
+    let baseline = fit_baseline(&start, nominal_terms, &s, &rec.source)?;
     progress(0.05);
 
-    let search_end = s.split.min((opts.search_window_s * s.sample_hz) as usize).max(100);
-    let std_rows = Rows::standard(&s, search_end);
-    let n_bic = s.split as f64 / 10.0;
-    // Blocked cross-validation: the recording cut into `folds` blocks; fold k fits on the others and runs block k
-    // free from its measured state. The fold models are chained like the selection (each fold keeps the effects
-    // kept so far, fitted on its own rows), and give the jackknife intervals.
-    let n_folds = if opts.folds >= 2 && s.len() >= 200 * opts.folds { opts.folds } else { 0 };
-    let folds: Vec<Rows> = (0..n_folds).map(|k| Rows::fold(&s, k, n_folds, search_end)).collect();
-    let cv = family == Family::Hydraulic && !folds.is_empty();
-    let fold_baseline: Vec<Option<(PlantModel, MechTerms)>> = folds
-        .iter()
-        .map(|r| {
-            if family == Family::Flow {
-                Some((start.clone(), nominal_terms))
-            } else {
-                search::fit_mechanics_on(&start, &s, nominal_terms, &r.ls).map(|m| (m, nominal_terms))
-            }
-        })
-        .collect();
-    let mut fold_current = fold_baseline.clone();
-    let mut cv_before = if cv { out_of_fold_score(&fold_current, &folds, &s) } else { None };
-    let cv_baseline = cv_before;
-    let mut current = baseline.clone();
-    let mut remaining: Vec<&'static str> =
-        search::applicable(&s).into_iter().filter(|id| !nominal.effects.active_ids().contains(id)).collect();
-    let mut kept: Vec<Kept> = Vec::new();
-    let mut candidates = Vec::new();
-    let mut ties: Vec<(&'static str, &'static str)> = Vec::new();
-    let total_rounds = remaining.len().max(1);
+    let mut sel = Selection::new(&s, nominal, opts, (&start, nominal_terms), &baseline);
+    let total_rounds = sel.remaining.len().max(1);
     for round in 1..=total_rounds {
-        let mut tried: Vec<Tried> = Vec::new();
-        for (i, &id) in remaining.iter().enumerate() {
-            let scored = search::candidate(id, &current.model, current.terms, &s, &std_rows, None)
-                .and_then(|(m, terms)| Scored::evaluate(m, terms, &s).ok())
-                .map(Scored::without_prediction)
-                .map(|sc| {
-                    let db = search::delta_bic(
-                        current.fit.score(family),
-                        sc.fit.score(family),
-                        search::parameter_count(id),
-                        n_bic,
-                    );
-                    (sc, db)
-                });
-            tried.push(Tried { id, scored, cv: None });
-            // round r fills the r-th half of what is left: monotonic without knowing how many rounds there will be
-            let (start, end) = (1.0 - 0.5f64.powi(round as i32 - 1), 1.0 - 0.5f64.powi(round as i32));
-            let within = (i + 1) as f64 / remaining.len() as f64;
-            progress(0.05 + 0.9 * (start + (end - start) * within));
-        }
-        // the candidates that pass the BIC margin, the largest ΔBIC first, are cross-validated (at most
-        // `max_cross_validated` a round: the cost of the folds stays bounded)
-        if cv {
-            let mut order: Vec<usize> = (0..tried.len())
-                .filter(|&i| tried[i].scored.as_ref().is_some_and(|x| x.1 >= opts.min_delta_bic))
-                .collect();
-            order.sort_by(|&a, &b| {
-                let db = |i: usize| tried[i].scored.as_ref().map_or(f64::NEG_INFINITY, |x| x.1);
-                db(b).total_cmp(&db(a))
-            });
-            for &i in order.iter().take(opts.max_cross_validated) {
-                if let Some((sc, _)) = &tried[i].scored {
-                    tried[i].cv = cross_validate(tried[i].id, sc, &fold_current, &folds, &s, opts);
-                }
-            }
-        }
-        let before = current.validation.score(family);
-        // the score a candidate is ranked by, and whether it passes the rule
-        let rank = |t: &Tried| -> Option<f64> {
-            if cv { t.cv.as_ref().map(|c| c.score) } else { t.scored.as_ref().map(|x| x.0.validation.score(family)) }
-        };
-        let passes = |t: &Tried| -> bool {
-            let Some((sc, db)) = &t.scored else { return false };
-            if *db < opts.min_delta_bic {
-                return false;
-            }
-            if !resolved(t.id, &sc.model, &current.model, &s, opts) {
-                return false;
-            }
-            let restores_b = restores_viscous(t.id, &sc.model, &current.model, nominal, opts);
-            if cv {
-                let (Some(c), Some(b)) = (&t.cv, cv_before) else { return false };
-                let drop = 1.0 - (c.score / b).sqrt();
-                drop >= opts.min_relative_drop
-                    || (c.score < b && c.regime.as_ref().is_some_and(|r| r.drop >= opts.min_relative_drop))
-                    || (c.score < b && restores_b)
-            } else {
-                let after = t.scored.as_ref().map_or(f64::INFINITY, |x| x.0.validation.score(family));
-                1.0 - (after / before).sqrt() >= opts.min_relative_drop || (after < before && restores_b)
-            }
-        };
-        let lowest = tried.iter().filter_map(rank).fold(f64::INFINITY, f64::min);
-        let accept: Option<usize> = if cv {
-            // among the candidates that pass, the lowest out-of-fold score (within 0.5 %: the first in catalogue
-            // order)
-            let low = tried.iter().filter(|t| passes(t)).filter_map(rank).fold(f64::INFINITY, f64::min);
-            tried.iter().position(|t| passes(t) && rank(t).is_some_and(|r| r <= low * 1.005))
-        } else {
-            // Among candidates indistinguishable in score (within 0.5 %), the first in catalogue order, so that
-            // exactly equivalent effects (leakage and slip) are named the same way every time.
-            tried.iter().position(|t| rank(t).is_some_and(|r| r <= lowest * 1.005)).filter(|&i| passes(&tried[i]))
-        };
-        for (i, t) in tried.iter().enumerate() {
-            candidates.push(CandidateScore {
-                round,
-                effect: t.id.to_string(),
-                validation_score: t.scored.as_ref().map(|x| x.0.validation.score(family)),
-                delta_bic: t.scored.as_ref().map(|x| x.1),
-                cross_validation_score: t.cv.as_ref().map(|c| c.score),
-                regime_drop: t.cv.as_ref().and_then(|c| c.regime.as_ref().map(|r| r.drop)),
-                kept: accept == Some(i),
-            });
-        }
-        let Some(i) = accept else {
-            // No effect earns its place alone: two that do together, each adding to the other (an effect that shows
-            // once another is modelled: a dead time behind a dry friction the viscous term had taken).
-            let pair =
-                if cv { joint_pair(&tried, &current, cv_before, &folds, &s, &std_rows, opts, n_bic) } else { None };
-            let Some(p) = pair else { break };
-            let (a, b) = (&tried[p.first], &tried[p.second]);
-            let (Some((first, first_db)), Some(first_cv)) = (a.scored.clone(), a.cv.as_ref()) else { break };
-            let first = Scored::evaluate(first.model, first.terms, &s)?;
-            let pair_sc = Scored::evaluate(p.scored.model, p.scored.terms, &s)?;
-            for c in candidates.iter_mut().rev().take(tried.len()) {
-                c.kept |= c.effect == a.id || c.effect == b.id;
-            }
-            let jointly = |other: &str| format!("jointly with {other}: out-of-fold free runs of all {n_folds} blocks");
-            kept.push(Kept {
-                id: a.id,
-                before: current.clone(),
-                after: first.clone(),
-                delta_bic: first_db,
-                cv_before,
-                cv_after: Some(first_cv.score),
-                validated_on: jointly(b.id),
-            });
-            kept.push(Kept {
-                id: b.id,
-                before: first.clone(),
-                after: pair_sc.clone(),
-                delta_bic: search::delta_bic(
-                    first.fit.score(family),
-                    pair_sc.fit.score(family),
-                    search::parameter_count(b.id),
-                    n_bic,
-                ),
-                cv_before: Some(first_cv.score),
-                cv_after: Some(p.cv.score),
-                validated_on: jointly(a.id),
-            });
-            fold_current = p.cv.models;
-            cv_before = Some(p.cv.score);
-            current = pair_sc;
-            if refit_named(&mut current, &mut fold_current, &folds, &s, &std_rows, (nominal, opts))? {
-                cv_before = out_of_fold_score(&fold_current, &folds, &s);
-            }
-            let (ia, ib) = (a.id, b.id);
-            remaining.retain(|r| *r != ia && *r != ib);
-            if remaining.is_empty() {
-                break;
-            }
-            continue;
-        };
-        let winner = &tried[i];
-        let Some((sc, db)) = winner.scored.clone() else { break };
-        // the winner's prediction again (candidates keep only their errors): the findings need it
-        let sc = Scored::evaluate(sc.model, sc.terms, &s)?;
-        let id = winner.id;
-        let gain_of = |t: &Tried| -> Option<f64> {
-            if cv {
-                cv_before.zip(t.cv.as_ref()).map(|(b, c)| b - c.score)
-            } else {
-                t.scored.as_ref().map(|x| before - x.0.validation.score(family))
-            }
-        };
-        if let Some(gain) = gain_of(winner) {
-            for t in &tried {
-                if t.id != id && gain_of(t).is_some_and(|g| g >= opts.tie_fraction * gain) {
-                    ties.push((id, t.id));
-                }
-            }
-        }
-        let cv_after = winner.cv.as_ref().map(|c| c.score);
-        let validated_on = match &winner.cv {
-            Some(c) if 1.0 - (c.score / cv_before.unwrap_or(f64::NAN)).sqrt() < opts.min_relative_drop => {
-                c.regime.as_ref().map_or_else(String::new, |r| {
-                    format!("out-of-fold rows at {} ({:.1} s of the recording)", r.name, r.seconds)
-                })
-            }
-            Some(_) => format!("out-of-fold free runs of all {n_folds} blocks"),
-            None => "the validation segment (last part of the recording)".to_string(),
-        };
-        kept.push(Kept {
-            id,
-            before: current.clone(),
-            after: sc.clone(),
-            delta_bic: db,
-            cv_before,
-            cv_after,
-            validated_on,
-        });
-        if let Some(c) = &winner.cv {
-            fold_current = c.models.clone();
-            cv_before = Some(c.score);
-        }
-        current = sc;
-        if refit_named(&mut current, &mut fold_current, &folds, &s, &std_rows, (nominal, opts))? && cv {
-            cv_before = out_of_fold_score(&fold_current, &folds, &s);
-        }
-        remaining.retain(|r| *r != id);
-        if remaining.is_empty() {
+        if !sel.round(round, progress)? {
             break;
         }
     }
-    // the fold models of the final set, for the intervals (the other families: the named effects fitted on each
-    // fold in the order they were named)
-    if !cv {
-        fold_current = fold_baseline
-            .iter()
-            .zip(&folds)
-            .map(|(fb, r)| {
-                let (mut m, mut t) = fb.clone()?;
-                for k in &kept {
-                    (m, t) = search::candidate(k.id, &m, t, &s, r, Some(&k.after.model))?;
-                }
-                Some((m, t))
-            })
-            .collect();
-    }
-    let fitted_keys = |m: &PlantModel| -> Vec<String> {
-        parameters(m)
-            .into_keys()
-            .filter(|k| family != Family::Flow || !(k == "inertia_kg_m2" || k == "viscous_nm_s_rad"))
-            .filter(|k| {
-                !k.contains('.')
-                    || kept.iter().any(|x| k.starts_with(&format!("{}.", x.id)))
-                    || (["coulomb_friction.", "torque_offset.", "stribeck_friction."].iter().any(|p| k.starts_with(p))
-                        && family != Family::Flow)
-            })
-            .collect()
-    };
-    let baseline_intervals = jackknife(&baseline.model, &fold_baseline, &fitted_keys(&baseline.model));
-    let improved_intervals = jackknife(&current.model, &fold_current, &fitted_keys(&current.model));
+    sel.final_fold_models();
+    let baseline_intervals =
+        jackknife(&baseline.model, &sel.fold_baseline, &interval_keys(&baseline.model, family, &sel.kept));
+    let improved_intervals =
+        jackknife(&sel.current.model, &sel.fold_current, &interval_keys(&sel.current.model, family, &sel.kept));
     progress(0.95);
 
     let conditions = mismatch::Conditions::new(&s);
-    let residuals = residual_signals(&baseline, &s);
+    let mismatches = mismatches(&s, &conditions, &baseline);
+    let unexplained = unexplained(&s, &conditions, &sel.current);
+    let findings = findings(&sel.kept, &sel.current, &improved_intervals, &s, &conditions);
+    let named: Vec<&str> = sel.kept.iter().map(|k| k.id).collect();
+    let ambiguities = ambiguities(&named, &sel.ties, &sel.current.model, &s);
+    let not_identified = not_identified(&s);
+
+    let traces = traces(&baseline, &sel.current, &s);
+    progress(1.0);
+    let validation_rule = validation_rule(opts, sel.cv, sel.n_folds);
+    let interval_method = interval_method(sel.n_folds);
+    let mut base_summary = summary(&baseline, &s);
+    base_summary.cross_validation_score = sel.cv_baseline;
+    base_summary.confidence_intervals = baseline_intervals;
+    let mut improved_summary = summary(&sel.current, &s);
+    improved_summary.cross_validation_score = if sel.cv { sel.cv_before } else { None };
+    improved_summary.confidence_intervals = improved_intervals;
+    let Selection { current, candidates, .. } = sel;
+    Ok(Analysis {
+        recording: rec.source.clone(),
+        samples: s.len(),
+        validation_from_s: s.t_s[s.split],
+        family: family.name(),
+        speed_source: s.speed_source,
+        load: s.load,
+        baseline: base_summary,
+        mismatches,
+        findings,
+        ambiguities,
+        not_identified,
+        improved: improved_summary,
+        unexplained,
+        out_of_range: rec.out_of_range.clone(),
+        outliers: s.outliers.clone(),
+        gaps: gaps(&s),
+        validation_rule,
+        interval_method,
+        candidates,
+        improved_model: with_nominal_load(current.model, nominal),
+        traces,
+    })
+}
+
+/// The baseline's mismatch windows: the largest `MAX_MISMATCHES` by RMS, in time order.
+fn mismatches(s: &Series, conditions: &mismatch::Conditions, baseline: &Scored) -> Vec<Mismatch> {
+    let residuals = residual_signals(baseline, s);
     let mut mismatches: Vec<Mismatch> =
-        residuals.iter().flat_map(|(name, r)| mismatch::locate(&s, &conditions, name, r)).collect();
+        residuals.iter().flat_map(|(name, r)| mismatch::locate(s, conditions, name, r)).collect();
     mismatches.sort_by(|a, b| b.rms.total_cmp(&a.rms));
     mismatches.truncate(mismatch::MAX_MISMATCHES);
     mismatches.sort_by(|a, b| a.t_start_s.total_cmp(&b.t_start_s));
+    mismatches
+}
 
-    let floors = noise_floors(&s, &current);
-    let timing = timing_variance(&s, &current);
-    let mut unexplained: Vec<mismatch::Unexplained> = residual_signals(&current, &s)
+/// Where the improved model's residual still exceeds the noise floor, the largest share first.
+fn unexplained(s: &Series, conditions: &mismatch::Conditions, improved: &Scored) -> Vec<mismatch::Unexplained> {
+    let floors = noise_floors(s, improved);
+    let timing = timing_variance(s, improved);
+    let mut unexplained: Vec<mismatch::Unexplained> = residual_signals(improved, s)
         .iter()
         .filter_map(|(name, r)| floors.iter().find(|f| f.0 == *name).map(|f| (name, r, f.1)))
         .flat_map(|(name, r, floor)| {
             let timing = (*name == "f_drive").then_some(timing.as_deref()).flatten();
-            mismatch::unexplained(&s, &conditions, name, r, floor, timing)
+            mismatch::unexplained(s, conditions, name, r, floor, timing)
         })
         .collect();
     unexplained.sort_by(|a, b| b.share.total_cmp(&a.share));
+    unexplained
+}
 
-    let findings: Vec<Finding> = kept
-        .iter()
+/// A finding per kept effect, its values and intervals those of the improved model.
+fn findings(
+    kept: &[Kept],
+    improved: &Scored,
+    intervals: &BTreeMap<String, Interval>,
+    s: &Series,
+    conditions: &mismatch::Conditions,
+) -> Vec<Finding> {
+    let family = s.family;
+    kept.iter()
         .map(|k| {
-            let mut f = finding(k.id, &k.before, &k.after, k.delta_bic, &s, &conditions);
+            let mut f = finding(k.id, &k.before, &k.after, k.delta_bic, s, conditions);
             // the torque-balance terms are refitted with every effect named after them: a finding reports its
             // values in the improved model (as `improved.parameters` and the fitted TOML), with their intervals
-            f.parameters = effect_parameters(&current.model, k.id);
+            f.parameters = effect_parameters(&improved.model, k.id);
             let (b, a) = (k.before.validation.score(family), k.after.validation.score(family));
-            f.explanation = explain(k.id, &current.model, &s, b, a);
+            f.explanation = explain(k.id, &improved.model, s, b, a);
             f.evidence.cross_validation_score_before = k.cv_before;
             f.evidence.cross_validation_score_after = k.cv_after;
             f.evidence.validated_on = k.validated_on.clone();
             let prefix = format!("{}.", k.id);
-            f.confidence_intervals = improved_intervals
+            f.confidence_intervals = intervals
                 .iter()
                 .filter_map(|(key, v)| key.strip_prefix(&prefix).map(|p| (p.to_string(), *v)))
                 .collect();
             f
         })
-        .collect();
-    let named: Vec<&str> = kept.iter().map(|k| k.id).collect();
-    let ambiguities = ambiguities(&named, &ties, &current.model, &s);
-    let not_identified = not_identified(&s);
+        .collect()
+}
 
-    let traces = traces(&baseline, &current, &s);
-    progress(1.0);
-    let validation_rule = if cv {
+/// How effects were validated, in words, with the figures of `opts`.
+fn validation_rule(opts: &Options, cv: bool, n_folds: usize) -> String {
+    if cv {
         format!(
             "blocked cross-validation: {n_folds} blocks, each run free from its measured state with the model fitted \
              on the other blocks; an effect is kept when BIC on the fitting segment improves by ≥ {} and the \
@@ -654,426 +319,26 @@ fn analyze_series(
             100.0 * opts.validation_fraction,
             100.0 * opts.min_relative_drop
         )
-    };
-    let interval_method = if folds.is_empty() {
+    }
+}
+
+/// How the confidence intervals were computed, in words.
+fn interval_method(n_folds: usize) -> String {
+    if n_folds == 0 {
         "none (recording too short for the blocks)".to_string()
     } else {
         format!(
             "delete-one-block jackknife over the {n_folds} cross-validation blocks (each fold refits every named \
              effect), 95 %, Student t with folds − 1 degrees of freedom, centred on the reported value"
         )
-    };
-    let mut base_summary = summary(&baseline, &s);
-    base_summary.cross_validation_score = cv_baseline;
-    base_summary.confidence_intervals = baseline_intervals;
-    let mut improved_summary = summary(&current, &s);
-    improved_summary.cross_validation_score = if cv { cv_before } else { None };
-    improved_summary.confidence_intervals = improved_intervals;
-    Ok(Analysis {
-        recording: rec.source.clone(),
-        samples: s.len(),
-        validation_from_s: s.t_s[s.split],
-        family: family.name(),
-        speed_source: s.speed_source,
-        load: s.load,
-        baseline: base_summary,
-        mismatches,
-        findings,
-        ambiguities,
-        not_identified,
-        improved: improved_summary,
-        unexplained,
-        out_of_range: rec.out_of_range.clone(),
-        outliers: s.outliers.clone(),
-        gaps: {
-            let longest =
-                s.restarts.iter().map(|&k| (s.t_s[k] - s.t_s[k - 1], s.t_s[k - 1])).max_by(|a, b| a.0.total_cmp(&b.0));
-            Gaps { count: s.restarts.len(), longest_s: longest.map(|l| l.0), after_t_s: longest.map(|l| l.1) }
-        },
-        validation_rule,
-        interval_method,
-        candidates,
-        improved_model: with_nominal_load(current.model, nominal),
-        traces,
-    })
-}
-
-/// A candidate of one round: its fit on the fitting segment (with ΔBIC) and, when cross-validated, the folds.
-struct Tried {
-    id: &'static str,
-    scored: Option<(Scored, f64)>,
-    cv: Option<CrossValidated>,
-}
-
-/// A kept effect and the evidence for it.
-struct Kept {
-    id: &'static str,
-    before: Scored,
-    after: Scored,
-    delta_bic: f64,
-    cv_before: Option<f64>,
-    cv_after: Option<f64>,
-    validated_on: String,
-}
-
-/// A re-fit of a named effect on given rows (None: nothing to re-fit).
-type Refit<'a> = dyn Fn(&PlantModel, MechTerms, &Rows) -> Option<PlantModel> + 'a;
-
-/// The backward half of the search: after an addition, where B is still beyond `viscous_plausible_factor` of the
-/// nominal model's with both dry terms named, the Coulomb level is split out of the breakaway again beside what
-/// came since, on the standard rows and on every fold's, and kept where the free run fits better. A Coulomb level
-/// found before a dead time was in was fitted against a free run the dead time distorted. Likewise a named Stribeck
-/// friction (with B) and a named dead time beside it ([`search::refit_low_speed`]). True when a fold model changed
-/// (the out-of-fold score must then be taken again).
-fn refit_named(
-    current: &mut Scored,
-    fold_current: &mut [Option<(PlantModel, MechTerms)>],
-    folds: &[Rows],
-    s: &Series,
-    rows: &Rows,
-    (nominal, opts): (&PlantModel, &Options),
-) -> Result<bool, BadInput> {
-    let coulomb_again = |m: &PlantModel, t: MechTerms, r: &Rows| -> Option<PlantModel> {
-        m.effects.coulomb_friction.and(m.effects.stribeck_friction)?;
-        if viscous_plausible(m, nominal, opts) {
-            return None;
-        }
-        let mut stripped = m.clone();
-        stripped.effects.coulomb_friction = None;
-        search::coulomb_beside_stribeck(&stripped, t, s, r)
-    };
-    // the backward step for low-speed friction: refined again beside what was named since (a dead time)
-    let low_speed_again = |m: &PlantModel, t: MechTerms, r: &Rows| search::refit_low_speed(m, t, s, r);
-    let refits: [&Refit; 2] = [&coulomb_again, &low_speed_again];
-    let mut folds_changed = false;
-    for refit in refits {
-        if let Some(m) = refit(&current.model, current.terms, rows) {
-            let refitted = Scored::evaluate(m, current.terms, s)?;
-            if rows.search_cost(&refitted.model, s) < rows.search_cost(&current.model, s) {
-                *current = refitted;
-            }
-        }
-        for (fold, r) in fold_current.iter_mut().zip(folds) {
-            if let Some((m, t)) = fold.as_ref()
-                && let Some(n) = refit(m, *t, r)
-                && r.search_cost(&n, s) < r.search_cost(m, s)
-            {
-                *fold = Some((n, *t));
-                folds_changed = true;
-            }
-        }
-    }
-    Ok(folds_changed)
-}
-
-/// Two candidates of a round kept together: the first as tried alone, the second fitted on top of it.
-struct Pair {
-    first: usize,
-    second: usize,
-    scored: Scored,
-    cv: CrossValidated,
-}
-
-/// The pair of this round's cross-validated candidates that passes the rule together where neither did alone: ΔBIC
-/// of the two over the current model at least the margin, the out-of-fold error down by `min_relative_drop`, and
-/// each of the two lowering it below what the other alone reaches. The lowest out-of-fold score wins.
-#[allow(clippy::too_many_arguments)]
-fn joint_pair(
-    tried: &[Tried],
-    current: &Scored,
-    cv_before: Option<f64>,
-    folds: &[Rows],
-    s: &Series,
-    rows: &Rows,
-    opts: &Options,
-    n_bic: f64,
-) -> Option<Pair> {
-    let before = cv_before?;
-    let family = s.family;
-    let open: Vec<usize> = (0..tried.len())
-        .filter(|&i| {
-            let (Some((sc, db)), Some(c)) = (&tried[i].scored, &tried[i].cv) else { return false };
-            *db >= opts.min_delta_bic && c.score < before && resolved(tried[i].id, &sc.model, &current.model, s, opts)
-        })
-        .collect();
-    let mut best: Option<Pair> = None;
-    for &i in &open {
-        for &k in &open {
-            if i == k {
-                continue;
-            }
-            let (a, b) = (&tried[i], &tried[k]);
-            let (Some((first, _)), Some(a_cv), Some(b_cv)) = (&a.scored, &a.cv, &b.cv) else { continue };
-            let Some((m, t)) = search::candidate(b.id, &first.model, first.terms, s, rows, None) else { continue };
-            let Ok(pair) = Scored::evaluate(m, t, s).map(Scored::without_prediction) else { continue };
-            let params = search::parameter_count(a.id) + search::parameter_count(b.id);
-            let db = search::delta_bic(current.fit.score(family), pair.fit.score(family), params, n_bic);
-            if db < opts.min_delta_bic || !resolved(b.id, &pair.model, &first.model, s, opts) {
-                continue;
-            }
-            let Some(c) = cross_validate(b.id, &pair, &a_cv.models, folds, s, opts) else { continue };
-            let each = c.score < a_cv.score && c.score < b_cv.score;
-            if each
-                && 1.0 - (c.score / before).sqrt() >= opts.min_relative_drop
-                && best.as_ref().is_none_or(|p| c.score < p.cv.score)
-            {
-                best = Some(Pair { first: i, second: k, scored: pair, cv: c });
-            }
-        }
-    }
-    best
-}
-
-/// A candidate fitted on every fold.
-struct CrossValidated {
-    /// Each fold's model (the fold's previous model where the effect could not be fitted on it).
-    models: Vec<Option<(PlantModel, MechTerms)>>,
-    /// Out-of-fold score (mean squared NRMSE of the blocks' free runs) with the effect.
-    score: f64,
-    regime: Option<Regime>,
-}
-
-/// The out-of-fold error on the rows of the regime where an effect acts.
-struct Regime {
-    name: String,
-    seconds: f64,
-    /// 1 − after/before of the root of the regime's share of the out-of-fold score.
-    drop: f64,
-}
-
-/// Whether effect `id`, as fitted in `candidate`, lies beyond what the recording and the plant's own variation
-/// resolve against `current` (the model before it):
-/// - a dead time shorter than one sample period is below what the recording resolves: a service recording stamps a
-///   row when the read is sent and the setpoint lands after the reply, so such a lag is the recorder's own;
-/// - an oil's bulk modulus moves by 10–20 % with its temperature and pressure, and a service recording's poll jitter
-///   softens the fitted one by as much (a plant with only Coulomb friction, served at 5 ms on a loaded machine, gave
-///   8 % below the model's): an effective modulus above `air_max_modulus_ratio` of the model's is not entrained air;
-/// - leakage through a clearance goes with the oil's viscosity, which moves by 20 % and more over a few kelvin, and
-///   a few hundredths of a bar of ΔP timing error is taken up by a trace of it (the Coulomb-friction plant served at
-///   5 ms once gave 0.00034 L/min/bar, 1.7 % of the model's): an added leakage (or slip's equivalent) below
-///   `leak_min_ratio` of the model's, or taking less than `leak_min_flow_share` of the motor's flow, is not a
-///   leak.
-fn resolved(id: &str, candidate: &PlantModel, current: &PlantModel, s: &Series, opts: &Options) -> bool {
-    let e = &candidate.effects;
-    match id {
-        "dead_time" => e.dead_time.is_none_or(|d| d.ms >= 1e3 / s.sample_hz),
-        "entrained_air" => {
-            let nominal_bulk = current.hydraulics.as_ref().map_or(f64::INFINITY, |h| h.bulk_modulus_bar);
-            e.entrained_air.is_none_or(|a| a.bulk_modulus_bar <= opts.air_max_modulus_ratio * nominal_bulk)
-        }
-        "internal_leakage" | "motor_slip" => {
-            let nominal_leak = current.hydraulics.as_ref().map_or(0.0, |h| h.leakage_l_min_per_bar);
-            let added = match id {
-                "internal_leakage" => e.internal_leakage.map(|l| l.l_min_per_bar),
-                _ => e.motor_slip.and_then(|k| slip_as_leakage(candidate, k.rpm_per_nm)),
-            };
-            let floor = (opts.leak_min_ratio * nominal_leak)
-                .max(opts.leak_min_flow_share * flow_per_bar(current, s).unwrap_or(0.0));
-            added.is_none_or(|c| c >= floor)
-        }
-        _ => true,
     }
 }
 
-/// Whether dry-friction candidate `id` brings the viscous friction back within `viscous_plausible_factor` of the
-/// nominal model's, from beyond it in `current`: the sign that the dry term was missing (`Options`). Never with
-/// `min_relative_drop` infinite (nothing is to be named).
-fn restores_viscous(
-    id: &str,
-    candidate: &PlantModel,
-    current: &PlantModel,
-    nominal: &PlantModel,
-    opts: &Options,
-) -> bool {
-    ["coulomb_friction", "stribeck_friction"].contains(&id)
-        && nominal.motor.viscous_nm_s_rad > 0.0
-        && opts.min_relative_drop.is_finite()
-        && !viscous_plausible(current, nominal, opts)
-        && viscous_plausible(candidate, nominal, opts)
-}
-
-/// Whether `m`'s B lies within `viscous_plausible_factor` of the nominal model's.
-fn viscous_plausible(m: &PlantModel, nominal: &PlantModel, opts: &Options) -> bool {
-    let (b0, f) = (nominal.motor.viscous_nm_s_rad, opts.viscous_plausible_factor);
-    (b0 / f..=b0 * f).contains(&m.motor.viscous_nm_s_rad)
-}
-
-/// The motor's mean flow over the recording's mean |ΔP| (L/min/bar): the leakage coefficient that would take the
-/// whole flow.
-fn flow_per_bar(m: &PlantModel, s: &Series) -> Option<f64> {
-    let d_m = crate::units::cm3_per_rev_to_m3_per_rad(m.motor.displacement_cm3?);
-    let mean_abs = |v: &[f64]| {
-        let (sum, n) = v.iter().filter(|x| x.is_finite()).fold((0.0, 0usize), |(a, n), x| (a + x.abs(), n + 1));
-        (n > 0).then(|| sum / n as f64)
-    };
-    let flow_m3_s = d_m * mean_abs(&s.omega_f)?;
-    let dp_bar = mean_abs(s.dp_bar.as_deref()?)?;
-    (dp_bar > 0.0).then(|| flow_m3_s / crate::units::l_min_per_bar_to_si(1.0) / crate::units::bar_to_pa(dp_bar))
-}
-
-/// The out-of-fold prediction: block k predicted by fold k's model, run free from the block's measured state.
-fn out_of_fold(models: &[Option<(PlantModel, MechTerms)>], folds: &[Rows], s: &Series) -> Option<Prediction> {
-    let n = s.len();
-    let mut out: Option<Prediction> = None;
-    let copy = |dst: &mut Vec<f64>, src: &[f64], a: usize, b: usize| dst[a..b].copy_from_slice(&src[a..b]);
-    for (m, r) in models.iter().zip(folds) {
-        let (a, b) = r.held_out?;
-        let (m, _) = m.as_ref()?;
-        let p = predict::predict_rows(m, s, a, b, &[]).ok()?;
-        let o = out.get_or_insert_with(|| Prediction {
-            omega_rad_s: vec![f64::NAN; n],
-            dp_bar: p.dp_bar.as_ref().map(|_| vec![f64::NAN; n]),
-            torque_nm: p.torque_nm.as_ref().map(|_| vec![f64::NAN; n]),
-            f_drive_hz: p.f_drive_hz.as_ref().map(|_| vec![f64::NAN; n]),
-            dp_noise_bar2: p.dp_noise_bar2,
-        });
-        copy(&mut o.omega_rad_s, &p.omega_rad_s, a, b);
-        if let (Some(d), Some(v)) = (o.dp_bar.as_mut(), p.dp_bar.as_ref()) {
-            copy(d, v, a, b);
-        }
-        if let (Some(d), Some(v)) = (o.torque_nm.as_mut(), p.torque_nm.as_ref()) {
-            copy(d, v, a, b);
-        }
-        if let (Some(d), Some(v)) = (o.f_drive_hz.as_mut(), p.f_drive_hz.as_ref()) {
-            copy(d, v, a, b);
-        }
-    }
-    out
-}
-
-fn out_of_fold_score(models: &[Option<(PlantModel, MechTerms)>], folds: &[Rows], s: &Series) -> Option<f64> {
-    let p = out_of_fold(models, folds, s)?;
-    Some(predict::errors(&p, s, 0, s.len()).score(s.family)).filter(|v| v.is_finite())
-}
-
-/// Hydraulic score restricted to `rows`: Σ over the rows of the squared error of each judged signal, over that
-/// signal's total variance on the whole recording, averaged over the signals (the regime's share of the score).
-fn regime_score(p: &Prediction, s: &Series, rows: &[bool]) -> f64 {
-    let part = |sim: &[f64], meas: &[f64]| -> f64 {
-        let fin: Vec<(f64, f64)> =
-            sim.iter().zip(meas).map(|(a, b)| (*a, *b)).filter(|(a, b)| a.is_finite() && b.is_finite()).collect();
-        let mean = fin.iter().map(|x| x.1).sum::<f64>() / fin.len().max(1) as f64;
-        let den: f64 = fin.iter().map(|x| (x.1 - mean).powi(2)).sum();
-        let num: f64 = sim
-            .iter()
-            .zip(meas)
-            .zip(rows)
-            .filter(|((a, b), r)| **r && a.is_finite() && b.is_finite())
-            .map(|((a, b), _)| (a - b).powi(2))
-            .sum();
-        if den > 0.0 { num / den } else { f64::NAN }
-    };
-    let w = part(&p.omega_rad_s, &s.omega_rad_s);
-    match (&p.dp_bar, &s.dp_bar) {
-        (Some(sim), Some(meas)) => 0.5 * (w + part(sim, meas)),
-        _ => w,
-    }
-}
-
-/// A dead time acts while the drive follows a setpoint move: the rows up to this many dead times after the
-/// setpoint changed, and at least `DEAD_TIME_REGIME_MIN_S`.
-const DEAD_TIME_REGIME_LAGS: f64 = 8.0;
-const DEAD_TIME_REGIME_MIN_S: f64 = 0.25;
-
-/// The rows at most `after_s` after the setpoint last changed (a step, or any sample of a ramp).
-fn moving(setpoint: &[f64], after_s: f64, sample_hz: f64) -> Vec<bool> {
-    let span = (after_s * sample_hz).round() as usize;
-    let mut last_move: Option<usize> = None;
-    (0..setpoint.len())
-        .map(|k| {
-            if k > 0 && (setpoint[k] - setpoint[k - 1]).abs() > 1e-9 {
-                last_move = Some(k);
-            }
-            last_move.is_some_and(|m| k - m <= span)
-        })
-        .collect()
-}
-
-/// Fits candidate `id` on every fold (on top of that fold's current model) and scores the blocks out of fold.
-fn cross_validate(
-    id: &str,
-    standard: &Scored,
-    fold_current: &[Option<(PlantModel, MechTerms)>],
-    folds: &[Rows],
-    s: &Series,
-    opts: &Options,
-) -> Option<CrossValidated> {
-    let models: Vec<Option<(PlantModel, MechTerms)>> = fold_current
-        .iter()
-        .zip(folds)
-        .map(|(cur, r)| {
-            let (m, t) = cur.as_ref()?;
-            search::candidate(id, m, *t, s, r, Some(&standard.model)).or_else(|| Some((m.clone(), *t)))
-        })
-        .collect();
-    let p = out_of_fold(&models, folds, s)?;
-    let score = predict::errors(&p, s, 0, s.len()).score(s.family);
-    if !score.is_finite() {
-        return None;
-    }
-    // the regime where the effect acts, from the standard fit
-    let e = &standard.model.effects;
-    let acts: Option<(String, Vec<bool>)> = match (id, e.stribeck_friction, e.dead_time, &s.setpoint_hz) {
-        ("stribeck_friction", Some(st), _, _) => Some((
-            format!("low speed (|ω| < {:.2} rad/s)", 2.0 * st.speed_rad_s),
-            s.omega_f.iter().map(|w| w.abs() < 2.0 * st.speed_rad_s).collect(),
-        )),
-        ("dead_time", _, Some(d), Some(sp)) => {
-            let after_s = (DEAD_TIME_REGIME_LAGS * d.ms / 1e3).max(DEAD_TIME_REGIME_MIN_S);
-            Some((
-                format!("setpoint moves (up to {after_s:.2} s after the setpoint changed)"),
-                moving(sp, after_s, s.sample_hz),
-            ))
-        }
-        _ => None,
-    };
-    let regime = acts.and_then(|(name, rows)| {
-        let seconds = rows.iter().filter(|r| **r).count() as f64 / s.sample_hz;
-        if seconds < opts.regime_min_s {
-            return None;
-        }
-        let before = out_of_fold(fold_current, folds, s).map(|q| regime_score(&q, s, &rows));
-        let after = regime_score(&p, s, &rows);
-        before.filter(|b| *b > 0.0 && after.is_finite()).map(|b| Regime {
-            name,
-            seconds,
-            drop: 1.0 - (after / b).sqrt(),
-        })
-    });
-    Some(CrossValidated { models, score, regime })
-}
-
-/// Delete-one-block jackknife: 95 % interval of each `key` around the reported value, from the fold estimates.
-fn jackknife(
-    reported: &PlantModel,
-    folds: &[Option<(PlantModel, MechTerms)>],
-    keys: &[String],
-) -> BTreeMap<String, Interval> {
-    let reported = parameters(reported);
-    let fold_params: Vec<BTreeMap<String, f64>> = folds.iter().flatten().map(|(m, _)| parameters(m)).collect();
-    let mut out = BTreeMap::new();
-    for key in keys {
-        let Some(&theta) = reported.get(key) else { continue };
-        let v: Vec<f64> = fold_params.iter().filter_map(|p| p.get(key).copied()).filter(|x| x.is_finite()).collect();
-        let m = v.len();
-        if m < 3 {
-            continue;
-        }
-        let mean = v.iter().sum::<f64>() / m as f64;
-        let se = ((m as f64 - 1.0) / m as f64 * v.iter().map(|x| (x - mean).powi(2)).sum::<f64>()).sqrt();
-        // Student t, 97.5 % quantile, m − 1 degrees of freedom
-        let t = match m - 1 {
-            2 => 4.303,
-            3 => 3.182,
-            4 => 2.776,
-            5 => 2.571,
-            6 => 2.447,
-            7 => 2.365,
-            _ => 2.306,
-        };
-        out.insert(key.clone(), Interval { low: theta - t * se, high: theta + t * se });
-    }
-    out
+/// The recording's gaps in time: how many, and the longest with the `t_s` it follows.
+fn gaps(s: &Series) -> Gaps {
+    let longest =
+        s.restarts.iter().map(|&k| (s.t_s[k] - s.t_s[k - 1], s.t_s[k - 1])).max_by(|a, b| a.0.total_cmp(&b.0));
+    Gaps { count: s.restarts.len(), longest_s: longest.map(|l| l.0), after_t_s: longest.map(|l| l.1) }
 }
 
 /// The sensor-noise floor of each judged signal, as the residual sees it: σ of the white part of the measurement
@@ -1305,204 +570,6 @@ fn finding(
 
 fn s_norm(x: &[f64]) -> f64 {
     x.iter().map(|v| v * v).sum()
-}
-
-/// Plain-language physics and evidence for a finding.
-fn explain(id: &str, m: &PlantModel, s: &Series, before: f64, after: f64) -> String {
-    let e = &m.effects;
-    let measure = if s.family == Family::Flow {
-        "geometric mean of the ΔP and drive-frequency NRMSE, the speed noise's share taken out"
-    } else {
-        "root mean squared NRMSE"
-    };
-    let gain = format!(
-        "validation error {:.3} → {:.3} ({measure}) on data never used for fitting",
-        before.sqrt(),
-        after.sqrt()
-    );
-    let effort = if s.family == Family::Torque { "drive torque" } else { "ΔP" };
-    // with the load unknown the speed is measured, not predicted: the effects show in the pressure it gives
-    if s.family == Family::Flow {
-        match id {
-            "internal_leakage" => {
-                return format!(
-                    "the pump/motor leak {:.4} L/min per bar more than the model says: for the measured pump and \
-                     motor speeds the model builds more pressure than was measured, in proportion to ΔP; {gain}",
-                    e.internal_leakage.map_or(0.0, |c| c.l_min_per_bar)
-                );
-            }
-            "motor_slip" => {
-                return format!(
-                    "the induction motor slips {:.3} rpm per N·m of pump torque: the pump delivers less than the drive \
-                     frequency says, so less pressure builds than the model predicts, in proportion to ΔP; {gain}",
-                    e.motor_slip.map_or(0.0, |c| c.rpm_per_nm)
-                );
-            }
-            "dead_time" => {
-                return format!(
-                    "the drive answers the setpoint {:.1} ms later than the model: the drive frequency read back lags \
-                     the drive model run from the setpoint after every change; {gain}",
-                    e.dead_time.map_or(0.0, |c| c.ms)
-                );
-            }
-            _ => {}
-        }
-    }
-    match id {
-        "coulomb_friction" => format!(
-            "dry friction of {:.3} N·m opposes the motion whatever the speed: the model needed that much more {effort} \
-             in the direction of motion, changing sign with the speed; {gain}",
-            e.coulomb_friction.map_or(0.0, |c| c.torque_nm)
-        ),
-        "stribeck_friction" => {
-            let (ts, ws) = e.stribeck_friction.map_or((0.0, 0.0), |x| (x.breakaway_nm, x.speed_rad_s));
-            format!(
-                "extra friction at low speed (breakaway {ts:.3} N·m, fading above about {ws:.2} rad/s): the {effort} \
-                 residual is largest when starting and stopping; {gain}"
-            )
-        }
-        "torque_offset" => format!(
-            "a constant torque of {:.3} N·m acts on the shaft (an unmodelled constant load, or an offset of the \
-             pressure/torque measurement): the {effort} residual is a bias at all speeds; {gain}",
-            e.torque_offset.map_or(0.0, |c| c.torque_nm)
-        ),
-        "internal_leakage" => format!(
-            "the pump/motor leak {:.4} L/min per bar more than the model says: the speed falls short in proportion to \
-             ΔP at steady flow; {gain}",
-            e.internal_leakage.map_or(0.0, |c| c.l_min_per_bar)
-        ),
-        "dead_time" => format!(
-            "the drive answers the setpoint {:.1} ms later than the model: speed and pressure lag after every setpoint \
-             change; {gain}",
-            e.dead_time.map_or(0.0, |c| c.ms)
-        ),
-        "entrained_air" => format!(
-            "the oil is softer than the model's: effective bulk modulus {:.0} bar (air in the oil), so pressure builds \
-             more slowly and rings at a lower frequency after steps; {gain}",
-            e.entrained_air.map_or(0.0, |c| c.bulk_modulus_bar)
-        ),
-        "motor_slip" => format!(
-            "the induction motor slips {:.3} rpm per N·m of pump torque: pump speed, hence flow and motor speed, fall \
-             with load; {gain}",
-            e.motor_slip.map_or(0.0, |c| c.rpm_per_nm)
-        ),
-        _ => gain,
-    }
-}
-
-/// The two effects that are one term of the flow balance.
-const TWINS: [&str; 2] = ["internal_leakage", "motor_slip"];
-
-/// Leakage that removes the same flow as a motor slip of `rpm_per_nm` (they enter the flow balance identically:
-/// C = D_p² k_s), in L/min per bar.
-pub fn slip_as_leakage(m: &PlantModel, rpm_per_nm: f64) -> Option<f64> {
-    let d_p = cm3_per_rev_to_m3_per_rad(m.pump.as_ref()?.displacement_cm3);
-    let k_s = crate::units::rpm_to_rad_s(rpm_per_nm);
-    Some(d_p * d_p * k_s / crate::units::l_min_per_bar_to_si(1.0))
-}
-
-fn ambiguities(named: &[&str], ties: &[(&str, &str)], m: &PlantModel, s: &Series) -> Vec<Ambiguity> {
-    let mut out: Vec<Ambiguity> = Vec::new();
-    let mut push = |a: &str, b: &str, text: String| {
-        let mut effects = vec![a.to_string(), b.to_string()];
-        effects.sort();
-        if !out.iter().any(|x| x.effects == effects) {
-            out.push(Ambiguity { effects, explanation: text });
-        }
-    };
-    let has = |id: &str| named.contains(&id);
-    // Leakage and slip remove flow in proportion to ΔP in exactly the same way; no signal here separates them.
-    if has("internal_leakage") || has("motor_slip") {
-        let per_rpm = slip_as_leakage(m, 1.0).unwrap_or(f64::NAN);
-        let text = match (m.effects.internal_leakage, m.effects.motor_slip) {
-            (Some(l), None) => format!(
-                "leakage and motor slip both take flow in proportion to ΔP (C = D_p²·k_s); without a pump-speed \
-                 measurement they are the same: {:.4} L/min/bar of leakage equals a slip of {:.3} rpm/N·m",
-                l.l_min_per_bar,
-                l.l_min_per_bar / per_rpm
-            ),
-            (None, Some(k)) => format!(
-                "leakage and motor slip both take flow in proportion to ΔP (C = D_p²·k_s); without a pump-speed \
-                 measurement they are the same: a slip of {:.3} rpm/N·m equals {:.4} L/min/bar of leakage",
-                k.rpm_per_nm,
-                k.rpm_per_nm * per_rpm
-            ),
-            _ => "leakage and motor slip both take flow in proportion to ΔP (C = D_p²·k_s); only their sum is \
-                  determined without a pump-speed measurement"
-                .to_string(),
-        };
-        push("internal_leakage", "motor_slip", text);
-    }
-    // Dry friction and a constant bias differ only where the speed changes sign.
-    if has("coulomb_friction") != has("torque_offset") {
-        let rows: Vec<usize> = (0..s.split).collect();
-        let sgn: Vec<f64> = rows.iter().map(|&k| s.sign(s.omega_f[k])).collect();
-        let cos = signal::cosine(&sgn, &vec![1.0; sgn.len()]).abs();
-        if cos > 0.95 {
-            let back = sgn.iter().filter(|v| **v < -0.5).count() as f64 / sgn.len() as f64;
-            let fwd = sgn.iter().filter(|v| **v > 0.5).count() as f64 / sgn.len() as f64;
-            push(
-                "coulomb_friction",
-                "torque_offset",
-                format!(
-                    "the speed hardly reverses ({:.1} % of the fitting data forward, {:.1} % backward): dry friction \
-                     and a constant load bias look the same except near standstill, so the choice rests on few samples",
-                    100.0 * fwd,
-                    100.0 * back
-                ),
-            );
-        }
-    }
-    // leakage and slip are one term: when either is named, the pair is already reported above
-    let covered = |id: &str| has(id) || (TWINS.contains(&id) && TWINS.iter().any(|t| has(t)));
-    for (a, b) in ties {
-        if !(covered(a) && covered(b)) {
-            push(
-                a,
-                b,
-                format!(
-                    "{a} and {b} improve the validation error almost equally on this recording; {a} was kept as the \
-                     slightly better one, but the data barely distinguish them"
-                ),
-            );
-        }
-    }
-    // With the load unknown, whatever the torque balance lacks is absorbed by the load.
-    if s.family == Family::Flow {
-        out.push(Ambiguity {
-            effects: search::TORQUE_SIDE.iter().map(|e| e.to_string()).collect(),
-            explanation: "load unknown: the recording has no `load_nm`, and dry friction, low-speed friction and a \
-                          constant torque act in the torque balance beside the load, which takes up whatever they \
-                          are; they are neither named nor ruled out (a `load_nm` column, or a known load such as a \
-                          run with the load uncoupled, would separate them)"
-                .to_string(),
-        });
-    }
-    out
-}
-
-/// What the recording cannot determine. With the load unknown: J and B (the torque balance is not fitted).
-fn not_identified(s: &Series) -> Vec<NotIdentified> {
-    let mut out = Vec::new();
-    if s.family == Family::Flow {
-        out.push(NotIdentified {
-            parameters: vec!["inertia_kg_m2".into(), "viscous_nm_s_rad".into()],
-            reason: "load unknown: the torque balance D_m·ΔP = J·dω/dt + B·ω + friction + T_L has T_L as a free \
-                     signal, so B·ω cannot be told from a load that follows the speed, nor J·dω/dt from a load that \
-                     changes while the speed does; J and B keep the nominal model's values. The flow balance \
-                     (leakage, slip, bulk modulus, dead time) needs neither"
-                .into(),
-        });
-        if s.setpoint_hz.is_none() {
-            out.push(NotIdentified {
-                parameters: vec!["dead_time.ms".into()],
-                reason: "no setpoint was recorded (`f_set_hz` empty, e.g. monitor mode): the delay between command \
-                         and drive cannot be measured"
-                    .into(),
-            });
-        }
-    }
-    out
 }
 
 #[cfg(test)]

@@ -256,6 +256,7 @@ fn free_run_flow(c: &Coefficients, s: &Series, start: usize, end: usize, restart
     let mut dp_out = vec![f64::NAN; start];
     f_out.reserve(end - start);
     dp_out.reserve(end - start);
+    let flow = FlowBalance::new(c);
     let back = c.back_pressure_pa;
     let meas_dp = s.dp_bar.as_deref().unwrap_or(&[]);
     let f_meas = s.f_drive_hz.as_deref();
@@ -264,35 +265,10 @@ fn free_run_flow(c: &Coefficients, s: &Series, start: usize, end: usize, restart
     let delay = c.dead_time_s.max(0.0);
     let m = (delay / dt_nominal).floor() as usize;
     let r = delay - m as f64 * dt_nominal;
-    // the command at row j: the setpoint when written, else the drive's own frequency (monitor-mode recordings)
-    let cmd = |j: isize| -> f64 {
-        let j = j.max(0) as usize;
-        let v = match (u, f_meas) {
-            (Some(u), _) => u.get(j).or(u.last()).copied().unwrap_or(0.0),
-            (None, Some(f)) => f.get(j).or(f.last()).copied().unwrap_or(0.0),
-            (None, None) => 0.0,
-        };
-        if v.is_finite() { v.clamp(0.0, c.max_hz) } else { 0.0 }
-    };
-    let beta_v = c.bulk_modulus_pa / c.volume_m3;
-    let two_pi_pp = 2.0 * std::f64::consts::PI / c.pole_pairs;
-    // dp_in/dt for pump frequency `fp`, motor speed `w`, inlet pressure `p`
-    let dpdt = |p: f64, fp: f64, w: f64| -> f64 {
-        let dp = p - back;
-        let omega_pump = two_pi_pp * fp - c.slip_rad_s_per_nm * c.pump_m3_rad * dp;
-        let d = beta_v * (c.pump_m3_rad * omega_pump - c.motor_m3_rad * w - c.leakage_si * dp);
-        if p <= 0.0 && d < 0.0 { 0.0 } else { d }
-    };
-    let dfdt = |f: f64, cmd: f64| ((cmd - f) / c.time_constant_s).clamp(-c.ramp_hz_per_s, c.ramp_hz_per_s);
+    let cmd = |j: isize| command(u, f_meas, j, c.max_hz);
     let mut f = s.f0_hz;
     let mut p = bar_to_pa(s.p_in0_bar).max(0.0);
-    let mut all_restarts: Vec<usize> = s.restarts.iter().chain(restarts).copied().collect();
-    if start > 0 {
-        all_restarts.push(start);
-    }
-    all_restarts.sort_unstable();
-    all_restarts.dedup();
-    let mut next_restart = all_restarts.into_iter().filter(|r| *r >= start).peekable();
+    let mut next_restart = restart_rows(s, start, restarts).into_iter().peekable();
     for k in start..end {
         if next_restart.peek() == Some(&k) {
             next_restart.next();
@@ -312,45 +288,129 @@ fn free_run_flow(c: &Coefficients, s: &Series, start: usize, end: usize, restart
             continue;
         }
         let len = s.t_s[k + 1] - s.t_s[k];
-        let (w0, w1) = (s.omega_f[k], s.omega_f[k + 1]);
-        let pump = f_meas.map(|fm| (fm[k], fm[k + 1]));
+        let row = RowInputs { omega: (s.omega_f[k], s.omega_f[k + 1]), pump: f_meas.map(|fm| (fm[k], fm[k + 1])), len };
         let kk = k as isize - m as isize;
-        let first = r.min(len);
-        let lerp = |a: f64, b: f64, t: f64| a + (b - a) * (t / len);
-        // the setpoint switches inside the row exactly where the delayed command does, as in the simulator
-        for (from, to, command) in [(0.0, first, cmd(kk - 1)), (first, len, cmd(kk))] {
-            if to <= from {
-                continue;
-            }
-            let steps = ((to - from) / FREE_RUN_STEP_S).ceil().max(1.0) as usize;
-            let h = (to - from) / steps as f64;
-            for i in 0..steps {
-                let ta = from + i as f64 * h;
-                let (tb, tc) = (ta + 0.5 * h, ta + h);
-                // RK4 on (f, p) with the inputs at the start, middle and end of the step
-                let fp_at = |t: f64, f_model: f64| pump.map_or(f_model, |(a, b)| lerp(a, b, t));
-                let (wa, wb, wc) = (lerp(w0, w1, ta), lerp(w0, w1, tb), lerp(w0, w1, tc));
-                let k1f = dfdt(f, command);
-                let k1p = dpdt(p, fp_at(ta, f), wa);
-                let (f2, p2) = (f + 0.5 * h * k1f, (p + 0.5 * h * k1p).max(0.0));
-                let k2f = dfdt(f2, command);
-                let k2p = dpdt(p2, fp_at(tb, f2), wb);
-                let (f3, p3) = (f + 0.5 * h * k2f, (p + 0.5 * h * k2p).max(0.0));
-                let k3f = dfdt(f3, command);
-                let k3p = dpdt(p3, fp_at(tb, f3), wb);
-                let (f4, p4) = (f + h * k3f, (p + h * k3p).max(0.0));
-                let k4f = dfdt(f4, command);
-                let k4p = dpdt(p4, fp_at(tc, f4), wc);
-                f += h / 6.0 * (k1f + 2.0 * k2f + 2.0 * k3f + k4f);
-                p = (p + h / 6.0 * (k1p + 2.0 * k2p + 2.0 * k3p + k4p)).max(0.0);
-            }
-        }
+        (f, p) = flow.row((f, p), (cmd(kk - 1), cmd(kk)), r.min(len), &row);
         if !(f.is_finite() && p.is_finite()) {
             f = 0.0;
             p = back;
         }
     }
     (f_out, dp_out)
+}
+
+/// The rows from `start` on where the flow family's free run restarts from the measured state: after the
+/// recording's gaps, at the given rows, and at `start` itself when it is not the first row.
+fn restart_rows(s: &Series, start: usize, restarts: &[usize]) -> Vec<usize> {
+    let mut all_restarts: Vec<usize> = s.restarts.iter().chain(restarts).copied().collect();
+    if start > 0 {
+        all_restarts.push(start);
+    }
+    all_restarts.sort_unstable();
+    all_restarts.dedup();
+    all_restarts.into_iter().filter(|r| *r >= start).collect()
+}
+
+/// The command at row `j` (rows before the first: the first): the setpoint when written, else the drive's own
+/// frequency (monitor-mode recordings), within 0…`max_hz`.
+fn command(u: Option<&[f64]>, f_meas: Option<&[f64]>, j: isize, max_hz: f64) -> f64 {
+    let j = j.max(0) as usize;
+    let v = match (u, f_meas) {
+        (Some(u), _) => u.get(j).or(u.last()).copied().unwrap_or(0.0),
+        (None, Some(f)) => f.get(j).or(f.last()).copied().unwrap_or(0.0),
+        (None, None) => 0.0,
+    };
+    if v.is_finite() { v.clamp(0.0, max_hz) } else { 0.0 }
+}
+
+/// The inputs over one row of the flow family's free run: the low-passed motor speed and, when recorded, the drive
+/// frequency at its two ends (linear between), and its length (s).
+struct RowInputs {
+    omega: (f64, f64),
+    pump: Option<(f64, f64)>,
+    len: f64,
+}
+
+impl RowInputs {
+    /// The value at `t` into the row on the line from `a` to `b`.
+    fn lerp(&self, a: f64, b: f64, t: f64) -> f64 {
+        a + (b - a) * (t / self.len)
+    }
+
+    /// The motor speed at `t` into the row.
+    fn omega_at(&self, t: f64) -> f64 {
+        self.lerp(self.omega.0, self.omega.1, t)
+    }
+
+    /// The pump's drive frequency at `t` into the row: as recorded, else the drive model's `f_model`.
+    fn pump_at(&self, t: f64, f_model: f64) -> f64 {
+        self.pump.map_or(f_model, |(a, b)| self.lerp(a, b, t))
+    }
+}
+
+/// The flow family's free-run equations on (drive frequency, inlet pressure): the drive's lag and ramp limit, and
+/// the pressure equation fed by the pump and drained by the motor, the leak and the slip.
+struct FlowBalance<'a> {
+    c: &'a Coefficients,
+    beta_v: f64,
+    two_pi_pp: f64,
+}
+
+impl<'a> FlowBalance<'a> {
+    /// The equations with `c`'s coefficients, β/V and 2π/pole pairs taken once.
+    fn new(c: &'a Coefficients) -> FlowBalance<'a> {
+        FlowBalance { c, beta_v: c.bulk_modulus_pa / c.volume_m3, two_pi_pp: 2.0 * std::f64::consts::PI / c.pole_pairs }
+    }
+
+    /// dp_in/dt for pump frequency `fp`, motor speed `w`, inlet pressure `p`.
+    fn dpdt(&self, p: f64, fp: f64, w: f64) -> f64 {
+        let c = self.c;
+        let dp = p - c.back_pressure_pa;
+        let omega_pump = self.two_pi_pp * fp - c.slip_rad_s_per_nm * c.pump_m3_rad * dp;
+        let d = self.beta_v * (c.pump_m3_rad * omega_pump - c.motor_m3_rad * w - c.leakage_si * dp);
+        if p <= 0.0 && d < 0.0 { 0.0 } else { d }
+    }
+
+    /// df/dt of the drive frequency `f` following `cmd`.
+    fn dfdt(&self, f: f64, cmd: f64) -> f64 {
+        ((cmd - f) / self.c.time_constant_s).clamp(-self.c.ramp_hz_per_s, self.c.ramp_hz_per_s)
+    }
+
+    /// (f, p) over one row: the command switches from `commands.0` to `commands.1` inside the row exactly where the
+    /// delayed command does (`first` s in), as in the simulator; RK4 steps of at most `FREE_RUN_STEP_S`.
+    fn row(&self, (mut f, mut p): (f64, f64), commands: (f64, f64), first: f64, row: &RowInputs) -> (f64, f64) {
+        for (from, to, command) in [(0.0, first, commands.0), (first, row.len, commands.1)] {
+            if to <= from {
+                continue;
+            }
+            let steps = ((to - from) / FREE_RUN_STEP_S).ceil().max(1.0) as usize;
+            let h = (to - from) / steps as f64;
+            for i in 0..steps {
+                (f, p) = self.rk4((f, p), command, from + i as f64 * h, h, row);
+            }
+        }
+        (f, p)
+    }
+
+    /// One RK4 step of `h` on (f, p) from `ta` into the row, the inputs at the start, middle and end of the step.
+    fn rk4(&self, (f, p): (f64, f64), command: f64, ta: f64, h: f64, row: &RowInputs) -> (f64, f64) {
+        let (tb, tc) = (ta + 0.5 * h, ta + h);
+        let (wa, wb, wc) = (row.omega_at(ta), row.omega_at(tb), row.omega_at(tc));
+        let k1f = self.dfdt(f, command);
+        let k1p = self.dpdt(p, row.pump_at(ta, f), wa);
+        let (f2, p2) = (f + 0.5 * h * k1f, (p + 0.5 * h * k1p).max(0.0));
+        let k2f = self.dfdt(f2, command);
+        let k2p = self.dpdt(p2, row.pump_at(tb, f2), wb);
+        let (f3, p3) = (f + 0.5 * h * k2f, (p + 0.5 * h * k2p).max(0.0));
+        let k3f = self.dfdt(f3, command);
+        let k3p = self.dpdt(p3, row.pump_at(tb, f3), wb);
+        let (f4, p4) = (f + h * k3f, (p + h * k3p).max(0.0));
+        let k4f = self.dfdt(f4, command);
+        let k4p = self.dpdt(p4, row.pump_at(tc, f4), wc);
+        let f = f + h / 6.0 * (k1f + 2.0 * k2f + 2.0 * k3f + k4f);
+        let p = (p + h / 6.0 * (k1p + 2.0 * k2p + 2.0 * k3p + k4p)).max(0.0);
+        (f, p)
+    }
 }
 
 /// The mean square (bar²) that the low-passed speed noise adds to the ΔP a model predicts: the pressure equation,

@@ -401,78 +401,10 @@ pub fn candidate(
         "coulomb_friction" => terms.coulomb = true,
         "torque_offset" => terms.offset = true,
         "stribeck_friction" => terms.stribeck = true,
-        _ => {
-            if s.family == Family::Torque {
-                return None;
-            }
-            let nominal_bulk = current.hydraulics.as_ref()?.bulk_modulus_bar;
-            // Slip takes flow exactly as leakage does (C = D_p²·k_s): searched as leakage and converted, the two
-            // candidates score the same, and which one is named is the catalogue order's choice, not the search's
-            if id == "motor_slip" && current.effects.internal_leakage.is_none() {
-                let per_rpm = super::slip_as_leakage(current, 1.0).filter(|v| *v > 0.0)?;
-                // the hint's slip as the equivalent leakage
-                let leak_hint = hint.and_then(|h| h.effects.motor_slip).map(|k| {
-                    let mut h = current.clone();
-                    h.effects.internal_leakage = Some(InternalLeakage { l_min_per_bar: k.rpm_per_nm * per_rpm });
-                    h
-                });
-                let (leak, _) = candidate("internal_leakage", current, terms, s, rows, leak_hint.as_ref())?;
-                let extra = leak.effects.internal_leakage.map_or(0.0, |l| l.l_min_per_bar);
-                let mut m = current.clone();
-                m.effects.motor_slip = Some(MotorSlip { rpm_per_nm: extra / per_rpm });
-                return Some((m, terms));
-            }
-            let (mut grid, set) = flow_grid(id, nominal_bulk)?;
-            let mut iterations = 10;
-            if let Some(x0) = hint.and_then(|h| flow_value(id, h, nominal_bulk)) {
-                grid = if id == "entrained_air" {
-                    [-0.7f64, -0.35, 0.0, 0.35, 0.7].iter().map(|d| (x0 + d).min(0.0)).collect()
-                } else {
-                    [0.5, 0.7, 1.0, 1.4, 2.0].iter().map(|f| f * x0).collect()
-                };
-                grid.dedup();
-                iterations = 6;
-            }
-            let mut cost = |x: f64| {
-                let mut m = current.clone();
-                set(&mut m, x);
-                rows.search_cost(&m, s)
-            };
-            let (x, _) = minimize_1d(&mut cost, &grid, iterations);
-            let mut m = current.clone();
-            set(&mut m, x);
-            return Some((m, terms));
-        }
+        _ => return flow_candidate(id, current, terms, s, rows, hint),
     }
     if id == "stribeck_friction" && s.family == Family::Hydraulic {
-        // With dry friction already in, least squares on the 10 Hz-filtered speed often puts the low-speed excess
-        // into the Coulomb term (extra ≤ 0): the free run then starts from a guess (excess = the Coulomb
-        // friction, at least 0.1 N·m; ω_s = 4 % of the speed scale) over a wider range
-        let hinted = hint.and_then(|h| h.effects.stribeck_friction.map(|st| (st, h.effects.coulomb_friction)));
-        if let Some((st, tc_hint)) = hinted {
-            // start from the hint's low-speed excess and ω_s, J, B and Coulomb friction fitted on these rows
-            let mut m = fit_mechanics_on(current, s, terms, &rows.ls)
-                .or_else(|| fit_mechanics_on(current, s, MechTerms { stribeck: false, ..terms }, &rows.ls))?;
-            let tc = m.effects.coulomb_friction.map_or(0.0, |c| c.torque_nm);
-            let extra = (st.breakaway_nm - tc_hint.map_or(0.0, |c| c.torque_nm)).max(1e-3);
-            m.effects.stribeck_friction =
-                Some(StribeckFriction { breakaway_nm: tc + extra, speed_rad_s: st.speed_rad_s });
-            return Some((refine_stribeck(m, s, rows, false, STRIBECK_PASSES_HINTED, true), terms));
-        }
-        let (fitted, wide) = match fit_mechanics_on(current, s, terms, &rows.ls) {
-            Some(m) => (m, false),
-            None => {
-                let mut m = fit_mechanics_on(current, s, MechTerms { stribeck: false, ..terms }, &rows.ls)?;
-                let tc = m.effects.coulomb_friction.map_or(0.0, |c| c.torque_nm);
-                let ws = (0.04 * s.speed_scale()).max(3.0 * s.sign_speed);
-                m.effects.stribeck_friction =
-                    Some(StribeckFriction { breakaway_nm: tc + tc.max(0.1), speed_rad_s: ws });
-                (m, true)
-            }
-        };
-        // B with them: on a slow program the Stribeck shape and a viscous line trade over the speeds visited, and
-        // least squares on the filtered speed leaves B far off (held-out run 105 of the issue-33 sweep: +717 %)
-        return Some((refine_stribeck(fitted, s, rows, wide, STRIBECK_PASSES, true), terms));
+        return stribeck_candidate(current, terms, s, rows, hint);
     }
     if let Some(fitted) = fit_mechanics_on(current, s, terms, &rows.ls) {
         return Some((fitted, terms));
@@ -481,6 +413,95 @@ pub fn candidate(
         return None;
     }
     coulomb_beside_stribeck(current, terms, s, rows).map(|m| (m, terms))
+}
+
+/// A flow-balance candidate (leakage, slip, dead time, entrained air; none for a torque-driven recording): its
+/// one parameter searched on the free run's cost over a grid and refined, around the hint's value when given.
+fn flow_candidate(
+    id: &str,
+    current: &PlantModel,
+    terms: MechTerms,
+    s: &Series,
+    rows: &Rows,
+    hint: Option<&PlantModel>,
+) -> Option<(PlantModel, MechTerms)> {
+    if s.family == Family::Torque {
+        return None;
+    }
+    let nominal_bulk = current.hydraulics.as_ref()?.bulk_modulus_bar;
+    // Slip takes flow exactly as leakage does (C = D_p²·k_s): searched as leakage and converted, the two
+    // candidates score the same, and which one is named is the catalogue order's choice, not the search's
+    if id == "motor_slip" && current.effects.internal_leakage.is_none() {
+        let per_rpm = super::slip_as_leakage(current, 1.0).filter(|v| *v > 0.0)?;
+        // the hint's slip as the equivalent leakage
+        let leak_hint = hint.and_then(|h| h.effects.motor_slip).map(|k| {
+            let mut h = current.clone();
+            h.effects.internal_leakage = Some(InternalLeakage { l_min_per_bar: k.rpm_per_nm * per_rpm });
+            h
+        });
+        let (leak, _) = candidate("internal_leakage", current, terms, s, rows, leak_hint.as_ref())?;
+        let extra = leak.effects.internal_leakage.map_or(0.0, |l| l.l_min_per_bar);
+        let mut m = current.clone();
+        m.effects.motor_slip = Some(MotorSlip { rpm_per_nm: extra / per_rpm });
+        return Some((m, terms));
+    }
+    let (mut grid, set) = flow_grid(id, nominal_bulk)?;
+    let mut iterations = 10;
+    if let Some(x0) = hint.and_then(|h| flow_value(id, h, nominal_bulk)) {
+        grid = if id == "entrained_air" {
+            [-0.7f64, -0.35, 0.0, 0.35, 0.7].iter().map(|d| (x0 + d).min(0.0)).collect()
+        } else {
+            [0.5, 0.7, 1.0, 1.4, 2.0].iter().map(|f| f * x0).collect()
+        };
+        grid.dedup();
+        iterations = 6;
+    }
+    let mut cost = |x: f64| {
+        let mut m = current.clone();
+        set(&mut m, x);
+        rows.search_cost(&m, s)
+    };
+    let (x, _) = minimize_1d(&mut cost, &grid, iterations);
+    let mut m = current.clone();
+    set(&mut m, x);
+    Some((m, terms))
+}
+
+/// Stribeck friction for the hydraulic family: J, B and the dry terms by least squares, then refined on the free
+/// run (from the hint's low-speed excess and ω_s when given).
+fn stribeck_candidate(
+    current: &PlantModel,
+    terms: MechTerms,
+    s: &Series,
+    rows: &Rows,
+    hint: Option<&PlantModel>,
+) -> Option<(PlantModel, MechTerms)> {
+    // With dry friction already in, least squares on the 10 Hz-filtered speed often puts the low-speed excess
+    // into the Coulomb term (extra ≤ 0): the free run then starts from a guess (excess = the Coulomb
+    // friction, at least 0.1 N·m; ω_s = 4 % of the speed scale) over a wider range
+    let hinted = hint.and_then(|h| h.effects.stribeck_friction.map(|st| (st, h.effects.coulomb_friction)));
+    if let Some((st, tc_hint)) = hinted {
+        // start from the hint's low-speed excess and ω_s, J, B and Coulomb friction fitted on these rows
+        let mut m = fit_mechanics_on(current, s, terms, &rows.ls)
+            .or_else(|| fit_mechanics_on(current, s, MechTerms { stribeck: false, ..terms }, &rows.ls))?;
+        let tc = m.effects.coulomb_friction.map_or(0.0, |c| c.torque_nm);
+        let extra = (st.breakaway_nm - tc_hint.map_or(0.0, |c| c.torque_nm)).max(1e-3);
+        m.effects.stribeck_friction = Some(StribeckFriction { breakaway_nm: tc + extra, speed_rad_s: st.speed_rad_s });
+        return Some((refine_stribeck(m, s, rows, false, STRIBECK_PASSES_HINTED, true), terms));
+    }
+    let (fitted, wide) = match fit_mechanics_on(current, s, terms, &rows.ls) {
+        Some(m) => (m, false),
+        None => {
+            let mut m = fit_mechanics_on(current, s, MechTerms { stribeck: false, ..terms }, &rows.ls)?;
+            let tc = m.effects.coulomb_friction.map_or(0.0, |c| c.torque_nm);
+            let ws = (0.04 * s.speed_scale()).max(3.0 * s.sign_speed);
+            m.effects.stribeck_friction = Some(StribeckFriction { breakaway_nm: tc + tc.max(0.1), speed_rad_s: ws });
+            (m, true)
+        }
+    };
+    // B with them: on a slow program the Stribeck shape and a viscous line trade over the speeds visited, and
+    // least squares on the filtered speed leaves B far off (held-out run 105 of the issue-33 sweep: +717 %)
+    Some((refine_stribeck(fitted, s, rows, wide, STRIBECK_PASSES, true), terms))
 }
 
 /// [`coulomb_beside_stribeck`] names no Coulomb level below this share of the breakaway.

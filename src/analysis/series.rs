@@ -109,21 +109,18 @@ pub struct Outlier {
 /// The measured columns screened for spikes (a setpoint is a command and `theta_rad` a position: not screened).
 const SCREENED: [&str; 6] = ["p_in_bar", "p_out_bar", "omega_rad_s", "f_drive_hz", "torque_nm", "load_nm"];
 
-impl Series {
-    /// Reads the signals, naming the missing column or model key when the recording or model cannot be analysed.
-    pub fn extract(rec: &Recording, model: &PlantModel, validation_fraction: f64) -> Result<Series, BadInput> {
+/// The analysed columns of a recording as read: spikes taken out of the screened ones, gaps not yet filled.
+struct Columns<'a> {
+    src: &'a str,
+    raw: Vec<(&'static str, Vec<f64>)>,
+}
+
+impl<'a> Columns<'a> {
+    /// Reads the columns the analysis uses, screening the measured ones for spikes (taken as missing, reported).
+    fn read(rec: &'a Recording, t_s: &[f64]) -> (Columns<'a>, Vec<Outlier>) {
         let src = &rec.source;
-        let n = rec.len();
-        if n < 200 {
-            return Err(BadInput(format!("recording {src}: {n} rows; the analysis needs at least 200")));
-        }
-        let t_s = rec.t_s().to_vec();
-        let span = t_s[n - 1] - t_s[0];
-        // the median step, not the mean: a recording with gaps (skipped stale cycles) keeps its poll rate
-        let steps: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
-        let sample_hz = 1.0 / percentile(&steps, 0.5);
         let mut outliers = Vec::new();
-        let mut raw: Vec<(&str, Vec<f64>)> = Vec::new();
+        let mut raw: Vec<(&'static str, Vec<f64>)> = Vec::new();
         for name in super::RECORDING_COLUMNS {
             let Some(c) = rec.present(name) else { continue };
             if SCREENED.contains(&name) {
@@ -138,66 +135,146 @@ impl Series {
                 raw.push((name, c.to_vec()));
             }
         }
-        let raw_of = |name: &str| raw.iter().find(|r| r.0 == name).map(|r| r.1.as_slice());
-        let col = |name: &str| raw_of(name).filter(|c| c.iter().any(|v| v.is_finite())).map(fill_gaps);
-        let finite_rows = |name: &str| raw_of(name).map(|c| c.iter().map(|v| v.is_finite()).collect::<Vec<bool>>());
-        let need = |name: &str, why: &str| BadInput(format!("recording {src}: column `{name}` is required {why}"));
+        (Columns { src, raw }, outliers)
+    }
 
-        let recorded_load = col("load_nm");
-        // the load is unknown when the model says so, or when it should come from the recording and does not
-        let load_unknown = match model.load {
-            LoadSpec::Unknown => true,
-            LoadSpec::Recorded => recorded_load.is_none(),
-            _ => false,
+    /// A column as read, if the recording has it.
+    fn raw_of(&self, name: &str) -> Option<&[f64]> {
+        self.raw.iter().find(|r| r.0 == name).map(|r| r.1.as_slice())
+    }
+
+    /// A column with at least one value, its gaps filled.
+    fn col(&self, name: &str) -> Option<Vec<f64>> {
+        self.raw_of(name).filter(|c| c.iter().any(|v| v.is_finite())).map(fill_gaps)
+    }
+
+    /// Per row, whether the column has a value there.
+    fn finite_rows(&self, name: &str) -> Option<Vec<bool>> {
+        self.raw_of(name).map(|c| c.iter().map(|v| v.is_finite()).collect::<Vec<bool>>())
+    }
+
+    /// The error naming a required column and why it is required.
+    fn need(&self, name: &str, why: &str) -> BadInput {
+        BadInput(format!("recording {}: column `{name}` is required {why}", self.src))
+    }
+
+    /// Per row, whether the speed, ΔP and drive frequency were measured there (all rows when not recorded).
+    fn measured(&self, speed_source: &str, n: usize) -> (Vec<bool>, Vec<bool>, Vec<bool>) {
+        let measured_omega = match speed_source {
+            "omega_rad_s" => self.finite_rows("omega_rad_s"),
+            _ => self.finite_rows("theta_rad"),
+        }
+        .unwrap_or_else(|| vec![true; n]);
+        let measured_dp = match (self.finite_rows("p_in_bar"), self.finite_rows("p_out_bar")) {
+            (Some(a), Some(b)) => a.iter().zip(&b).map(|(a, b)| *a && *b).collect(),
+            _ => vec![true; n],
         };
-        let f_drive = col("f_drive_hz");
-        let mut state_f_hz = Vec::new();
-        let mut state_p_in_bar = Vec::new();
-        let (family, drive_torque_nm, dp_bar, setpoint_hz, p_in0_bar, f0_hz) = if let Some(tq) = col("torque_nm") {
-            (Family::Torque, tq, None, None, 0.0, 0.0)
+        let measured_f_drive = self.finite_rows("f_drive_hz").unwrap_or_else(|| vec![true; n]);
+        (measured_omega, measured_dp, measured_f_drive)
+    }
+}
+
+/// What drives the free run: the family and its drive torque, and for the pressure-driven families ΔP, the
+/// setpoint and the measured state the free run starts and restarts from.
+struct Drive {
+    family: Family,
+    torque_nm: Vec<f64>,
+    dp_bar: Option<Vec<f64>>,
+    setpoint_hz: Option<Vec<f64>>,
+    p_in0_bar: f64,
+    f0_hz: f64,
+    state_f_hz: Vec<f64>,
+    state_p_in_bar: Vec<f64>,
+}
+
+impl Drive {
+    /// A measured torque makes the torque family; else the pressures drive, with the setpoint (with the load
+    /// unknown, the drive frequency read back may stand in for it) and the model's hydraulic parts.
+    fn read(
+        cols: &Columns,
+        model: &PlantModel,
+        load_unknown: bool,
+        f_drive: Option<&Vec<f64>>,
+        n: usize,
+    ) -> Result<Drive, BadInput> {
+        if let Some(tq) = cols.col("torque_nm") {
+            return Ok(Drive {
+                family: Family::Torque,
+                torque_nm: tq,
+                dp_bar: None,
+                setpoint_hz: None,
+                p_in0_bar: 0.0,
+                f0_hz: 0.0,
+                state_f_hz: Vec::new(),
+                state_p_in_bar: Vec::new(),
+            });
+        }
+        let why = "(a recording without `torque_nm` is analysed as the hydraulic plant)";
+        let p_in = cols.col("p_in_bar").ok_or_else(|| cols.need("p_in_bar", why))?;
+        let p_out = cols.col("p_out_bar").ok_or_else(|| cols.need("p_out_bar", why))?;
+        let f_set = cols.col("f_set_hz");
+        let f_set = if load_unknown && f_drive.is_some() {
+            f_set
         } else {
-            let why = "(a recording without `torque_nm` is analysed as the hydraulic plant)";
-            let p_in = col("p_in_bar").ok_or_else(|| need("p_in_bar", why))?;
-            let p_out = col("p_out_bar").ok_or_else(|| need("p_out_bar", why))?;
-            let f_set = col("f_set_hz");
-            let f_set = if load_unknown && f_drive.is_some() {
-                f_set
+            let why = if load_unknown {
+                "(with the load unknown, the pump's speed comes from `f_drive_hz` or, without it, from the \
+                 drive model run from `f_set_hz`)"
             } else {
-                let why = if load_unknown {
-                    "(with the load unknown, the pump's speed comes from `f_drive_hz` or, without it, from the \
-                     drive model run from `f_set_hz`)"
-                } else {
-                    why
-                };
-                Some(f_set.ok_or_else(|| need("f_set_hz", why))?)
+                why
             };
-            let parts = model.hydraulic().map_err(|crate::error::KeyError { key, message: msg }| {
-                BadInput(format!("model: `{key}` {msg} (the recording has pressures but no `torque_nm`)"))
-            })?;
-            let d_m = cm3_per_rev_to_m3_per_rad(parts.motor_displacement_cm3);
-            let dp: Vec<f64> = p_in.iter().zip(&p_out).map(|(a, b)| a - b).collect();
-            let torque = dp.iter().map(|d| d_m * d * 1e5).collect();
-            let f0 = f_drive.as_ref().or(f_set.as_ref()).map_or(0.0, |f| f[0]);
-            state_f_hz = f_drive.as_ref().or(f_set.as_ref()).cloned().unwrap_or_else(|| vec![0.0; n]);
-            state_p_in_bar = p_in.clone();
-            let family = if load_unknown { Family::Flow } else { Family::Hydraulic };
-            (family, torque, Some(dp), f_set, p_in[0], f0)
+            Some(f_set.ok_or_else(|| cols.need("f_set_hz", why))?)
         };
+        let parts = model.hydraulic().map_err(|crate::error::KeyError { key, message: msg }| {
+            BadInput(format!("model: `{key}` {msg} (the recording has pressures but no `torque_nm`)"))
+        })?;
+        let d_m = cm3_per_rev_to_m3_per_rad(parts.motor_displacement_cm3);
+        let dp: Vec<f64> = p_in.iter().zip(&p_out).map(|(a, b)| a - b).collect();
+        let torque = dp.iter().map(|d| d_m * d * 1e5).collect();
+        let f0 = f_drive.or(f_set.as_ref()).map_or(0.0, |f| f[0]);
+        let state_f_hz = f_drive.or(f_set.as_ref()).cloned().unwrap_or_else(|| vec![0.0; n]);
+        Ok(Drive {
+            family: if load_unknown { Family::Flow } else { Family::Hydraulic },
+            torque_nm: torque,
+            dp_bar: Some(dp),
+            setpoint_hz: f_set,
+            p_in0_bar: p_in[0],
+            f0_hz: f0,
+            state_f_hz,
+            state_p_in_bar: p_in,
+        })
+    }
+}
 
-        let (omega_rad_s, omega_f, cutoff_hz, speed_source) = if let Some(w) = col("omega_rad_s") {
+/// The speed compared with a model's, and the torque balance's regressors.
+struct Speed {
+    /// As measured, or differentiated from position.
+    omega_rad_s: Vec<f64>,
+    /// Low-passed speed and its derivative.
+    omega_f: Vec<f64>,
+    alpha_f: Vec<f64>,
+    cutoff_hz: f64,
+    source: &'static str,
+}
+
+impl Speed {
+    /// The measured speed low-passed, or the position differentiated after a low-pass (then every regressor
+    /// through the parallel decimation filter of IDIM-LS).
+    fn read(cols: &Columns, t_s: &[f64], sample_hz: f64) -> Result<Speed, BadInput> {
+        let (omega_rad_s, omega_f, cutoff_hz, speed_source) = if let Some(w) = cols.col("omega_rad_s") {
             let cutoff = MEASURED_SPEED_CUTOFF_HZ.min(0.2 * sample_hz);
             let wf = filtfilt_butter4(&w, cutoff, sample_hz);
             (w, wf, cutoff, "omega_rad_s")
-        } else if let Some(theta) = col("theta_rad") {
+        } else if let Some(theta) = cols.col("theta_rad") {
             let cutoff = POSITION_CUTOFF_HZ.min(0.2 * sample_hz);
-            let w = derivative(&filtfilt_butter4(&theta, cutoff, sample_hz), &t_s);
+            let w = derivative(&filtfilt_butter4(&theta, cutoff, sample_hz), t_s);
             (w.clone(), w, cutoff, "theta_rad")
         } else {
             return Err(BadInput(format!(
-                "recording {src}: no speed: expected a column `omega_rad_s` or `theta_rad` with values"
+                "recording {}: no speed: expected a column `omega_rad_s` or `theta_rad` with values",
+                cols.src
             )));
         };
-        let mut alpha_f = derivative(&omega_f, &t_s);
+        let mut alpha_f = derivative(&omega_f, t_s);
         let mut omega_f = omega_f;
         // the parallel decimation filter of IDIM-LS, for position-derived speed: every regressor and the torque
         let cutoff_hz = if speed_source == "theta_rad" {
@@ -208,61 +285,98 @@ impl Series {
         } else {
             cutoff_hz
         };
+        Ok(Speed { omega_rad_s, omega_f, alpha_f, cutoff_hz, source: speed_source })
+    }
+}
 
-        let (load_nm, load) = if family == Family::Flow {
-            // the flow balance needs no load; zeros keep the vectors one per row
-            (vec![0.0; n], "unknown")
-        } else if let Some(l) = recorded_load.filter(|_| model.load != LoadSpec::Unknown) {
-            (l, "recorded")
-        } else if matches!(model.load, LoadSpec::Recorded | LoadSpec::Unknown) {
-            // only a torque-driven recording gets here: its torque balance cannot be run without the load
-            let why = if model.load == LoadSpec::Unknown {
-                "because a torque-driven recording (`torque_nm`) is explained by its torque balance, which needs \
-                 the load; the model's [load] kind is \"unknown\""
-            } else {
-                "because the model's [load] kind is \"recorded\" and the recording is torque-driven (`torque_nm`)"
-            };
-            return Err(need("load_nm", why));
+/// The load torque and where it came from: none with the load unknown, `load_nm`, or the model's `[load]` profile
+/// run at the recording's speed (an error when a torque-driven recording has no load to take).
+fn load_torque(
+    cols: &Columns,
+    model: &PlantModel,
+    family: Family,
+    recorded_load: Option<Vec<f64>>,
+    omega_f: &[f64],
+    t_s: &[f64],
+) -> Result<(Vec<f64>, &'static str), BadInput> {
+    let n = t_s.len();
+    if family == Family::Flow {
+        // the flow balance needs no load; zeros keep the vectors one per row
+        Ok((vec![0.0; n], "unknown"))
+    } else if let Some(l) = recorded_load.filter(|_| model.load != LoadSpec::Unknown) {
+        Ok((l, "recorded"))
+    } else if matches!(model.load, LoadSpec::Recorded | LoadSpec::Unknown) {
+        // only a torque-driven recording gets here: its torque balance cannot be run without the load
+        let why = if model.load == LoadSpec::Unknown {
+            "because a torque-driven recording (`torque_nm`) is explained by its torque balance, which needs \
+             the load; the model's [load] kind is \"unknown\""
         } else {
-            // the model's load at the recording's (filtered) speed and the shaft angle turned since its first row
-            let mut angle_rad = 0.0;
-            let load = (0..n)
-                .map(|k| {
-                    if k > 0 {
-                        angle_rad += 0.5 * (omega_f[k - 1] + omega_f[k]) * (t_s[k] - t_s[k - 1]);
-                    }
-                    model.load.torque_at(t_s[k] - t_s[0], omega_f[k], angle_rad)
-                })
-                .collect();
-            (load, "model")
+            "because the model's [load] kind is \"recorded\" and the recording is torque-driven (`torque_nm`)"
         };
-        let drive_torque_f = filtfilt_butter4(&drive_torque_nm, cutoff_hz, sample_hz);
+        Err(cols.need("load_nm", why))
+    } else {
+        // the model's load at the recording's (filtered) speed and the shaft angle turned since its first row
+        let mut angle_rad = 0.0;
+        let load = (0..n)
+            .map(|k| {
+                if k > 0 {
+                    angle_rad += 0.5 * (omega_f[k - 1] + omega_f[k]) * (t_s[k] - t_s[k - 1]);
+                }
+                model.load.torque_at(t_s[k] - t_s[0], omega_f[k], angle_rad)
+            })
+            .collect();
+        Ok((load, "model"))
+    }
+}
+
+/// Warns of the recording's gaps in time, naming the longest.
+fn warn_of_gaps(src: &str, t_s: &[f64], restarts: &[usize]) {
+    if let Some(&longest) = restarts.iter().max_by(|&&a, &&b| (t_s[a] - t_s[a - 1]).total_cmp(&(t_s[b] - t_s[b - 1]))) {
+        tracing::warn!(
+            recording = %src,
+            "{} gap(s) in t_s, the longest {} s after row {longest} (t_s = {}): the free run restarts from the \
+             measured state after each",
+            restarts.len(),
+            t_s[longest] - t_s[longest - 1],
+            t_s[longest - 1]
+        );
+    }
+}
+
+impl Series {
+    /// Reads the signals, naming the missing column or model key when the recording or model cannot be analysed.
+    pub fn extract(rec: &Recording, model: &PlantModel, validation_fraction: f64) -> Result<Series, BadInput> {
+        let src = &rec.source;
+        let n = rec.len();
+        if n < 200 {
+            return Err(BadInput(format!("recording {src}: {n} rows; the analysis needs at least 200")));
+        }
+        let t_s = rec.t_s().to_vec();
+        let span = t_s[n - 1] - t_s[0];
+        // the median step, not the mean: a recording with gaps (skipped stale cycles) keeps its poll rate
+        let steps: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
+        let sample_hz = 1.0 / percentile(&steps, 0.5);
+        let (cols, outliers) = Columns::read(rec, &t_s);
+        let recorded_load = cols.col("load_nm");
+        // the load is unknown when the model says so, or when it should come from the recording and does not
+        let load_unknown = match model.load {
+            LoadSpec::Unknown => true,
+            LoadSpec::Recorded => recorded_load.is_none(),
+            _ => false,
+        };
+        let f_drive = cols.col("f_drive_hz");
+        let drive = Drive::read(&cols, model, load_unknown, f_drive.as_ref(), n)?;
+        let family = drive.family;
+        let speed = Speed::read(&cols, &t_s, sample_hz)?;
+        let (load_nm, load) = load_torque(&cols, model, family, recorded_load, &speed.omega_f, &t_s)?;
+        let cutoff_hz = speed.cutoff_hz;
+        let drive_torque_f = filtfilt_butter4(&drive.torque_nm, cutoff_hz, sample_hz);
         let load_f = filtfilt_butter4(&load_nm, cutoff_hz, sample_hz);
         let restarts = gaps(&t_s);
-        if let Some(&longest) =
-            restarts.iter().max_by(|&&a, &&b| (t_s[a] - t_s[a - 1]).total_cmp(&(t_s[b] - t_s[b - 1])))
-        {
-            tracing::warn!(
-                recording = %src,
-                "{} gap(s) in t_s, the longest {} s after row {longest} (t_s = {}): the free run restarts from the \
-                 measured state after each",
-                restarts.len(),
-                t_s[longest] - t_s[longest - 1],
-                t_s[longest - 1]
-            );
-        }
-        let measured_omega = match speed_source {
-            "omega_rad_s" => finite_rows("omega_rad_s"),
-            _ => finite_rows("theta_rad"),
-        }
-        .unwrap_or_else(|| vec![true; n]);
-        let measured_dp = match (finite_rows("p_in_bar"), finite_rows("p_out_bar")) {
-            (Some(a), Some(b)) => a.iter().zip(&b).map(|(a, b)| *a && *b).collect(),
-            _ => vec![true; n],
-        };
-        let measured_f_drive = finite_rows("f_drive_hz").unwrap_or_else(|| vec![true; n]);
-        let speed_noise_f = (family == Family::Flow && speed_source == "omega_rad_s")
-            .then(|| synthetic_speed_noise(&omega_rad_s, &omega_f, cutoff_hz, sample_hz));
+        warn_of_gaps(src, &t_s, &restarts);
+        let (measured_omega, measured_dp, measured_f_drive) = cols.measured(speed.source, n);
+        let speed_noise_f = (family == Family::Flow && speed.source == "omega_rad_s")
+            .then(|| synthetic_speed_noise(&speed.omega_rad_s, &speed.omega_f, cutoff_hz, sample_hz));
         let t_val = t_s[0] + (1.0 - validation_fraction) * span;
         let split = t_s.iter().position(|&t| t >= t_val).unwrap_or(n - 1).clamp(100, n - 50);
         Ok(Series {
@@ -270,21 +384,21 @@ impl Series {
             t_s,
             sample_hz,
             split,
-            omega_rad_s,
-            omega_f,
-            alpha_f,
-            drive_torque_nm,
+            omega_rad_s: speed.omega_rad_s,
+            omega_f: speed.omega_f,
+            alpha_f: speed.alpha_f,
+            drive_torque_nm: drive.torque_nm,
             drive_torque_f,
             load_nm,
             load_f,
-            dp_bar,
-            setpoint_hz,
-            f0_hz,
-            p_in0_bar,
-            state_f_hz,
-            state_p_in_bar,
+            dp_bar: drive.dp_bar,
+            setpoint_hz: drive.setpoint_hz,
+            f0_hz: drive.f0_hz,
+            p_in0_bar: drive.p_in0_bar,
+            state_f_hz: drive.state_f_hz,
+            state_p_in_bar: drive.state_p_in_bar,
             cutoff_hz,
-            speed_source,
+            speed_source: speed.source,
             sign_speed: SIGN_SPEED_RAD_S,
             f_drive_hz: f_drive.filter(|_| family == Family::Flow),
             load,

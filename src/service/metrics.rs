@@ -35,6 +35,11 @@ const NM_S_RAD: &str = "newton_meter_seconds_per_radian";
 
 /// Pascals per bar: the registers carry bar, the metrics the SI unit.
 pub const PASCALS_PER_BAR: f64 = 1e5;
+/// A unit of the metrics' own (not one of prometheus-client's).
+fn unit(u: &str) -> Unit {
+    Unit::Other(u.to_string())
+}
+
 type HistogramFamily = Family<DriveLabel, Histogram, fn() -> Histogram>;
 
 fn period_histogram() -> Histogram {
@@ -102,7 +107,20 @@ pub struct Metrics {
 impl Metrics {
     /// The families, registered in a new registry.
     pub fn new() -> (Metrics, Registry) {
-        let m = Metrics {
+        let m = Metrics::families();
+        let mut r = Registry::with_prefix("hydrolens");
+        m.register_link(&mut r);
+        m.register_timing(&mut r);
+        m.register_signals(&mut r);
+        m.register_status(&mut r);
+        m.register_recording(&mut r);
+        m.register_http(&mut r);
+        (m, r)
+    }
+
+    /// Every family, empty.
+    fn families() -> Metrics {
+        Metrics {
             polls: Family::default(),
             errors: Family::default(),
             reconnects: Family::default(),
@@ -145,126 +163,155 @@ impl Metrics {
             http_auth_throttled: Counter::default(),
             http_event_streams: Gauge::default(),
             http_refused: Family::default(),
-        };
-        let mut r = Registry::with_prefix("hydrolens");
-        r.register("polls", "Poll cycles run", m.polls.clone());
-        r.register("errors", "Failed Modbus calls, by kind", m.errors.clone());
-        r.register("reconnects", "Modbus connections re-opened after a failure", m.reconnects.clone());
+        }
+    }
+
+    /// Registers the poll loop's counts and the link's state.
+    fn register_link(&self, r: &mut Registry) {
+        r.register("polls", "Poll cycles run", self.polls.clone());
+        r.register("errors", "Failed Modbus calls, by kind", self.errors.clone());
+        r.register("reconnects", "Modbus connections re-opened after a failure", self.reconnects.clone());
         r.register(
             "rejected_samples",
             "Samples out of range or not finite, never given to the estimator",
-            m.rejected_samples.clone(),
+            self.rejected_samples.clone(),
         );
-        r.register("stale_samples", "Reads whose sample counter had not moved", m.stale_samples.clone());
-        r.register("writes", "Modbus write requests sent", m.writes.clone());
-        r.register("writes_refused", "Setpoint writes the device refused or never answered", m.writes_refused.clone());
+        r.register("stale_samples", "Reads whose sample counter had not moved", self.stale_samples.clone());
+        r.register("writes", "Modbus write requests sent", self.writes.clone());
+        r.register(
+            "writes_refused",
+            "Setpoint writes the device refused or never answered",
+            self.writes_refused.clone(),
+        );
         r.register(
             "slow_writes",
             "Setpoint writes that took more than half the poll period (the loop overruns)",
-            m.slow_writes.clone(),
+            self.slow_writes.clone(),
         );
-        r.register("trips", "Times the drive reported a fault or comm-loss trip", m.trips.clone());
-        r.register("loop_overruns", "Poll cycles that took longer than the poll period", m.overruns.clone());
-        r.register("stale", "1 while the drive's data are stale", m.stale.clone());
-        r.register("link_up", "1 while the Modbus connection is open and answering", m.link_up.clone());
-        let seconds = || Unit::Seconds;
-        let unit = |u: &str| Unit::Other(u.to_string());
-        r.register_with_unit("loop_period", "Time between poll cycle starts", seconds(), m.loop_period.clone());
+        r.register("trips", "Times the drive reported a fault or comm-loss trip", self.trips.clone());
+        r.register("loop_overruns", "Poll cycles that took longer than the poll period", self.overruns.clone());
+        r.register("stale", "1 while the drive's data are stale", self.stale.clone());
+        r.register("link_up", "1 while the Modbus connection is open and answering", self.link_up.clone());
+    }
+
+    /// Registers the loop's period and jitter.
+    fn register_timing(&self, r: &mut Registry) {
+        r.register_with_unit("loop_period", "Time between poll cycle starts", Unit::Seconds, self.loop_period.clone());
         r.register_with_unit(
             "loop_jitter_p50",
             "Median |period − poll period| over the last 1000 cycles",
-            seconds(),
-            m.jitter_p50.clone(),
+            Unit::Seconds,
+            self.jitter_p50.clone(),
         );
         r.register_with_unit(
             "loop_jitter_p99",
             "99th percentile |period − poll period| over the last 1000 cycles",
-            seconds(),
-            m.jitter_p99.clone(),
+            Unit::Seconds,
+            self.jitter_p99.clone(),
         );
-        r.register_with_unit("inlet_pressure", "Measured inlet pressure", unit("pascals"), m.inlet_pressure.clone());
-        r.register_with_unit("outlet_pressure", "Measured outlet pressure", unit("pascals"), m.outlet_pressure.clone());
+    }
+
+    /// Registers the last sample's measured signals, the estimates and their standard deviations.
+    fn register_signals(&self, r: &mut Registry) {
+        r.register_with_unit("inlet_pressure", "Measured inlet pressure", unit("pascals"), self.inlet_pressure.clone());
+        r.register_with_unit(
+            "outlet_pressure",
+            "Measured outlet pressure",
+            unit("pascals"),
+            self.outlet_pressure.clone(),
+        );
         r.register_with_unit(
             "drive_frequency",
             "Output frequency the drive reports",
             unit("hertz"),
-            m.drive_frequency.clone(),
+            self.drive_frequency.clone(),
         );
-        r.register_with_unit("omega", "Measured shaft speed", unit(RAD_S), m.omega.clone());
-        r.register_with_unit("omega_hat", "Estimated shaft speed", unit(RAD_S), m.omega_hat.clone());
-        r.register_with_unit("load_hat", "Estimated load torque", unit("newton_meters"), m.load_hat.clone());
-        r.register_with_unit("inertia_hat", "Estimated inertia J", unit(KG_M2), m.inertia_hat.clone());
+        r.register_with_unit("omega", "Measured shaft speed", unit(RAD_S), self.omega.clone());
+        r.register_with_unit("omega_hat", "Estimated shaft speed", unit(RAD_S), self.omega_hat.clone());
+        r.register_with_unit("load_hat", "Estimated load torque", unit("newton_meters"), self.load_hat.clone());
+        r.register_with_unit("inertia_hat", "Estimated inertia J", unit(KG_M2), self.inertia_hat.clone());
         r.register_with_unit(
             "inertia_sd",
             "Standard deviation of the estimated J (0: taken from the model)",
             unit(KG_M2),
-            m.inertia_sd.clone(),
+            self.inertia_sd.clone(),
         );
-        r.register_with_unit("viscous_hat", "Estimated viscous friction B", unit(NM_S_RAD), m.viscous_hat.clone());
+        r.register_with_unit("viscous_hat", "Estimated viscous friction B", unit(NM_S_RAD), self.viscous_hat.clone());
         r.register_with_unit(
             "viscous_sd",
             "Standard deviation of the estimated B (0: taken from the model)",
             unit(NM_S_RAD),
-            m.viscous_sd.clone(),
+            self.viscous_sd.clone(),
         );
+    }
+
+    /// Registers what the data say of J, B and the load, whether the drive follows, setpoint and target.
+    fn register_status(&self, r: &mut Registry) {
         r.register(
             "inertia_identified",
             "J: 1 identified, 0 too little excitation, -1 nominal predicts as well, -2 not separable from the load, -3 the model's",
-            m.inertia_identified.clone(),
+            self.inertia_identified.clone(),
         );
         r.register(
             "viscous_identified",
             "B: 1 identified, 0 too little excitation, -1 nominal predicts as well, -2 not separable from the load, -3 the model's",
-            m.viscous_identified.clone(),
+            self.viscous_identified.clone(),
         );
         r.register(
             "load_character",
             "Load: 0 unknown, 1 steady, 2 stepping, 3 periodic in time, 4 periodic in shaft angle, 5 following the speed, 6 random",
-            m.load_character.clone(),
+            self.load_character.clone(),
         );
         r.register(
             "drive_not_following",
             "1 while the drive does not follow its setpoints (local mode, not ready or not running)",
-            m.not_following.clone(),
+            self.not_following.clone(),
         );
-        r.register_with_unit("setpoint", "Last frequency setpoint written", unit("hertz"), m.setpoint.clone());
-        r.register_with_unit("target_omega", "Speed target", unit(RAD_S), m.target.clone());
-        r.register("recording_ok", "1 while the drive's rows reach the disk", m.recording_ok.clone());
-        r.register("recording_errors", "Recording write, flush or open failures", m.recording_errors.clone());
+        r.register_with_unit("setpoint", "Last frequency setpoint written", unit("hertz"), self.setpoint.clone());
+        r.register_with_unit("target_omega", "Speed target", unit(RAD_S), self.target.clone());
+    }
+
+    /// Registers the recorder's state and losses.
+    fn register_recording(&self, r: &mut Registry) {
+        r.register("recording_ok", "1 while the drive's rows reach the disk", self.recording_ok.clone());
+        r.register("recording_errors", "Recording write, flush or open failures", self.recording_errors.clone());
         r.register(
             "recording_rows_lost",
             "Rows not recorded: writing failed, or the open file was lost",
-            m.recording_rows_lost.clone(),
+            self.recording_rows_lost.clone(),
         );
         r.register(
             "recording_files_lost",
             "Open recordings lost while written (deleted, their directory removed, or replaced)",
-            m.recording_files_lost.clone(),
+            self.recording_files_lost.clone(),
         );
         r.register(
             "recording_files_deleted",
             "Old recordings deleted by retention (max_total_mb, keep_days)",
-            m.recording_files_deleted.clone(),
+            self.recording_files_deleted.clone(),
         );
         r.register(
             "recording_files_compressed",
             "Closed recordings compressed to .csv.gz (recording.compress)",
-            m.recording_files_compressed.clone(),
+            self.recording_files_compressed.clone(),
         );
-        r.register("http_connections", "Open HTTP connections", m.http_connections.clone());
-        r.register("http_auth_failures", "Write requests with a wrong Bearer token", m.http_auth_failures.clone());
+    }
+
+    /// Registers the HTTP side's connections, refusals and auth failures.
+    fn register_http(&self, r: &mut Registry) {
+        r.register("http_connections", "Open HTTP connections", self.http_connections.clone());
+        r.register("http_auth_failures", "Write requests with a wrong Bearer token", self.http_auth_failures.clone());
         r.register(
             "http_auth_throttled",
             "Write requests refused with 429 after a burst of wrong tokens",
-            m.http_auth_throttled.clone(),
+            self.http_auth_throttled.clone(),
         );
-        r.register("http_event_streams", "Open /api/events streams", m.http_event_streams.clone());
+        r.register("http_event_streams", "Open /api/events streams", self.http_event_streams.clone());
         r.register(
             "http_refused",
             "HTTP connections or requests turned away to keep capacity, by reason",
-            m.http_refused.clone(),
+            self.http_refused.clone(),
         );
-        (m, r)
     }
 }
 
