@@ -1,0 +1,197 @@
+//! The files' subcommands: `simulate` (a model run to a recording), `estimate` (an estimator over a recording) and
+//! `analyze` (a recording explained against a model).
+
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use hydrolens::{BadInput, output, plant, recording, replay_file};
+
+use super::load_model;
+use crate::EstimateFlags;
+
+/// Progress on a terminal, nothing when piped.
+fn progress(label: &'static str) -> impl FnMut(f64) {
+    let tty = std::io::stderr().is_terminal();
+    let mut last = -1i64;
+    move |fraction: f64| {
+        let pct = (fraction * 100.0).floor() as i64;
+        if tty && pct != last {
+            last = pct;
+            eprint!("\r{label}: {pct:3}%");
+            if pct >= 100 {
+                eprintln!();
+            }
+        }
+    }
+}
+
+/// The most rows `simulate` writes (`--duration` over the model's `sensors.sample_ms`): about 10 GB of CSV.
+const MAX_SIMULATE_ROWS: f64 = 1e8;
+
+pub fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyhow::Result<()> {
+    if !(duration.is_finite() && duration > 0.0 && duration <= 1e6) {
+        return Err(BadInput(format!("--duration {duration}: expected seconds, > 0 and ≤ 1e6")).into());
+    }
+    output::check(&[model_path], &[("--out", out)])?;
+    let model = load_model(model_path)?;
+    let rows = duration / model.sample_s();
+    if rows > MAX_SIMULATE_ROWS {
+        return Err(BadInput(format!(
+            "--duration {duration}: at sensors.sample_ms = {} (model file {}) that is {rows:.3e} rows, more than \
+             {MAX_SIMULATE_ROWS:e}; simulate less or sample slower",
+            model.sensors.sample_ms,
+            model_path.display()
+        ))
+        .into());
+    }
+    let mut file = output::Replacement::create(out).with_context(|| format!("creating {}", out.display()))?;
+    let mut writer =
+        recording::RowWriter::new(std::io::BufWriter::with_capacity(1 << 16, file.file()), &plant::simulate::COLUMNS)
+            .with_context(|| format!("writing {}", out.display()))?;
+    let load = model.load.clone();
+    let inputs = plant::simulate::Inputs {
+        setpoint_hz: &plant::excitation::setpoint_hz,
+        load_nm: &move |t, w, a| load.torque_at(t, w, a),
+    };
+    let mut sink = |row: &[f64; plant::simulate::COLUMNS.len()]| writer.write_row(row.iter().copied());
+    let rows = plant::simulate::run_into(&model, duration, seed, &inputs, &mut progress("simulate"), &mut sink)
+        .map_err(|e| match e {
+            plant::simulate::RunError::Model(e) => {
+                anyhow::Error::new(BadInput(format!("model file {}: {e}", model_path.display())))
+            }
+            plant::simulate::RunError::Sink(e) => anyhow::Error::new(e).context(format!("writing {}", out.display())),
+        })?;
+    writer.flush().with_context(|| format!("writing {}", out.display()))?;
+    drop(writer);
+    file.commit().with_context(|| format!("writing {}", out.display()))?;
+    eprintln!("simulate: {rows} samples written to {}", out.display());
+    Ok(())
+}
+
+pub fn estimate(rec_path: &Path, model_path: &Path, out: &Path, flags: &EstimateFlags) -> anyhow::Result<()> {
+    use hydrolens::estimator::{self, EstimatorSettings};
+    output::check(&[rec_path, model_path], &[("--out", out)])?;
+    let model = load_model(model_path)?;
+    let origin = model_path.display().to_string();
+    let mut settings = EstimatorSettings::from_model(&model, &origin)?;
+    let f = flags;
+    settings.method = f.method.unwrap_or(settings.method);
+    settings.lambda = f.lambda.unwrap_or(settings.lambda);
+    settings.eta = f.eta.unwrap_or(settings.eta);
+    settings.initial_covariance = f.initial_covariance.unwrap_or(settings.initial_covariance);
+    settings.speed_noise_rad_s = f.speed_noise.or(settings.speed_noise_rad_s);
+    settings.load_rate_nm_per_s = f.load_rate.unwrap_or(settings.load_rate_nm_per_s);
+    let est = estimator::try_build(&settings, &model).map_err(|hydrolens::error::KeyError { key, message: msg }| {
+        BadInput(format!("{key} (command line or model file {origin}) {msg}"))
+    })?;
+    let rows = replay_file::estimate_file(rec_path, &model, &origin, est.as_ref(), out)?;
+    eprintln!("estimate ({}): {rows} rows written to {}", settings.method, out.display());
+    Ok(())
+}
+
+/// The recording files `analyze` reads: one file, several files of one drive joined in time order, or a directory's
+/// files of `--drive` (the last service run; earlier runs are named on stderr and left out).
+fn analysis_files(paths: &[PathBuf], drive: Option<&str>) -> anyhow::Result<Vec<PathBuf>> {
+    Ok(match (paths, drive) {
+        ([dir], Some(drive)) if dir.is_dir() => recording::drive_files(dir, drive)?,
+        ([dir], None) if dir.is_dir() => {
+            return Err(BadInput(format!(
+                "{} is a directory: name the drive whose recordings to analyse with --drive NAME",
+                dir.display()
+            ))
+            .into());
+        }
+        (_, Some(_)) => {
+            return Err(BadInput("--drive goes with a single recordings directory, not with files".into()).into());
+        }
+        (files, None) => files.to_vec(),
+    })
+}
+
+/// The files of [`analysis_files`] read and joined.
+fn analysis_recording(files: &[PathBuf], drive: Option<&str>) -> anyhow::Result<recording::Recording> {
+    let columns = hydrolens::analysis::RECORDING_COLUMNS;
+    let parts = files.iter().map(|p| recording::load_columns(p, &columns)).collect::<Result<Vec<_>, _>>()?;
+    let parts = if drive.is_some() {
+        let (run, left_out) = recording::last_run(parts);
+        if left_out > 0 {
+            eprintln!(
+                "analyze: {left_out} older file(s) of earlier service runs left out (t_s restarts with each run); \
+                 pass files to analyse them"
+            );
+        }
+        run
+    } else {
+        parts
+    };
+    if parts.len() > 1 {
+        eprintln!("analyze: {} files joined in time order", parts.len());
+    }
+    Ok(recording::join(parts)?)
+}
+
+pub fn analyze(
+    rec_paths: &[PathBuf],
+    drive: Option<&str>,
+    model_path: &Path,
+    json: &Path,
+    report: Option<&Path>,
+    model_out: Option<&Path>,
+) -> anyhow::Result<()> {
+    use hydrolens::analysis;
+    let files = analysis_files(rec_paths, drive)?;
+    let mut inputs: Vec<&Path> = files.iter().map(PathBuf::as_path).collect();
+    inputs.push(model_path);
+    let mut outputs = vec![("--json", json)];
+    outputs.extend(report.map(|p| ("--report", p)));
+    outputs.extend(model_out.map(|p| ("--model-out", p)));
+    output::check(&inputs, &outputs)?;
+    let model = load_model(model_path)?;
+    // every output is opened before the analysis runs, and replaces its file only once all are written
+    let create = |p: &Path| output::Replacement::create(p).with_context(|| format!("creating {}", p.display()));
+    let mut json_file = create(json)?;
+    let mut model_file = model_out.map(create).transpose()?;
+    let mut report_file = report.map(create).transpose()?;
+    let rec = analysis_recording(&files, drive)?;
+    let source = rec.source.clone();
+    let result = analysis::analyze_owned(rec, &model, &analysis::Options::default(), &mut progress("analyze"))?;
+    if result.load == "unknown" && model.load == plant::LoadSpec::Recorded {
+        eprintln!(
+            "analyze: note: {} has no `load_nm` although the model's [load] kind is \"recorded\": analysed with the \
+             load unknown (the flow balance only: leakage, slip, entrained air, dead time); friction, torque offset, \
+             J and B are not determined (see `ambiguities` and `not_identified`). `kind = \"unknown\"` says so \
+             without this note",
+            source
+        );
+    }
+    let text = serde_json::to_string_pretty(&result).context("serialising the analysis")?;
+    let write = |file: &mut output::Replacement, path: &Path, text: &str| {
+        file.file().write_all(text.as_bytes()).with_context(|| format!("writing {}", path.display()))
+    };
+    write(&mut json_file, json, &(text + "\n"))?;
+    if let (Some(file), Some(path)) = (model_file.as_mut(), model_out) {
+        let header = format!("# Fitted by `hydrolens analyze {}` from {}\n", source, model_path.display());
+        write(file, path, &(header + &result.improved_model.to_toml()))?;
+    }
+    if let (Some(file), Some(path)) = (report_file.as_mut(), report) {
+        write(file, path, &analysis::report::html(&result))?;
+    }
+    let commit =
+        |file: output::Replacement, path: &Path| file.commit().with_context(|| format!("writing {}", path.display()));
+    commit(json_file, json)?;
+    if let (Some(file), Some(path)) = (model_file, model_out) {
+        commit(file, path)?;
+    }
+    if let (Some(file), Some(path)) = (report_file, report) {
+        commit(file, path)?;
+    }
+    let named: Vec<&str> = result.findings.iter().map(|f| f.effect.as_str()).collect();
+    eprintln!(
+        "analyze: {} samples; validation from {:.1} s; named: {}",
+        result.samples,
+        result.validation_from_s,
+        if named.is_empty() { "nothing".to_string() } else { named.join(", ") }
+    );
+    Ok(())
+}
