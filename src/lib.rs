@@ -30,7 +30,8 @@
 //! - [`http`]: the axum router over the service's shared state; never uses [`modbus`].
 //! - [`server`]: the service and its HTTP front put together (what `serve`, `demo` and the tests run).
 //!
-//! `main.rs` wires the commands and is the only place `anyhow` lives.
+//! The binary (`main.rs`, which parses the command line, and `commands/`, the subcommands' work) stands above them
+//! all, and is the only place `anyhow` lives.
 
 pub mod analysis;
 pub mod condition;

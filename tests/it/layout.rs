@@ -220,7 +220,9 @@ fn modules() -> BTreeMap<ModPath, Module> {
     for file in files {
         let rel = file.strip_prefix(&src).expect("under src/");
         let mut path: ModPath = rel.with_extension("").iter().map(|s| s.to_string_lossy().into_owned()).collect();
-        if path == ["main"] {
+        // the binary (main.rs and its subcommands in commands/) is a crate of its own: it reaches the library's
+        // rooms only as `hydrolens::…`, from above them all
+        if path == ["main"] || path.first().is_some_and(|r| r == "commands") {
             continue;
         }
         if path.last().is_some_and(|l| l == "mod" || l == "lib") {
