@@ -1,4 +1,4 @@
-//! The `hydrolens` command line: parses the arguments and dispatches to the subcommands ([`commands`]). Exit 0 ok,
+//! The `hydrolens` command line: parses the arguments and dispatches to the subcommands (`commands`). Exit 0 ok,
 //! 2 bad input, 1 other.
 
 use std::io::IsTerminal;

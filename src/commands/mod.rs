@@ -1,5 +1,5 @@
-//! The subcommands' work, one room per kind: the files' commands (`simulate`, `estimate`, `analyze`: [`files`])
-//! and the running ones (`sim`, `serve`, `demo`: [`running`]); here what they share (the runtimes, the shutdown on a
+//! The subcommands' work, one room per kind: the files' commands (`simulate`, `estimate`, `analyze`: `files`)
+//! and the running ones (`sim`, `serve`, `demo`: `running`); here what they share (the runtimes, the shutdown on a
 //! signal, the model file). `main.rs` parses the command line and dispatches to them.
 
 use std::path::Path;

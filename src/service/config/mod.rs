@@ -3,8 +3,8 @@
 //!
 //! In the service's layout (see [`super`]) it uses [`super::freshness`] (the plausible ranges and rates) and
 //! [`super::mqtt_config`] (`[mqtt]`), nothing above them: the condition checks and the MQTT publisher take their
-//! settings from here. Its rooms: one drive's entry ([`drive`]), RTU lines and gateways ([`line`]), the condition
-//! checks ([`condition_monitoring`]).
+//! settings from here. Its rooms: one drive's entry (`drive`), RTU lines and gateways (`line`), the condition checks
+//! (`condition_monitoring`).
 
 use crate::error::KeyError;
 use std::collections::BTreeMap;
