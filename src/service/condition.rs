@@ -10,7 +10,7 @@
 //! (kept at least `window_s` long), thinned to at most [`MAX_CHECK_HZ`] samples a second, with the load unknown.
 
 use std::path::Path;
-use std::sync::atomic::AtomicU64;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -53,7 +53,7 @@ pub struct DriveCondition {
     /// The power budget's report as of the last integration.
     energy: Mutex<Option<EnergyReport>>,
     /// Times a check came due and found no sample newer than the last check's (the link down, say).
-    idle_looks: std::sync::atomic::AtomicU64,
+    idle_looks: AtomicU64,
 }
 
 impl DriveCondition {
@@ -65,7 +65,7 @@ impl DriveCondition {
             last_error: Mutex::new(None),
             tracked: Mutex::new(Vec::new()),
             energy: Mutex::new(None),
-            idle_looks: std::sync::atomic::AtomicU64::new(0),
+            idle_looks: AtomicU64::new(0),
         }
     }
 
@@ -101,7 +101,7 @@ impl DriveCondition {
         if let Some(o) = v.as_object_mut() {
             o.insert("enabled".into(), self.enabled.into());
             o.insert("last_error".into(), lock(&self.last_error).clone().into());
-            o.insert("idle_looks".into(), self.idle_looks.load(std::sync::atomic::Ordering::Relaxed).into());
+            o.insert("idle_looks".into(), self.idle_looks.load(Ordering::Relaxed).into());
         }
         v
     }
@@ -389,7 +389,7 @@ impl Job {
         let span = last.sample.t_s - first.sample.t_s;
         if self.checked_up_to_s.is_some_and(|t| last.sample.t_s <= t) {
             tracing::debug!(drive = %self.drive.name, "no new data since the last condition check");
-            self.condition.idle_looks.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            self.condition.idle_looks.fetch_add(1, Ordering::Relaxed);
             return true;
         }
         if span < MIN_WINDOW_FRACTION * window_s {

@@ -460,15 +460,12 @@ async fn over_tcp_a_drive_without_new_data_is_not_checked_again() {
         let idle_after = |n: u64| {
             let url = url.clone();
             async move {
-                let start = tokio::time::Instant::now();
-                loop {
-                    let (_, v) = condition_json(&url, "pump1").await;
-                    if idle(&v) >= n {
-                        return v;
-                    }
-                    assert!(start.elapsed() < Duration::from_secs(20), "{n} idle looks within 20 s: {v}");
-                    tokio::time::sleep(Duration::from_millis(20)).await;
-                }
+                let seen =
+                    wait_for(Duration::from_secs(20), || async { idle(&condition_json(&url, "pump1").await.1) >= n })
+                        .await;
+                let (_, v) = condition_json(&url, "pump1").await;
+                assert!(seen.is_some(), "{n} idle looks within 20 s: {v}");
+                v
             }
         };
         let before = idle_after(1).await;
