@@ -254,6 +254,7 @@ pub fn first_seed(set: &str) -> Option<u64> {
         "unseen" => Some(7001),
         "final" => Some(9001),
         "sealed" => Some(11001),
+        "novel" => Some(13001),
         _ => None,
     }
 }

@@ -216,7 +216,7 @@ impl RlsSgd {
         let ((b, _), _) = self.combined;
         let reference = self.rls.b0;
         let implausible = b > PLAUSIBLE_VISCOUS_FACTOR * reference || b < reference / PLAUSIBLE_VISCOUS_FACTOR;
-        implausible || self.rls.viscous.depends_on_speed()
+        implausible || (self.periodic.estimate().is_none() && self.rls.viscous.depends_on_speed())
     }
 
     /// The adapted J and B (the windows' and the periodic fit's, combined): what the adapted tracker predicts with.
