@@ -14,6 +14,7 @@ mod guard;
 mod kalman;
 mod paper;
 mod periodic;
+mod pool;
 mod rls_sgd;
 pub mod settings;
 mod windows;

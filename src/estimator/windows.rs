@@ -1,18 +1,17 @@
 //! The windows rls-sgd learns J and B from (module doc of `rls_sgd.rs`): each window's least-squares fit of the
 //! measured speed with the load a nuisance (a polynomial and at most one step, chosen by GLR), the robust RLS on
-//! θ = [J₀/J, (B/J)·J₀/B₀] that adds each window's information ([`WindowRls`]), and the pools of the windows' own B
-//! and J as random-effects means ([`WindowPool`]). Pure: fed rows of Δt, speed and torque integrals.
+//! θ = [J₀/J, (B/J)·J₀/B₀] that adds each window's information ([`WindowRls`]), which also pools the windows' own
+//! B and J (`pool.rs`). Pure: fed rows of Δt, speed and torque integrals.
 
 use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
 
 use super::covariance::condition;
+use super::pool::{HUBER_Z, OVERLAP, WindowPool};
 use super::settings::Resolved;
 
 /// Informative windows remembered for the consistency check, and how many of them rejected mean "wrong".
 const RECENT_WINDOWS: u32 = 8;
 const REJECTED_MEANS_WRONG: u32 = 5;
-/// Huber threshold (σ) of the window's disagreement with θ: beyond it the window counts for less.
-const HUBER_Z: f64 = 2.5;
 /// Step-time candidates per window before refinement.
 const STEP_GRID: usize = 16;
 /// A step is in the window when it lowers the residual sum of squares by this many σ² (GLR over the candidates).
@@ -122,166 +121,6 @@ pub(crate) enum Verdict {
     Misfit,
     /// The window disagrees with θ beyond both uncertainties.
     Rejected,
-}
-
-/// Informative windows pooled for B.
-const POOL: usize = 40;
-/// How many times the between-window variance τ² counts in J's pool variance: each sample lies in two windows
-/// (the staggered sequences), so n windows hold about n/2 independent looks at the scatter. B's pool keeps 1: its
-/// variance also weighs B against the periodic fit and decides where B stands, and 2 there traded four runs that
-/// hold on the six families for five runs of no harm on the new loads (tuned, held-out, fresh and sealed seeds).
-const OVERLAP: f64 = 2.0;
-
-/// B (and, for its credible standard deviation, J) from the windows as a random-effects mean (DerSimonian–Laird),
-/// robust (Huber). A window's B is biased by whatever part of the load its nuisance did not follow (a sine's
-/// curvature over a setpoint change), differently in each window; so the windows are pooled as studies of one B,
-/// each with its own variance plus a between-window variance τ² learnt from their scatter. Consistent windows (brake steps) give a tight B; scattered ones (sine
-/// loads) give their plain average with a standard deviation as wide as the scatter says, never the confident
-/// answer of whichever windows came first. The prior (the model's B) is one more, fixed, study; old windows leave
-/// the pool, so a wrong B recovers.
-#[derive(Debug, Clone)]
-pub(super) struct WindowPool {
-    prior: (f64, f64),
-    windows: [(f64, f64); POOL],
-    /// Each window's mean speed: a B that grows with the speed it was measured at is a load that follows the speed.
-    speeds: [f64; POOL],
-    len: usize,
-    next: usize,
-    bounds: [f64; 2],
-    /// How many times the between-window variance τ² counts in the pooled variance (not in the weights).
-    overlap: f64,
-    /// The pooled value and its variance.
-    pub estimate: (f64, f64),
-}
-
-impl WindowPool {
-    fn new(b: f64, var: f64, bounds: [f64; 2], overlap: f64) -> WindowPool {
-        WindowPool {
-            prior: (b, var),
-            windows: [(0.0, 0.0); POOL],
-            speeds: [0.0; POOL],
-            len: 0,
-            next: 0,
-            bounds,
-            overlap,
-            estimate: (b, var),
-        }
-    }
-
-    fn add(&mut self, b: f64, var: f64, speed: f64) {
-        if !(b.is_finite() && var.is_finite() && var > 0.0) {
-            return;
-        }
-        self.windows[self.next] = (b, var);
-        self.speeds[self.next] = speed;
-        self.next = (self.next + 1) % POOL;
-        self.len = (self.len + 1).min(POOL);
-        self.estimate = self.pool();
-    }
-
-    /// Whether the windows' B grows (or falls) with the speed they were measured at: the slope of B on the window's
-    /// mean speed (weighted by each window's variance plus the between-window scatter) is `SPEED_SLOPE_Z` standard
-    /// errors from zero and moves B by more than half its mean over the speeds seen. Viscous friction is one number
-    /// at every speed; a fan's torque has a slope that doubles with the speed.
-    pub(super) fn depends_on_speed(&self) -> bool {
-        self.speed_slope().is_some_and(|s| {
-            (s.slope / s.se).abs() > SPEED_SLOPE_Z && (s.slope * s.speed_range).abs() > 0.5 * s.mean_b.abs()
-        })
-    }
-
-    /// The weighted line of the windows' B on their mean speed (a meta-regression: each window weighted by its
-    /// variance plus the between-window scatter about the line); `None` before `SPEED_SLOPE_WINDOWS` windows.
-    fn speed_slope(&self) -> Option<SpeedSlope> {
-        let n = self.len;
-        if n < SPEED_SLOPE_WINDOWS {
-            return None;
-        }
-        let (b, speeds) = (&self.windows[..n], &self.speeds[..n]);
-        let line = |tau2: f64| {
-            let (mut sw, mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
-            for (&(y, v), &x) in b.iter().zip(speeds) {
-                let w = 1.0 / (v + tau2).max(1e-300);
-                (sw, sx, sy, sxx, sxy) = (sw + w, sx + w * x, sy + w * y, sxx + w * x * x, sxy + w * x * y);
-            }
-            let var_x = sxx / sw - (sx / sw).powi(2);
-            let slope = (sxy / sw - sx / sw * sy / sw) / var_x;
-            (slope, sy / sw, sx / sw, sw * var_x)
-        };
-        // the scatter is measured about the line, not about the mean: a speed dependence is not scatter
-        let (slope, mean_b, mean_x, _) = line(0.0);
-        let excess: f64 =
-            b.iter().zip(speeds).map(|(&(y, v), &x)| (y - mean_b - slope * (x - mean_x)).powi(2) - v).sum();
-        let tau2 = (SCATTER_SHARE * excess / (n - 2) as f64).max(0.0);
-        let (slope, mean_b, mean_speed, information) = line(tau2);
-        if !(information.is_finite() && information > 0.0) {
-            return None;
-        }
-        // residual scatter about the line, for the slope's standard error
-        let resid: f64 = b
-            .iter()
-            .zip(speeds)
-            .map(|(&(y, v), &x)| (y - mean_b - slope * (x - mean_speed)).powi(2) / (v + tau2).max(1e-300))
-            .sum::<f64>()
-            / (n - 2) as f64;
-        let se = (resid.max(1.0) / information).sqrt();
-        let (lo, hi) = speeds.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
-        Some(SpeedSlope { slope, se, mean_b, speed_range: hi - lo })
-    }
-
-    fn pool(&self) -> (f64, f64) {
-        let w = &self.windows[..self.len];
-        let (pb, pv) = self.prior;
-        // Start from the windows' median (weighed by their claims), so a wild window cannot pull the start.
-        let mut order: [(f64, f64); POOL] = [(0.0, 0.0); POOL];
-        order[..w.len()].copy_from_slice(w);
-        let order = &mut order[..w.len()];
-        order.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let total: f64 = order.iter().map(|&(_, v)| 1.0 / v).sum();
-        let mut acc = 0.0;
-        let mut m = order
-            .iter()
-            .find(|&&(_, v)| {
-                acc += 1.0 / v;
-                acc >= 0.5 * total
-            })
-            .map_or(pb, |&(x, _)| x);
-        // Then a random-effects mean, iteratively reweighted: Huber weights h from each window's distance to the
-        // mean in units of its variance plus the between-window variance τ² (DerSimonian–Laird over the weighted
-        // windows), and the prior as one more study.
-        let mut tau2 = 0.0;
-        let mut honest = 1.0 / pv;
-        for _ in 0..6 {
-            let h = |x: f64, v: f64, t2: f64| {
-                let z = (x - m).abs() / (v + t2).sqrt();
-                if z > HUBER_Z { HUBER_Z / z } else { 1.0 }
-            };
-            let (mut sw, mut swx, mut sw2, mut sh) = (0.0, 0.0, 0.0, 0.0);
-            for &(x, v) in w {
-                let hw = h(x, v, tau2) / v;
-                sw += hw;
-                swx += hw * x;
-                sw2 += hw * hw;
-                sh += h(x, v, tau2);
-            }
-            if sw > 0.0 && sh > 1.0 {
-                let fixed = swx / sw;
-                let q: f64 = w.iter().map(|&(x, v)| h(x, v, tau2) * (x - fixed).powi(2) / v).sum();
-                tau2 = ((q - (sh - 1.0)) / (sw - sw2 / sw)).max(0.0);
-            }
-            let mut b = pb / pv;
-            let mut info = 1.0 / pv;
-            honest = 1.0 / pv;
-            for &(x, v) in w {
-                let hw = h(x, v, tau2) / (v + tau2);
-                info += hw;
-                honest += h(x, v, tau2) / (v + self.overlap * tau2);
-                b += hw * x;
-            }
-            m = b / info;
-        }
-        let [lo, hi] = self.bounds;
-        if m < lo || m > hi { (m.clamp(lo, hi), pv) } else { (m, 1.0 / honest) }
-    }
 }
 
 /// Each suffix sum's stride in [`Window::suffix`]: the columns without the step, then ω.
@@ -690,97 +529,4 @@ fn bounded(p: Matrix2<f64>, prior: &Matrix2<f64>) -> Matrix2<f64> {
         }
     }
     if p.cholesky().is_some() { p } else { *prior }
-}
-
-/// The windows' B depends on their speed when its slope is this many standard errors from zero.
-const SPEED_SLOPE_Z: f64 = 3.0;
-/// …among at least this many windows.
-const SPEED_SLOPE_WINDOWS: usize = 5;
-/// The share of the between-window scatter (measured about the line) added to each window's variance in the
-/// slope's weights: a quarter, as the test has weighed it since it came in.
-const SCATTER_SHARE: f64 = 0.25;
-
-/// The windows' B against their mean speed, as [`WindowPool::speed_slope`] fits it.
-struct SpeedSlope {
-    slope: f64,
-    se: f64,
-    mean_b: f64,
-    speed_range: f64,
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// Windows that agree give a B as tight as their own claims; windows that each claim ±0.002 but scatter by
-    /// ±0.05 (a load their nuisance did not follow) give their average with a standard deviation as wide as the
-    /// scatter says; the prior alone is the prior; a pool full of new windows forgets a wrong start.
-    #[test]
-    fn the_viscous_pool_is_as_sure_as_the_windows_agree() {
-        let mut agree = WindowPool::new(0.12, 0.01, [0.0, 0.5], 1.0);
-        assert_eq!(agree.estimate, (0.12, 0.01));
-        for i in 0..20 {
-            agree.add(0.04 + 0.002 * if i % 2 == 0 { 1.0 } else { -1.0 }, 0.002f64.powi(2), 10.0 + i as f64);
-        }
-        let (b, var) = agree.estimate;
-        assert!((b - 0.04).abs() < 1e-3 && var.sqrt() < 1e-3, "{b} ± {}", var.sqrt());
-        let mut scatter = WindowPool::new(0.12, 0.01, [0.0, 0.5], 1.0);
-        // the same windows, counted as overlapping by half (J's pool): the same value, √2 less sure
-        let mut overlapping = WindowPool::new(0.12, 0.01, [0.0, 0.5], OVERLAP);
-        let biases = [0.05, -0.04, 0.03, -0.06, 0.02, -0.03, 0.06, -0.05, 0.04, -0.02];
-        for bias in biases.iter().chain(biases.iter()) {
-            scatter.add(0.04 + bias, 0.002f64.powi(2), 30.0);
-            overlapping.add(0.04 + bias, 0.002f64.powi(2), 30.0);
-        }
-        let (b, var) = scatter.estimate;
-        let sd = var.sqrt();
-        assert!((b - 0.04).abs() < 2.0 * sd, "{b} ± {sd}");
-        assert!(sd > 0.005, "the scatter (±0.05 over 20 windows) says about ±0.01, got ±{sd}");
-        let (b2, var2) = overlapping.estimate;
-        assert_eq!(b2, b);
-        assert!((var2 / var - 2.0).abs() < 0.05, "{var2} against {var}");
-    }
-
-    /// The windows' B of a fan run (held-out seed 1001 at 5 ms, after 21 windows: speed, B, sd): their scatter is
-    /// mostly the fan's speed dependence, so measured about the mean it hid the slope (z 2.96, under 3); measured
-    /// about the line it shows. Windows of one friction with the same claims and speeds, scattered by their own
-    /// noise, show none.
-    #[test]
-    #[allow(clippy::approx_constant)] // measured values (0.318 is a window's B, not 1/π)
-    fn a_speed_dependence_is_not_taken_for_scatter() {
-        let fan = [
-            (6.0, 0.098, 0.008),
-            (11.0, 0.056, 0.018),
-            (0.0, -0.017, 0.114),
-            (8.0, 0.090, 0.008),
-            (56.0, 0.318, 0.107),
-            (27.0, 0.142, 0.033),
-            (21.0, 0.042, 0.167),
-            (20.0, 0.097, 0.087),
-            (11.0, 0.101, 0.018),
-            (1.0, 0.087, 0.053),
-            (1.0, 0.063, 0.041),
-            (16.0, 0.005, 0.032),
-            (35.0, 0.131, 0.008),
-            (17.0, 0.113, 0.039),
-            (31.0, 0.094, 0.040),
-            (66.0, 0.261, 0.116),
-            (43.0, 0.256, 0.259),
-            (68.0, -0.024, 0.358),
-            (63.0, 0.228, 0.052),
-            (20.0, 0.150, 0.094),
-            (14.0, 0.146, 0.125),
-        ];
-        let pool = |b: &dyn Fn(usize, f64, f64) -> f64| {
-            let mut p = WindowPool::new(0.03, 0.01, [0.0, 0.5], 1.0);
-            for (i, &(speed, b_w, sd)) in fan.iter().enumerate() {
-                p.add(b(i, b_w, sd), sd * sd, speed);
-            }
-            p
-        };
-        assert!(pool(&|_, b_w, _| b_w).depends_on_speed());
-        // one friction, 0.04, each window off by up to its own sd (a fixed pattern, no seed)
-        let friction = pool(&|i, _, sd| 0.04 + sd * [0.9, -0.6, 0.3, -1.0, 0.5, -0.2, 0.8, -0.7][i % 8]);
-        assert!(!friction.depends_on_speed());
-    }
 }
