@@ -23,7 +23,7 @@
 //!   prior uncertainty back (never silently at a bound). P is the parameter covariance (residuals are weighed by
 //!   the speed noise), so `inertia_sd_kg_m2` is a standard deviation.
 //! - B (reported, and used by the load tracker) is the same windows' B pooled as a random-effects mean
-//!   (`windows::WindowPool`): under a smooth load the windows' B scatter far beyond what each claims, and the pool's
+//!   (`pool::WindowPool`): under a smooth load the windows' B scatter far beyond what each claims, and the pool's
 //!   `viscous_sd_nm_s_rad` says so instead of trusting whichever windows came first.
 
 use nalgebra::Matrix2;
