@@ -255,6 +255,7 @@ pub fn first_seed(set: &str) -> Option<u64> {
         "final" => Some(9001),
         "sealed" => Some(11001),
         "novel" => Some(13001),
+        "last" => Some(15001),
         _ => None,
     }
 }
