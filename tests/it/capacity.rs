@@ -156,8 +156,18 @@ async fn twelve_slow_downloads_of_a_64_mb_recording_hold_a_small_buffer_each() {
         c.read_exact(&mut first).await.expect("the first bytes");
         readers.push(c);
     }
-    // the twelve now read nothing for a while: what the service holds for them
-    tokio::time::sleep(Duration::from_millis(500)).await;
+    // the twelve now read nothing: what the service holds for them, once its memory has stopped moving (the same
+    // to 0.1 MB over ten looks, 200 ms; a service that read whole files in would still be growing)
+    let (last, same) = (std::cell::Cell::new(f64::NAN), std::cell::Cell::new(0u32));
+    let settled = wait_for(Duration::from_secs(15), || {
+        let (last, same, rss) = (&last, &same, s.rss_mb());
+        async move {
+            same.set(if (rss - last.replace(rss)).abs() <= 0.1 { same.get() + 1 } else { 0 });
+            same.get() >= 10
+        }
+    })
+    .await;
+    assert!(settled.is_some(), "the service's memory settles with twelve stalled downloads: {} MB", s.rss_mb());
     let rss_held = s.rss_mb();
     let [(health, _), (target, _)] = operator(&s.url).await;
     // then each reads its file to the end
