@@ -5,8 +5,10 @@
 //! baseline ([`predict`]) → locate mismatch windows ([`mismatch`]) → greedy forward selection over the catalogue
 //! (`select`), each candidate fitted on the fitting segment and kept only when it lowers the validation error by a
 //! clear margin and BIC agrees (`validate`: the out-of-fold free runs and the intervals) → ambiguities and
-//! explanations (`explain`) → the improved model. The result's types are in `result`, re-exported here.
+//! explanations (`explain`) → the improved model, with each finding's evidence and the residuals (`evidence`). The
+//! result's types are in `result`, re-exported here.
 
+mod evidence;
 mod explain;
 pub mod mismatch;
 pub mod predict;
@@ -32,6 +34,7 @@ pub use result::{
 };
 pub use series::{Family, Series};
 
+use evidence::{finding, noise_floors, residual_signals, timing_variance, traces};
 use explain::{ambiguities, explain, not_identified};
 use search::Scored;
 use select::{Kept, Selection, fit_baseline, interval_keys, search_start};
@@ -341,61 +344,6 @@ fn gaps(s: &Series) -> Gaps {
     Gaps { count: s.restarts.len(), longest_s: longest.map(|l| l.0), after_t_s: longest.map(|l| l.1) }
 }
 
-/// The sensor-noise floor of each judged signal, as the residual sees it: σ of the white part of the measurement
-/// (what a zero-phase low-pass removes, robustly, scaled for the pass band); for a filtered comparison (torque)
-/// the part of that noise inside the pass band. The flow family's ΔP is predicted from the measured speed, so its
-/// floor adds the share of the speed sensor's noise that `sc`'s prediction carries.
-fn noise_floors(s: &Series, sc: &Scored) -> Vec<(&'static str, f64)> {
-    let passed = (2.0 * s.cutoff_hz / s.sample_hz).clamp(0.0, 0.9);
-    let sigma = |raw: &[f64]| -> f64 {
-        let f = signal::filtfilt_butter4(raw, s.cutoff_hz, s.sample_hz);
-        let mut d: Vec<f64> = raw.iter().zip(&f).map(|(a, b)| (a - b).abs()).filter(|v| v.is_finite()).collect();
-        d.sort_by(f64::total_cmp);
-        let mad = d.get(d.len() / 2).copied().unwrap_or(0.0);
-        1.4826 * mad / (1.0 - passed).sqrt()
-    };
-    let mut out = Vec::new();
-    match s.family {
-        Family::Hydraulic => {
-            out.push(("omega", sigma(&s.omega_rad_s)));
-            if let Some(dp) = &s.dp_bar {
-                out.push(("dp", sigma(dp)));
-            }
-        }
-        Family::Torque => out.push(("torque", sigma(&s.drive_torque_nm) * passed.sqrt())),
-        Family::Flow => {
-            if let Some(dp) = &s.dp_bar {
-                out.push(("dp", sigma(dp).hypot(sc.prediction.dp_noise_bar2.max(0.0).sqrt())));
-            }
-            if let Some(f) = &s.f_drive_hz {
-                // the register's 0.01 Hz quantisation at least
-                out.push(("f_drive", sigma(f).max(0.01 / 12f64.sqrt())));
-            }
-        }
-    }
-    out
-}
-
-/// Per row, the variance that the time stamps' own uncertainty makes of the drive frequency: a row is placed within
-/// one sample period T (a service recording stamps it when the read is sent; the setpoint it carries lands after the
-/// reply), uniform over T, so σ_t = T/√12 and the frequency the model ramps moves by ḟ·σ_t. `None` without a drive
-/// frequency prediction.
-fn timing_variance(s: &Series, sc: &Scored) -> Option<Vec<f64>> {
-    let f = sc.prediction.f_drive_hz.as_ref()?;
-    let sigma_t = 1.0 / (s.sample_hz * 12f64.sqrt());
-    let n = f.len().min(s.t_s.len());
-    Some(
-        (0..n)
-            .map(|i| {
-                let (a, b) = (i.saturating_sub(1), (i + 1).min(n - 1));
-                let dt = s.t_s[b] - s.t_s[a];
-                let rate = if dt > 0.0 { (f[b] - f[a]) / dt } else { 0.0 };
-                (rate * sigma_t).powi(2)
-            })
-            .collect(),
-    )
-}
-
 fn summary(sc: &Scored, s: &Series) -> Summary {
     Summary {
         parameters: parameters(&sc.model),
@@ -410,166 +358,6 @@ fn summary(sc: &Scored, s: &Series) -> Summary {
 fn with_nominal_load(mut m: PlantModel, nominal: &PlantModel) -> PlantModel {
     m.load = nominal.load.clone();
     m
-}
-
-/// Measured − model for each judged signal of the family, over the whole recording.
-/// Residuals (measured − predicted) per judged signal; NaN where nothing was measured, so that no window of
-/// filled-in values is called unexplained.
-fn residual_signals(sc: &Scored, s: &Series) -> Vec<(&'static str, Vec<f64>)> {
-    let mut out = residual_signals_filled(sc, s);
-    for (name, r) in &mut out {
-        let mask = match *name {
-            "omega" => &s.measured_omega,
-            "dp" => &s.measured_dp,
-            "f_drive" => &s.measured_f_drive,
-            _ => continue,
-        };
-        for (v, m) in r.iter_mut().zip(mask) {
-            if !m {
-                *v = f64::NAN;
-            }
-        }
-    }
-    out
-}
-
-fn residual_signals_filled(sc: &Scored, s: &Series) -> Vec<(&'static str, Vec<f64>)> {
-    let mut out = Vec::new();
-    match s.family {
-        Family::Hydraulic => {
-            out.push(("omega", s.omega_rad_s.iter().zip(&sc.prediction.omega_rad_s).map(|(m, p)| m - p).collect()));
-            if let (Some(meas), Some(sim)) = (&s.dp_bar, &sc.prediction.dp_bar) {
-                out.push(("dp", meas.iter().zip(sim).map(|(m, p)| m - p).collect()));
-            }
-        }
-        Family::Torque => {
-            if let Some(tau) = &sc.prediction.torque_nm {
-                out.push(("torque", s.drive_torque_f.iter().zip(tau).map(|(m, p)| m - p).collect()));
-            }
-        }
-        Family::Flow => {
-            if let (Some(meas), Some(sim)) = (&s.dp_bar, &sc.prediction.dp_bar) {
-                out.push(("dp", meas.iter().zip(sim).map(|(m, p)| m - p).collect()));
-            }
-            if let (Some(meas), Some(sim)) = (&s.f_drive_hz, &sc.prediction.f_drive_hz) {
-                out.push(("f_drive", meas.iter().zip(sim).map(|(m, p)| m - p).collect()));
-            }
-        }
-    }
-    out
-}
-
-fn effort(sc: &Scored, s: &Series) -> Vec<f64> {
-    match s.family {
-        Family::Hydraulic | Family::Flow => sc.prediction.dp_bar.clone().unwrap_or_default(),
-        Family::Torque => sc.prediction.torque_nm.clone().unwrap_or_default(),
-    }
-}
-
-fn traces(base: &Scored, improved: &Scored, s: &Series) -> Traces {
-    let (effort_name, effort_meas) = match &s.dp_bar {
-        Some(dp) => ("ΔP (bar)", dp.clone()),
-        None => ("torque (N·m)", s.drive_torque_f.clone()),
-    };
-    Traces {
-        t_s: s.t_s.clone(),
-        split: s.split,
-        omega_meas: s.omega_rad_s.clone(),
-        omega_baseline: base.prediction.omega_rad_s.clone(),
-        omega_improved: improved.prediction.omega_rad_s.clone(),
-        effort_name,
-        effort_meas,
-        effort_baseline: effort(base, s),
-        effort_improved: effort(improved, s),
-        omega_f: s.omega_f.clone(),
-        drive_meas: s.f_drive_hz.clone().unwrap_or_default(),
-        drive_baseline: base.prediction.f_drive_hz.clone().unwrap_or_default(),
-        drive_improved: improved.prediction.f_drive_hz.clone().unwrap_or_default(),
-    }
-}
-
-fn correlation(a: &[f64], b: &[f64]) -> f64 {
-    let n = a.len().min(b.len()) as f64;
-    if n < 2.0 {
-        return 0.0;
-    }
-    let ma = a.iter().sum::<f64>() / n;
-    let mb = b.iter().sum::<f64>() / n;
-    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
-    for (x, y) in a.iter().zip(b) {
-        sab += (x - ma) * (y - mb);
-        saa += (x - ma).powi(2);
-        sbb += (y - mb).powi(2);
-    }
-    if saa > 0.0 && sbb > 0.0 { sab / (saa * sbb).sqrt() } else { 0.0 }
-}
-
-fn finding(
-    id: &str,
-    before: &Scored,
-    after: &Scored,
-    delta_bic: f64,
-    s: &Series,
-    cond: &mismatch::Conditions,
-) -> Finding {
-    let family = s.family;
-    let (b, a) = (before.validation.score(family), after.validation.score(family));
-    // the judged signal where the effect changed the prediction most, on the validation segment
-    let rb = residual_signals(before, s);
-    let ra = residual_signals(after, s);
-    let v = s.split;
-    let mut corr = 0.0;
-    let mut where_it_shows = String::new();
-    let mut best_gain = f64::NEG_INFINITY;
-    for ((name, r0), (_, r1)) in rb.iter().zip(&ra) {
-        let change: Vec<f64> = r0[v..].iter().zip(&r1[v..]).map(|(x, y)| x - y).collect();
-        let gain = r0[v..].iter().map(|x| x * x).sum::<f64>() - r1[v..].iter().map(|x| x * x).sum::<f64>();
-        let norm = s_norm(&r0[v..]);
-        if norm > 0.0 && gain / norm > best_gain {
-            best_gain = gain / norm;
-            corr = correlation(&r0[v..], &change);
-            // the windows where the effect removed the most residual
-            let w = ((mismatch::WINDOW_S * s.sample_hz) as usize).max(10);
-            let mut gains: Vec<(f64, usize)> = (0..r0.len() / w)
-                .map(|i| {
-                    let (p, q) = (i * w, (i + 1) * w);
-                    let g = r0[p..q].iter().map(|x| x * x).sum::<f64>() - r1[p..q].iter().map(|x| x * x).sum::<f64>();
-                    (g, p)
-                })
-                .collect();
-            gains.sort_by(|x, y| y.0.total_cmp(&x.0));
-            let top: Vec<usize> = gains.iter().take(5).map(|g| g.1).collect();
-            let mut counts: BTreeMap<String, usize> = BTreeMap::new();
-            for p in top {
-                *counts.entry(cond.describe(s, p, p + w)).or_default() += 1;
-            }
-            let most = counts.into_iter().max_by_key(|c| c.1).map(|c| c.0).unwrap_or_default();
-            where_it_shows = format!("{name}: {most}");
-        }
-    }
-    let parameters = effect_parameters(&after.model, id);
-    let explanation = explain(id, &after.model, s, b, a);
-    Finding {
-        effect: id.to_string(),
-        parameters,
-        confidence_intervals: BTreeMap::new(),
-        explanation,
-        evidence: Evidence {
-            delta_bic,
-            validation_score_before: b,
-            validation_score_after: a,
-            relative_drop: 1.0 - (a / b).sqrt(),
-            residual_correlation: corr,
-            where_it_shows,
-            cross_validation_score_before: None,
-            cross_validation_score_after: None,
-            validated_on: String::new(),
-        },
-    }
-}
-
-fn s_norm(x: &[f64]) -> f64 {
-    x.iter().map(|v| v * v).sum()
 }
 
 #[cfg(test)]

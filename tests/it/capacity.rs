@@ -156,22 +156,42 @@ async fn twelve_slow_downloads_of_a_64_mb_recording_hold_a_small_buffer_each() {
         c.read_exact(&mut first).await.expect("the first bytes");
         readers.push(c);
     }
-    // the twelve now read nothing for a while: what the service holds for them
-    tokio::time::sleep(Duration::from_millis(500)).await;
+    // the twelve now read nothing: what the service holds for them, once its memory has stopped moving (the same
+    // to 0.1 MB over ten looks, 200 ms; a service that read whole files in would still be growing)
+    let (last, same) = (std::cell::Cell::new(f64::NAN), std::cell::Cell::new(0u32));
+    let settled = wait_for(Duration::from_secs(15), || {
+        let (last, same, rss) = (&last, &same, s.rss_mb());
+        async move {
+            same.set(if (rss - last.replace(rss)).abs() <= 0.1 { same.get() + 1 } else { 0 });
+            same.get() >= 10
+        }
+    })
+    .await;
+    assert!(settled.is_some(), "the service's memory settles with twelve stalled downloads: {} MB", s.rss_mb());
     let rss_held = s.rss_mb();
     let [(health, _), (target, _)] = operator(&s.url).await;
-    // then each reads its file to the end
+    // then all twelve read their files to the end, side by side (one after another, the last would sit unread for
+    // as long as the others take, and a loaded machine takes longer than the service waits for a stalled reader)
+    let len = text.len();
+    let reads: Vec<_> = readers
+        .into_iter()
+        .map(|mut c| {
+            tokio::spawn(async move {
+                let mut n = 64 * 1024;
+                let mut buf = vec![0u8; 1 << 20];
+                while n < len {
+                    match c.read(&mut buf).await.expect("reads") {
+                        0 => break,
+                        k => n += k,
+                    }
+                }
+                n
+            })
+        })
+        .collect();
     let mut sizes = Vec::new();
-    for mut c in readers {
-        let mut n = 64 * 1024;
-        let mut buf = vec![0u8; 1 << 20];
-        while n < text.len() {
-            match c.read(&mut buf).await.expect("reads") {
-                0 => break,
-                k => n += k,
-            }
-        }
-        sizes.push(n);
+    for r in reads {
+        sizes.push(r.await.expect("a reader"));
     }
     eprintln!(
         "12 slow downloads of {:.0} MB: RSS {rss_before:.1} → {rss_held:.1} MB; /healthz {health}, target {target}",

@@ -255,19 +255,31 @@ async fn recordings_hold_every_fresh_sample_and_are_readable() {
 async fn poll_loop_holds_1_ms_and_10_ms_on_loopback() {
     let run = async {
         for poll_ms in [1u64, 10] {
+            let started = Instant::now();
             let stack = Stack::start(5.0, poll_ms, SPEED).await;
-            tokio::time::sleep(Duration::from_secs(3)).await;
+            // a window of 2100 ms of polls at the nominal rate, counted in the loop's own cycles; the rate is then
+            // the polls over the time they took since the service started (70 % of nominal at least)
+            let polls = 2100 / poll_ms;
+            stack.wait_polls(polls, "the timing window").await;
+            let took = started.elapsed();
             let s = stack.state.drives[0].snapshot();
             let t = s.timing;
             eprintln!(
-                "poll {poll_ms} ms: mean period {:.3} ms, jitter p50 {:.3} ms, p99 {:.3} ms, overruns {} of {} polls, \
-                 errors {}",
-                t.mean_period_ms, t.jitter_p50_ms, t.jitter_p99_ms, t.overruns, s.link.polls, s.link.errors
+                "poll {poll_ms} ms: mean period {:.3} ms, jitter p50 {:.3} ms, p99 {:.3} ms, overruns {} of {} polls \
+                 in {:.0} ms, errors {}",
+                t.mean_period_ms,
+                t.jitter_p50_ms,
+                t.jitter_p99_ms,
+                t.overruns,
+                s.link.polls,
+                took.as_secs_f64() * 1e3,
+                s.link.errors
             );
             let nominal = poll_ms as f64;
             assert!((t.mean_period_ms - nominal).abs() < 0.25 * nominal, "mean period {} ms", t.mean_period_ms);
             assert_eq!(s.link.errors, 0);
-            assert!(s.link.polls as f64 > 0.7 * 3000.0 / nominal, "{} polls", s.link.polls);
+            let rate_per_ms = s.link.polls as f64 / (took.as_secs_f64() * 1e3);
+            assert!(rate_per_ms > 0.7 / nominal, "{} polls in {took:?}", s.link.polls);
             stack.stop().await;
         }
     };
@@ -352,14 +364,19 @@ async fn each_drive_polls_on_its_own_thread_with_the_priority_asked_for() {
 }
 
 /// The regulator's tracking error (RMS of the true speed against the target, rad/s) while the demo's target
-/// program runs for `seconds`, sampled every 20 ms after the first 2 s.
+/// program runs for `seconds`, sampled every 20 ms to the program's end once the drive has run 200 poll cycles (2 s
+/// at 10 ms: the start-up transient left out).
 async fn tracking_rms(stack: &Stack, seconds: u64) -> f64 {
     let drive = stack.state.drives[0].clone();
+    let done = std::sync::atomic::AtomicBool::new(false);
+    let program = async {
+        support::follow_demo_program(&drive, seconds).await;
+        done.store(true, std::sync::atomic::Ordering::Relaxed);
+    };
     let sample = async {
-        tokio::time::sleep(Duration::from_secs(2)).await;
+        stack.wait_polls(200, "the regulator's start").await;
         let (mut se, mut n) = (0.0, 0usize);
-        let start = Instant::now();
-        while start.elapsed() < Duration::from_secs(seconds - 2) {
+        while !done.load(std::sync::atomic::Ordering::Relaxed) {
             let omega = stack.sim.lock().truth().omega_rad_s;
             let target = drive.snapshot().target_omega_rad_s;
             se += (omega - target).powi(2);
@@ -368,7 +385,7 @@ async fn tracking_rms(stack: &Stack, seconds: u64) -> f64 {
         }
         (se / n.max(1) as f64).sqrt()
     };
-    let (_, rms) = tokio::join!(support::follow_demo_program(&drive, seconds), sample);
+    let (_, rms) = tokio::join!(program, sample);
     rms
 }
 

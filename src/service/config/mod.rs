@@ -3,8 +3,8 @@
 //!
 //! In the service's layout (see [`super`]) it uses [`super::freshness`] (the plausible ranges and rates) and
 //! [`super::mqtt_config`] (`[mqtt]`), nothing above them: the condition checks and the MQTT publisher take their
-//! settings from here. Its rooms: one drive's entry (`drive`), RTU lines and gateways (`line`), the condition checks
-//! (`condition_monitoring`).
+//! settings from here. Its rooms: `[http]` (`http_settings`), `[recording]` (`recording_settings`), one drive's entry
+//! (`drive`), RTU lines and gateways (`line`), the condition checks (`condition_monitoring`).
 
 use crate::error::KeyError;
 use std::collections::BTreeMap;
@@ -25,12 +25,18 @@ use crate::plant::{LoadSpec, PlantModel};
 
 mod condition_monitoring;
 mod drive;
+mod http_settings;
 mod line;
+mod recording_settings;
 
 pub use condition_monitoring::ConditionSettings;
 use condition_monitoring::RawCondition;
 use drive::validate_drive;
+pub use http_settings::HttpSettings;
+use http_settings::{RawHttp, validate_http};
 use line::check_lines;
+pub use recording_settings::{MIN_FILE_MB, MIN_ROTATE_HOURS, RecordingSettings};
+use recording_settings::{RawRecording, validate_recording};
 
 /// The longest `stale_ms`: data older than this are stale whatever the config says.
 const MAX_STALE_MS: u64 = 600_000;
@@ -67,70 +73,6 @@ struct RawConfig {
     drives: Vec<RawDrive>,
     /// MQTT publishing (src/service/mqtt.rs); absent: off.
     mqtt: Option<super::mqtt_config::RawMqtt>,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-struct RawHttp {
-    bind: String,
-    token: String,
-    max_body_bytes: usize,
-    history_seconds: f64,
-    /// A request's headers must arrive within this (also how long an idle kept-alive connection lives).
-    header_timeout_ms: u64,
-    /// A whole request, body included, must be answered within this.
-    request_timeout_ms: u64,
-    /// Open HTTP connections at most; further clients wait in the kernel's backlog.
-    max_connections: usize,
-    /// Open connections from one client address at most; beyond, only the reserved routes are served.
-    max_connections_per_client: usize,
-    /// Open `/api/events` streams at most; beyond, 503 at once.
-    max_event_streams: usize,
-}
-
-impl Default for RawHttp {
-    fn default() -> Self {
-        RawHttp {
-            bind: "127.0.0.1:8080".into(),
-            token: String::new(),
-            max_body_bytes: 4096,
-            history_seconds: 120.0,
-            header_timeout_ms: 10_000,
-            request_timeout_ms: 10_000,
-            max_connections: 512,
-            max_connections_per_client: 128,
-            max_event_streams: 64,
-        }
-    }
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-struct RawRecording {
-    dir: String,
-    enabled: bool,
-    max_file_mb: f64,
-    rotate_hours: f64,
-    /// All drives' recordings together at most this (each drive keeps its share); absent: unbounded.
-    max_total_mb: Option<f64>,
-    /// Closed recordings older than this are deleted; absent: kept.
-    keep_days: Option<f64>,
-    /// Closed files are gzip-compressed to `.csv.gz`.
-    compress: bool,
-}
-
-impl Default for RawRecording {
-    fn default() -> Self {
-        RawRecording {
-            dir: "recordings".into(),
-            enabled: true,
-            max_file_mb: 64.0,
-            rotate_hours: 1.0,
-            max_total_mb: None,
-            keep_days: None,
-            compress: true,
-        }
-    }
 }
 
 #[derive(Debug, Deserialize)]
@@ -278,34 +220,6 @@ pub struct Settings {
     pub mqtt: Option<super::mqtt_config::MqttSettings>,
 }
 
-#[derive(Debug, Clone)]
-pub struct HttpSettings {
-    pub bind: std::net::SocketAddr,
-    /// Bearer token of the write routes; None disables them. Never logged.
-    pub token: Option<String>,
-    pub max_body_bytes: usize,
-    pub history: Duration,
-    pub header_timeout: Duration,
-    pub request_timeout: Duration,
-    pub max_connections: usize,
-    pub max_connections_per_client: usize,
-    pub max_event_streams: usize,
-}
-
-#[derive(Debug, Clone)]
-pub struct RecordingSettings {
-    /// None: recording off.
-    pub dir: Option<PathBuf>,
-    pub max_file_bytes: u64,
-    pub rotate_after: Duration,
-    /// All drives' recordings together at most this many bytes.
-    pub max_total_bytes: Option<u64>,
-    /// Closed recordings older than this go.
-    pub keep: Option<Duration>,
-    /// Closed files are compressed to `<name>.csv.gz`, off the poll loop; readers take either.
-    pub compress: bool,
-}
-
 /// How a drive is reached.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Transport {
@@ -438,28 +352,9 @@ fn positive(key: &str, v: f64) -> Result<f64, Invalid> {
     }
 }
 
-/// The smallest `recording.max_file_mb`: about 500 rows, half a second at a 1 ms poll.
-pub const MIN_FILE_MB: f64 = 0.1;
-/// The shortest `recording.rotate_hours`: one minute.
-pub const MIN_ROTATE_HOURS: f64 = 1.0 / 60.0;
 /// The largest PI gains accepted: 50 and 170 times the defaults, far beyond any tuning that regulates.
 pub const MAX_KP_HZ_PER_RAD_S: f64 = 10.0;
 pub const MAX_KI_HZ_PER_RAD: f64 = 100.0;
-
-/// A recordings directory: an existing directory, or a path whose nearest existing ancestor is one.
-fn directory_or_creatable(dir: &Path) -> Result<(), String> {
-    for p in dir.ancestors().filter(|p| !p.as_os_str().is_empty()) {
-        match std::fs::metadata(p) {
-            Ok(m) if m.is_dir() => return Ok(()),
-            Ok(_) if p == dir => return Err(format!("{} exists and is not a directory", dir.display())),
-            Ok(_) => return Err(format!("{}: {} is not a directory", dir.display(), p.display())),
-            Err(e) if matches!(e.kind(), std::io::ErrorKind::NotFound | std::io::ErrorKind::NotADirectory) => {}
-            // unreadable: leave it to the recorder, whose error then says why
-            Err(_) => return Ok(()),
-        }
-    }
-    Ok(())
-}
 
 /// The largest value a register can hold, in engineering units (for error messages).
 fn register_capacity(spec: &RegisterSpec) -> f64 {
@@ -480,114 +375,6 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
     check_lines(&drives)?;
     let mqtt = raw.mqtt.map(|m| super::mqtt_config::validate(m, |p| resolve(p, base))).transpose()?;
     Ok(Settings { http, recording, drives, mqtt })
-}
-
-/// `[http]`, validated.
-fn validate_http(h: RawHttp) -> Result<HttpSettings, Invalid> {
-    let bind = h.bind.parse().map_err(|e| {
-        KeyError::new("http.bind".to_string(), format!("{:?} is not an address such as 127.0.0.1:8080 ({e})", h.bind))
-    })?;
-    if h.max_body_bytes == 0 || h.max_body_bytes > 1 << 20 {
-        return Err(KeyError::new(
-            "http.max_body_bytes".into(),
-            format!("must be 1 ..= 1048576, got {}", h.max_body_bytes),
-        ));
-    }
-    let history_s = positive("http.history_seconds", h.history_seconds)?;
-    if history_s > 3600.0 {
-        return Err(KeyError::new("http.history_seconds".into(), format!("must be ≤ 3600, got {history_s}")));
-    }
-    let token = (!h.token.is_empty()).then_some(h.token);
-    // an idle or half-sent request must be gone within 30 s (issue 20)
-    for (k, ms) in [("http.header_timeout_ms", h.header_timeout_ms), ("http.request_timeout_ms", h.request_timeout_ms)]
-    {
-        if !(1..=30_000).contains(&ms) {
-            return Err(KeyError::new(k.into(), format!("must be 1 ..= 30000, got {ms}")));
-        }
-    }
-    if !(1..=65_536).contains(&h.max_connections) {
-        return Err(KeyError::new(
-            "http.max_connections".into(),
-            format!("must be 1 ..= 65536, got {}", h.max_connections),
-        ));
-    }
-    for (k, n) in [
-        ("http.max_connections_per_client", h.max_connections_per_client),
-        ("http.max_event_streams", h.max_event_streams),
-    ] {
-        if !(1..=65_536).contains(&n) {
-            return Err(KeyError::new(k.into(), format!("must be 1 ..= 65536, got {n}")));
-        }
-    }
-    Ok(HttpSettings {
-        bind,
-        token,
-        max_body_bytes: h.max_body_bytes,
-        history: Duration::from_secs_f64(history_s),
-        header_timeout: Duration::from_millis(h.header_timeout_ms),
-        request_timeout: Duration::from_millis(h.request_timeout_ms),
-        max_connections: h.max_connections,
-        max_connections_per_client: h.max_connections_per_client,
-        max_event_streams: h.max_event_streams,
-    })
-}
-
-/// `[recording]`, validated.
-fn validate_recording(r: RawRecording) -> Result<RecordingSettings, Invalid> {
-    let max_mb = positive("recording.max_file_mb", r.max_file_mb)?;
-    if max_mb < MIN_FILE_MB {
-        return Err(KeyError::new(
-            "recording.max_file_mb".into(),
-            format!("must be ≥ {MIN_FILE_MB} (smaller files rotate every few rows), got {max_mb}"),
-        ));
-    }
-    let hours = positive("recording.rotate_hours", r.rotate_hours)?;
-    if hours > 24.0 * 365.0 {
-        return Err(KeyError::new("recording.rotate_hours".into(), format!("must be ≤ 8760, got {hours}")));
-    }
-    if hours < MIN_ROTATE_HOURS {
-        return Err(KeyError::new(
-            "recording.rotate_hours".into(),
-            format!("must be ≥ {MIN_ROTATE_HOURS:.4} (one minute), got {hours}"),
-        ));
-    }
-    if r.dir.is_empty() && r.enabled {
-        return Err(KeyError::new("recording.dir".into(), "must not be empty while recording is enabled".into()));
-    }
-    if r.enabled {
-        directory_or_creatable(Path::new(&r.dir)).map_err(|m| KeyError::new("recording.dir".to_string(), m))?;
-    }
-    let max_total_bytes = match r.max_total_mb {
-        None => None,
-        Some(t) => {
-            let t = positive("recording.max_total_mb", t)?;
-            if t < 2.0 * max_mb {
-                return Err(KeyError::new(
-                    "recording.max_total_mb".into(),
-                    format!("must be at least twice recording.max_file_mb ({max_mb}), got {t}"),
-                ));
-            }
-            Some((t * 1024.0 * 1024.0) as u64)
-        }
-    };
-    let keep = match r.keep_days {
-        None => None,
-        Some(d) => {
-            let d = positive("recording.keep_days", d)?;
-            if d > 36_500.0 {
-                return Err(KeyError::new("recording.keep_days".into(), format!("must be ≤ 36500, got {d}")));
-            }
-            Some(Duration::from_secs_f64(d * 86_400.0))
-        }
-    };
-    Ok(RecordingSettings {
-        dir: r.enabled.then(|| PathBuf::from(r.dir)),
-        max_file_bytes: (max_mb * 1024.0 * 1024.0) as u64,
-        rotate_after: Duration::from_secs_f64(hours * 3600.0),
-        max_total_bytes,
-        keep,
-        compress: r.compress,
-    })
 }
 
 /// The `[[drives]]`, each validated, with unique names and no two writing loops on one device.
