@@ -33,8 +33,6 @@ pub(super) struct WindowPool {
     overlap: f64,
     /// The pooled value and its variance.
     pub estimate: (f64, f64),
-    /// The between-window variance τ² of the last pooling.
-    pub scatter: f64,
 }
 
 impl WindowPool {
@@ -48,7 +46,6 @@ impl WindowPool {
             bounds,
             overlap,
             estimate: (b, var),
-            scatter: 0.0,
         }
     }
 
@@ -60,7 +57,7 @@ impl WindowPool {
         self.speeds[self.next] = speed;
         self.next = (self.next + 1) % POOL;
         self.len = (self.len + 1).min(POOL);
-        (self.estimate, self.scatter) = self.pool();
+        self.estimate = self.pool();
     }
 
     /// Whether the windows' B grows (or falls) with the speed they were measured at: the slope of B on the window's
@@ -112,7 +109,7 @@ impl WindowPool {
         Some(SpeedSlope { slope, se, mean_b, speed_range: hi - lo })
     }
 
-    fn pool(&self) -> ((f64, f64), f64) {
+    fn pool(&self) -> (f64, f64) {
         let w = &self.windows[..self.len];
         let (pb, pv) = self.prior;
         // Start from the windows' median (weighed by their claims), so a wild window cannot pull the start.
@@ -164,7 +161,7 @@ impl WindowPool {
             m = b / info;
         }
         let [lo, hi] = self.bounds;
-        (if m < lo || m > hi { (m.clamp(lo, hi), pv) } else { (m, 1.0 / honest) }, tau2)
+        if m < lo || m > hi { (m.clamp(lo, hi), pv) } else { (m, 1.0 / honest) }
     }
 }
 

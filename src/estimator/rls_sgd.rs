@@ -250,10 +250,7 @@ impl RlsSgd {
         // the windows' own J, pooled with the scatter between them: as sure as they are, and at least as far
         // from the RLS's J as the two differ
         let (jp, jp_var) = self.rls.inertia.estimate;
-        // and at least half the scatter between the windows' J: what each window's J is off by, a load its nuisance
-        // did not follow, biases them alike (a larger J explains an unfollowed load change better), so it does not
-        // average out over the windows as their pooled standard deviation assumes
-        let pooled = jp_var.sqrt().max(0.5 * (j - jp).abs()).max(0.5 * self.rls.inertia.scatter.sqrt());
+        let pooled = jp_var.sqrt().max(0.5 * (j - jp).abs());
         ((b, j), (inertia_var.sqrt().max(dj).max(pooled), viscous_var.sqrt().max(db)))
     }
 
