@@ -25,9 +25,11 @@
 //! - [`control`]: PURE control law (speed PI with load feed-forward, clamp, ramp limit, nothing on stale data).
 //! - [`service`]: the poll loops per drive (modbus → estimator → control → modbus) around a PURE drive cycle
 //!   (`service::cycle`: a validated sample and its time → the writes and the row), snapshots, history, recording,
-//!   the low-priority thread that runs each drive's [`condition`] checks on its history, the metrics registry and its
-//!   two expositions, and the MQTT publisher's thread; its modules' floors are its own `# Layout`.
-//! - [`http`]: the axum router over the service's shared state; never uses [`modbus`].
+//!   the low-priority thread that runs each drive's [`condition`] checks on its history, and the metrics registry and
+//!   its two expositions; its modules' floors are its own `# Layout`.
+//! - The service's outlets, side by side on the top floor, each reading the service's shared state: [`mqtt`], the
+//!   publisher's thread; [`http`], the axum router, which never uses [`modbus`] and reports the publisher's health
+//!   in `/api/status`.
 //! - [`server`]: the service and its HTTP front put together (what `serve`, `demo` and the tests run).
 //!
 //! The binary (`main.rs`, which parses the command line, and `commands/`, the subcommands' work) stands above them
@@ -40,6 +42,7 @@ pub mod error;
 pub mod estimator;
 pub mod http;
 pub mod modbus;
+pub mod mqtt;
 pub mod output;
 pub mod plant;
 pub mod recording;

@@ -9,6 +9,7 @@ use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
 use crate::http::{self, AppState, ConnLimits};
+use crate::mqtt;
 use crate::service::config::Settings;
 use crate::service::{self, Service, ServiceState};
 
@@ -21,6 +22,8 @@ pub struct Server {
     shutdown: CancellationToken,
     service: Service,
     http: JoinHandle<std::io::Result<()>>,
+    /// The MQTT publisher's thread, when `[mqtt]` is configured.
+    mqtt: Option<std::thread::JoinHandle<()>>,
 }
 
 /// A token shorter than this is warned of at start (16 random characters of 62 are 95 bits).
@@ -32,11 +35,23 @@ pub fn start(listener: TcpListener, settings: &Settings, shutdown: CancellationT
     let url = format!("http://{addr}");
     warn_of_token(settings.http.token.as_deref(), addr.ip().is_loopback());
     let service = service::start(settings, shutdown.clone())?;
-    let state = AppState::new(service.state.clone(), &settings.http, shutdown.clone());
+    let (mqtt_health, mqtt) = match &settings.mqtt {
+        Some(m) => match mqtt::start(m, &service.state, shutdown.clone()) {
+            Ok((health, thread)) => (Some(health), Some(thread)),
+            Err(e) => {
+                // the loops already started must not outlive a failed start
+                shutdown.cancel();
+                service.join();
+                return Err(e);
+            }
+        },
+        None => (None, None),
+    };
+    let state = AppState::new(service.state.clone(), &settings.http, shutdown.clone()).with_mqtt(mqtt_health);
     let limits = ConnLimits::from(&settings.http);
     // on the runtime's (lower-priority) workers, not on the thread that started the poll loops
     let http = tokio::spawn(http::serve_with(listener, state, limits));
-    Ok(Server { state: service.state.clone(), url, shutdown, service, http })
+    Ok(Server { state: service.state.clone(), url, shutdown, service, http, mqtt })
 }
 
 /// Says at start what the token leaves open: a short one is warned of (louder beyond loopback, where anyone on
@@ -64,6 +79,11 @@ impl Server {
         let served = self.http.await;
         self.shutdown.cancel();
         self.service.wait().await;
+        if let Some(thread) = self.mqtt
+            && tokio::task::spawn_blocking(move || thread.join()).await.is_err()
+        {
+            tracing::error!("waiting for the MQTT publisher failed");
+        }
         served.map_err(std::io::Error::other)?
     }
 }

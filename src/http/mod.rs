@@ -45,6 +45,8 @@ pub struct AppState {
     pub auth: Arc<AuthThrottle>,
     /// A permit per open `/api/events` stream (`http.max_event_streams`).
     pub event_streams: Arc<tokio::sync::Semaphore>,
+    /// The MQTT publisher's health, when one runs beside this outlet ([`AppState::with_mqtt`]).
+    pub mqtt: Option<Arc<crate::mqtt::MqttHealth>>,
 }
 
 impl AppState {
@@ -62,7 +64,13 @@ impl AppState {
             status_cache: Default::default(),
             auth: Default::default(),
             event_streams: Arc::new(tokio::sync::Semaphore::new(http.max_event_streams)),
+            mqtt: None,
         }
+    }
+
+    /// The same, reporting the MQTT publisher's health in `/api/status`.
+    pub fn with_mqtt(self, mqtt: Option<Arc<crate::mqtt::MqttHealth>>) -> AppState {
+        AppState { mqtt, ..self }
     }
 }
 
@@ -219,7 +227,7 @@ pub struct StatusBody {
     pub drives: Vec<DriveSnapshot>,
     /// The MQTT publisher (connected, published, dropped); absent when `[mqtt]` is not configured.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub mqtt: Option<crate::service::mqtt::MqttStatus>,
+    pub mqtt: Option<crate::mqtt::MqttStatus>,
 }
 
 fn status_body(state: &AppState) -> StatusBody {
@@ -228,7 +236,7 @@ fn status_body(state: &AppState) -> StatusBody {
         uptime_s: state.service.started.elapsed().as_secs_f64(),
         writes_enabled: state.token.is_some(),
         drives: state.service.snapshots(),
-        mqtt: state.service.mqtt.as_ref().map(|m| m.status()),
+        mqtt: state.mqtt.as_ref().map(|m| m.status()),
     }
 }
 

@@ -4,16 +4,18 @@
 //!
 //! # Layout
 //! The service's modules, floor by floor (a module uses only those listed before it; this file uses them all):
-//! - [`timing`], [`metrics`], [`retention`], [`program`], [`freshness`], [`mqtt_config`]: a loop's ticker and
-//!   timing statistics, the metric families and their exposition, the recordings' retention, the demo's target
-//!   program, whether a decoded sample may be used (PURE), and the config's `[mqtt]` section; none uses another
-//!   module of the service.
+//! - [`timing`], [`metrics`], [`retention`], [`program`], [`freshness`]: a loop's ticker and timing statistics, the
+//!   metric families and their exposition, the recordings' retention, the demo's target program, whether a decoded
+//!   sample may be used (PURE); none uses another module of the service.
 //! - [`config`], [`state`]: the config file, parsed and validated; one drive's shared state (its snapshot, its
 //!   history ring of rows, the commands waiting for its loop).
 //! - [`cycle`], [`recorder`], [`condition`]: PURE drive cycle (a validated sample and its time → the writes and the
 //!   row); a drive's rows to disk; a drive's condition checks and alarms, and their thread.
-//! - [`drive`], [`mqtt`]: one drive's poll loop, the I/O around the cycle; the MQTT publisher, an outlet beside the
-//!   HTTP room, reading the drives' state and conditions.
+//! - [`drive`]: one drive's poll loop, the I/O around the cycle.
+//!
+//! Its outlets stand above it, in rooms of their own ([`crate::mqtt`], [`crate::http`]): they read
+//! [`ServiceState`], and an outlet registers its own families in the service's registry
+//! ([`ServiceState::registry`]).
 
 pub mod condition;
 pub mod config;
@@ -21,8 +23,6 @@ pub mod cycle;
 pub mod drive;
 pub mod freshness;
 pub mod metrics;
-pub mod mqtt;
-pub mod mqtt_config;
 pub mod program;
 pub mod recorder;
 pub mod retention;
@@ -30,7 +30,9 @@ pub mod state;
 pub mod timing;
 
 use std::path::PathBuf;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use prometheus_client::registry::Registry;
 
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
@@ -57,9 +59,9 @@ pub struct ServiceState {
     /// Each drive's condition checks and alarms, in `drives` order.
     pub conditions: Vec<Arc<condition::DriveCondition>>,
     pub metrics: Metrics,
-    pub registry: prometheus_client::registry::Registry,
-    /// The MQTT publisher's health; None when `[mqtt]` is not configured.
-    pub mqtt: Option<Arc<mqtt::MqttHealth>>,
+    /// Every family, the drives' and the outlets' (who register theirs when they start); locked only to register
+    /// and to encode a scrape, never by a poll loop.
+    registry: Mutex<Registry>,
     /// Where recordings are written; None when recording is off.
     pub recording_dir: Option<PathBuf>,
     /// The exclusive lock on the recordings directory (`recorder::lock_dir`), held while the service lives.
@@ -95,7 +97,13 @@ impl ServiceState {
 
     /// The metrics exposition in `format` (OpenMetrics or the Prometheus text format).
     pub fn metrics_text(&self, format: metrics::Format) -> String {
-        metrics::encode(&self.registry, format)
+        metrics::encode(&self.registry(), format)
+    }
+
+    /// The registry, for an outlet to register its families in.
+    pub fn registry(&self) -> MutexGuard<'_, Registry> {
+        // a panic while registering or encoding leaves the registry as whole as it was: go on with it
+        self.registry.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 }
 
@@ -137,20 +145,11 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
         drives.push(state);
     }
     let mut threads = Vec::with_capacity(loops.len() + buses.len() + 2);
-    let mqtt = match &settings.mqtt {
-        Some(m) => {
-            let (health, thread) = mqtt::start(m, &drives, &conditions, &mut registry, shutdown.clone())?;
-            threads.push(thread);
-            Some(health)
-        }
-        None => None,
-    };
     let state = Arc::new(ServiceState {
         drives,
         conditions,
         metrics,
-        registry,
-        mqtt,
+        registry: Mutex::new(registry),
         recording_dir: settings.recording.dir.clone(),
         recording_lock,
         started,
@@ -288,6 +287,12 @@ fn join(threads: Vec<std::thread::JoinHandle<()>>) {
 }
 
 impl Service {
+    /// Blocks until every loop has stopped and closed its recording, for a start that failed after this one (the
+    /// caller has cancelled the shutdown signal).
+    pub fn join(self) {
+        join(self.threads);
+    }
+
     /// Waits until every loop has stopped and closed its recording.
     pub async fn wait(self) {
         let threads = self.threads;

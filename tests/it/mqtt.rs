@@ -430,9 +430,9 @@ async fn tls_broker_gets_status_and_an_untrusted_ca_is_refused() {
         // a client key that is not the certificate's is refused at load, naming the key
         let text = "url = \"mqtts://127.0.0.1\"\nca_file = \"ca.pem\"\nclient_cert_file = \"client.pem\"\n\
                     client_key_file = \"other_ca.key\"\n";
-        let raw: hydrolens::service::mqtt::RawMqtt = toml::from_str(text).expect("toml");
+        let raw: hydrolens::service::config::RawMqtt = toml::from_str(text).expect("toml");
         let hydrolens::error::KeyError { key, message } =
-            hydrolens::service::mqtt::validate(raw, |p: &str| d.join(p)).expect_err("key mismatch");
+            hydrolens::service::config::validate_mqtt(raw, |p: &str| d.join(p)).expect_err("key mismatch");
         assert_eq!(key, "mqtt.client_key_file", "{message}");
         let port = free_port();
         let tls = format!(

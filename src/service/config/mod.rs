@@ -1,10 +1,11 @@
 //! The service config (`config/hydrolens.toml`): parsed raw and strictly (unknown keys are errors), then validated
 //! into typed settings that cannot be invalid. Every error names its key.
 //!
-//! In the service's layout (see [`super`]) it uses [`super::freshness`] (the plausible ranges and rates) and
-//! [`super::mqtt_config`] (`[mqtt]`), nothing above them: the condition checks and the MQTT publisher take their
-//! settings from here. Its rooms: `[http]` (`http_settings`), `[recording]` (`recording_settings`), one drive's entry
-//! (`drive`), RTU lines and gateways (`line`), the condition checks (`condition_monitoring`).
+//! In the service's layout (see [`super`]) it uses [`super::freshness`] (the plausible ranges and rates), nothing
+//! above it: the condition checks, and the outlets above the service (the MQTT publisher, HTTP), take their settings
+//! from here. Its rooms: `[http]` (`http_settings`), `[recording]` (`recording_settings`), `[mqtt]`
+//! (`mqtt_settings`), one drive's entry (`drive`), RTU lines and gateways (`line`), the condition checks
+//! (`condition_monitoring`).
 
 use crate::error::KeyError;
 use std::collections::BTreeMap;
@@ -27,6 +28,7 @@ mod condition_monitoring;
 mod drive;
 mod http_settings;
 mod line;
+mod mqtt_settings;
 mod recording_settings;
 
 pub use condition_monitoring::ConditionSettings;
@@ -35,6 +37,7 @@ use drive::validate_drive;
 pub use http_settings::HttpSettings;
 use http_settings::{RawHttp, validate_http};
 use line::check_lines;
+pub use mqtt_settings::{INTERVAL_MS, MqttSettings, QUEUE_MESSAGES, RawMqtt, validate as validate_mqtt};
 pub use recording_settings::{MIN_FILE_MB, MIN_ROTATE_HOURS, RecordingSettings};
 use recording_settings::{RawRecording, validate_recording};
 
@@ -71,8 +74,8 @@ struct RawConfig {
     recording: RawRecording,
     #[serde(default)]
     drives: Vec<RawDrive>,
-    /// MQTT publishing (src/service/mqtt.rs); absent: off.
-    mqtt: Option<super::mqtt_config::RawMqtt>,
+    /// MQTT publishing (src/mqtt.rs); absent: off.
+    mqtt: Option<mqtt_settings::RawMqtt>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -217,7 +220,7 @@ pub struct Settings {
     pub http: HttpSettings,
     pub recording: RecordingSettings,
     pub drives: Vec<DriveSettings>,
-    pub mqtt: Option<super::mqtt_config::MqttSettings>,
+    pub mqtt: Option<MqttSettings>,
 }
 
 /// How a drive is reached.
@@ -373,7 +376,7 @@ fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {
     let recording = validate_recording(raw.recording)?;
     let drives = validate_drives(raw.drives, base)?;
     check_lines(&drives)?;
-    let mqtt = raw.mqtt.map(|m| super::mqtt_config::validate(m, |p| resolve(p, base))).transpose()?;
+    let mqtt = raw.mqtt.map(|m| mqtt_settings::validate(m, |p| resolve(p, base))).transpose()?;
     Ok(Settings { http, recording, drives, mqtt })
 }
 

@@ -2,14 +2,16 @@
 //! `<prefix>/<drive>/status` every `interval_ms`, its condition to `<prefix>/<drive>/condition` when a check changed
 //! it, and `<prefix>/status` = `online` / `offline` (retained; `offline` is also the last will). `mqtts://` is TLS
 //! (rustls, ring provider): the broker's certificate is checked against `mqtt.ca_file`, or the system's roots. The
-//! `[mqtt]` section itself is read and checked at load by [`super::mqtt_config`].
+//! `[mqtt]` section itself is read and checked at load with the rest of the config
+//! ([`crate::service::config::MqttSettings`]).
 //!
 //! The publisher runs on a thread of its own. The poll loops never wait for it: it reads their shared state, and
 //! what it has to send waits in a bounded [`Outbox`] that drops its oldest message when full (counted), so a broker
 //! that is down costs the drives nothing.
 //!
-//! At the top of the service's layout (see [`super`]), beside the poll loop: it uses [`super::mqtt_config`],
-//! [`super::state`] and [`super::condition`], and no module of the service uses it but the one that starts it.
+//! An outlet of the service, on the top floor beside [`crate::http`] (see the crate's `# Layout`): it reads the
+//! service's shared state ([`ServiceState`]: the drives' snapshots and conditions) and registers its families in the
+//! service's registry; nothing below uses it. [`crate::server`] starts it.
 
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -25,9 +27,9 @@ use serde::Serialize;
 use tokio::sync::Notify;
 use tokio_util::sync::CancellationToken;
 
-use super::condition::DriveCondition;
-pub use super::mqtt_config::{INTERVAL_MS, MqttSettings, QUEUE_MESSAGES, RawMqtt, validate};
-use super::state::DriveState;
+use crate::service::condition::{DriveCondition, lower_priority};
+use crate::service::config::MqttSettings;
+use crate::service::{DriveState, ServiceState};
 
 /// One message for the broker.
 #[derive(Debug, Clone, PartialEq)]
@@ -175,25 +177,26 @@ struct DriveTopics {
     last_condition: Option<Vec<u8>>,
 }
 
-/// Starts the publisher's thread; it stops when `shutdown` is cancelled, after sending `offline` (bounded: 2 s).
+/// Starts the publisher's thread on `service`'s drives, its families registered in the service's registry; it stops
+/// when `shutdown` is cancelled, after sending `offline` (bounded: 2 s).
 pub fn start(
     settings: &MqttSettings,
-    drives: &[Arc<DriveState>],
-    conditions: &[Arc<DriveCondition>],
-    registry: &mut Registry,
+    service: &ServiceState,
     shutdown: CancellationToken,
 ) -> std::io::Result<(Arc<MqttHealth>, std::thread::JoinHandle<()>)> {
+    let metrics = MqttMetrics::register(&mut service.registry());
     let health = Arc::new(MqttHealth {
         url: settings.url.clone(),
         connected: AtomicBool::new(false),
         published: AtomicU64::new(0),
         dropped: AtomicU64::new(0),
-        metrics: MqttMetrics::register(registry),
+        metrics,
     });
     let prefix = &settings.topic_prefix;
-    let topics: Vec<DriveTopics> = drives
+    let topics: Vec<DriveTopics> = service
+        .drives
         .iter()
-        .zip(conditions)
+        .zip(&service.conditions)
         .map(|(d, c)| DriveTopics {
             state: d.clone(),
             condition: c.enabled.then(|| c.clone()),
@@ -205,7 +208,7 @@ pub fn start(
     let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
     let (s, h) = (settings.clone(), health.clone());
     let thread = std::thread::Builder::new().name("mqtt".into()).spawn(move || {
-        super::condition::lower_priority();
+        lower_priority();
         rt.block_on(run(s, topics, h, shutdown));
     })?;
     Ok((health, thread))

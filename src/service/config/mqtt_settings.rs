@@ -1,8 +1,8 @@
 //! The config's `[mqtt]` section (CONTRACT.md "Extensions"), parsed raw and validated at load with the rest of the
-//! config ([`super::config`] reads it): the broker's URL, the topics, the pacing and queue, the credentials, and the
-//! TLS client of `mqtts://`. The publisher ([`super::mqtt`]) is handed the result.
+//! config ([`super`] reads it): the broker's URL, the topics, the pacing and queue, the credentials, and the TLS
+//! client of `mqtts://`. The publisher ([`crate::mqtt`], an outlet above the service) is handed the result.
 //!
-//! At the bottom of the service's layout (see [`super`]): it uses no other module of the service.
+//! It uses no other module of the service.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
