@@ -25,11 +25,13 @@
 //! - [`control`]: PURE control law (speed PI with load feed-forward, clamp, ramp limit, nothing on stale data).
 //! - [`service`]: the poll loops per drive (modbus → estimator → control → modbus) around a PURE drive cycle
 //!   (`service::cycle`: a validated sample and its time → the writes and the row), snapshots, history, recording,
-//!   the low-priority thread that runs each drive's [`condition`] checks on its history, and the metrics registry and
-//!   its two expositions; its modules' floors are its own `# Layout`.
-//! - The service's outlets, side by side on the top floor, each reading the service's shared state: [`mqtt`], the
-//!   publisher's thread; [`http`], the axum router, which never uses [`modbus`] and reports the publisher's health
-//!   in `/api/status`.
+//!   the low-priority thread that runs each drive's [`condition`] checks on its history, and the registry its
+//!   outlets register their families in; its modules' floors are its own `# Layout`. The poll loops count what they
+//!   see in the drives' snapshots and never touch a metric.
+//! - The service's outlets, side by side on the top floor, each reading the service's shared state: [`metrics`],
+//!   the drives' families read from their snapshots at each scrape, and the exposition; [`mqtt`], the publisher's
+//!   thread; [`http`], the axum router, which never uses [`modbus`], serves [`metrics`]' exposition and reports the
+//!   publisher's health in `/api/status`.
 //! - [`server`]: the service and its HTTP front put together (what `serve`, `demo` and the tests run).
 //!
 //! The binary (`main.rs`, which parses the command line, and `commands/`, the subcommands' work) stands above them
@@ -41,6 +43,7 @@ pub mod control;
 pub mod error;
 pub mod estimator;
 pub mod http;
+pub mod metrics;
 pub mod modbus;
 pub mod mqtt;
 pub mod output;

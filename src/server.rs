@@ -9,9 +9,9 @@ use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
 use crate::http::{self, AppState, ConnLimits};
-use crate::mqtt;
 use crate::service::config::Settings;
 use crate::service::{self, Service, ServiceState};
+use crate::{metrics, mqtt};
 
 /// A running service: the poll loops on their threads, the HTTP server on the runtime's workers.
 pub struct Server {
@@ -35,6 +35,7 @@ pub fn start(listener: TcpListener, settings: &Settings, shutdown: CancellationT
     let url = format!("http://{addr}");
     warn_of_token(settings.http.token.as_deref(), addr.ip().is_loopback());
     let service = service::start(settings, shutdown.clone())?;
+    metrics::register(&service.state);
     let (mqtt_health, mqtt) = match &settings.mqtt {
         Some(m) => match mqtt::start(m, &service.state, shutdown.clone()) {
             Ok((health, thread)) => (Some(health), Some(thread)),

@@ -25,8 +25,9 @@ use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use tower::ServiceExt;
 
+use super::HttpMetrics;
+use super::metrics::ReasonLabel;
 use super::{AppState, router};
-use crate::service::metrics::ReasonLabel;
 
 /// The bounds of [`serve_with`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -92,9 +93,9 @@ pub(super) fn busy(message: &str, retry_after_s: u64) -> Response {
 }
 
 /// On a reserved connection, everything but [`reserved_route`] gets 503 at once.
-async fn reserve_gate(State(metrics): State<crate::service::metrics::Metrics>, req: Request, next: Next) -> Response {
+async fn reserve_gate(State(metrics): State<HttpMetrics>, req: Request, next: Next) -> Response {
     if req.extensions().get::<Reserved>().is_some() && !reserved_route(req.method(), req.uri().path()) {
-        metrics.http_refused.get_or_create(&ReasonLabel { reason: "reserved" }).inc();
+        metrics.refused.get_or_create(&ReasonLabel { reason: "reserved" }).inc();
         return busy("the service is at its connection limit: only control and health routes answer", 1);
     }
     next.run(req).await
@@ -232,7 +233,7 @@ pub async fn serve_with(listener: tokio::net::TcpListener, state: AppState, limi
     let shutdown = state.shutdown.clone();
     let max = connection_budget(limits.max_connections);
     let per_client = limits.max_connections_per_client.clamp(1, max);
-    let metrics = state.service.metrics.clone();
+    let metrics = state.metrics.clone();
     let app = router(state).layer(axum::middleware::from_fn_with_state(metrics.clone(), reserve_gate)).layer(
         tower_http::timeout::TimeoutLayer::with_status_code(StatusCode::REQUEST_TIMEOUT, limits.request_timeout),
     );
@@ -270,7 +271,7 @@ pub async fn serve_with(listener: tokio::net::TcpListener, state: AppState, limi
             () = shutdown.cancelled() => break,
         };
         let Some((slot, client)) = admit(slot, &clients, peer.ip(), per_client, &reserve) else {
-            metrics.http_refused.get_or_create(&ReasonLabel { reason: "per_client" }).inc();
+            metrics.refused.get_or_create(&ReasonLabel { reason: "per_client" }).inc();
             continue; // the stream closes here
         };
         let _ = stream.set_nodelay(true);
@@ -332,7 +333,7 @@ struct Connection {
     peer: SocketAddr,
     epoch: Instant,
     limits: ConnLimits,
-    metrics: crate::service::metrics::Metrics,
+    metrics: HttpMetrics,
     stop: tokio_util::sync::CancellationToken,
 }
 
@@ -343,7 +344,7 @@ impl Connection {
     async fn serve(self, stream: tokio::net::TcpStream, app: axum::Router, slot: Slot, client: Option<ClientGuard>) {
         let Connection { peer, epoch, limits, metrics, stop } = self;
         let reserved = slot.reserved;
-        metrics.http_connections.inc();
+        metrics.connections.inc();
         let waiting_since = Arc::new(AtomicU64::new(0));
         let io = Watched { inner: stream, epoch, waiting_since: waiting_since.clone() };
         let service = hyper::service::service_fn(move |mut req: hyper::Request<hyper::body::Incoming>| {
@@ -362,7 +363,7 @@ impl Connection {
         tokio::select! {
             _ = conn.as_mut() => {}
             () = stalled(waiting_since, epoch, limits.header_timeout) => {
-                metrics.http_refused.get_or_create(&ReasonLabel { reason: "stalled" }).inc();
+                metrics.refused.get_or_create(&ReasonLabel { reason: "stalled" }).inc();
                 tracing::debug!(client = %peer, "closed a connection whose client stopped reading");
             }
             () = stop.cancelled() => {
@@ -370,7 +371,7 @@ impl Connection {
                 let _ = tokio::time::timeout(Duration::from_secs(5), conn).await;
             }
         }
-        metrics.http_connections.dec();
+        metrics.connections.dec();
         drop(client);
         drop(slot);
     }

@@ -25,9 +25,12 @@ use crate::service::state::{DriveSnapshot, PointColumns};
 mod condition;
 pub mod conn;
 pub mod files;
+pub mod metrics;
 pub mod throttle;
 
 pub use conn::{ConnLimits, serve_with};
+pub use metrics::HttpMetrics;
+use metrics::ReasonLabel;
 use throttle::AuthThrottle;
 
 /// What the handlers share.
@@ -45,18 +48,23 @@ pub struct AppState {
     pub auth: Arc<AuthThrottle>,
     /// A permit per open `/api/events` stream (`http.max_event_streams`).
     pub event_streams: Arc<tokio::sync::Semaphore>,
+    /// This side's own families, in the service's registry.
+    pub metrics: HttpMetrics,
     /// The MQTT publisher's health, when one runs beside this outlet ([`AppState::with_mqtt`]).
     pub mqtt: Option<Arc<crate::mqtt::MqttHealth>>,
 }
 
 impl AppState {
-    /// The state of a router over `service`, with the token and body limit of `http`; the caches start empty.
+    /// The state of a router over `service`, with the token and body limit of `http`; the caches start empty, and
+    /// this side's families are registered in the service's registry.
     pub fn new(
         service: Arc<ServiceState>,
         http: &crate::service::config::HttpSettings,
         shutdown: CancellationToken,
     ) -> AppState {
+        let metrics = HttpMetrics::register(&mut service.registry());
         AppState {
+            metrics,
             service,
             token: http.token.as_deref().map(Arc::from),
             max_body_bytes: http.max_body_bytes,
@@ -338,15 +346,11 @@ impl Drop for StreamSlot {
 /// loop (see [`conn`]).
 async fn events(State(s): State<AppState>) -> Response {
     let Ok(permit) = s.event_streams.clone().try_acquire_owned() else {
-        s.service
-            .metrics
-            .http_refused
-            .get_or_create(&crate::service::metrics::ReasonLabel { reason: "event_streams" })
-            .inc();
+        s.metrics.refused.get_or_create(&ReasonLabel { reason: "event_streams" }).inc();
         return conn::busy("too many event streams open (http.max_event_streams): try again later", 5);
     };
-    s.service.metrics.http_event_streams.inc();
-    let slot = StreamSlot { _permit: permit, open: s.service.metrics.http_event_streams.clone() };
+    s.metrics.event_streams.inc();
+    let slot = StreamSlot { _permit: permit, open: s.metrics.event_streams.clone() };
     let stop = s.shutdown.clone();
     let mut tick = tokio::time::interval(EVENT_PERIOD);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
@@ -382,13 +386,13 @@ fn authorize(s: &AppState, headers: &HeaderMap, client: &ClientAddr) -> Result<(
     let ip = client.0.map_or(std::net::IpAddr::from([0, 0, 0, 0]), |a| a.ip());
     let now = std::time::Instant::now();
     if let Some(wait) = s.auth.blocked(ip, now) {
-        s.service.metrics.http_auth_throttled.inc();
+        s.metrics.auth_throttled.inc();
         return Err(ApiError::throttled(wait));
     }
     let Some(_) = given else {
         return Err(ApiError::new(StatusCode::UNAUTHORIZED, "needs Authorization: Bearer <token>"));
     };
-    s.service.metrics.http_auth_failures.inc();
+    s.metrics.auth_failures.inc();
     let (failures, blocked) = s.auth.failed(ip, now);
     if blocked {
         tracing::warn!(client = %ip, block_s = throttle::BLOCK.as_secs(),
@@ -545,8 +549,8 @@ async fn recording_file(State(s): State<AppState>, Path(file): Path<String>) -> 
 /// OpenMetrics when the scraper's `Accept` asks for it, the Prometheus text format 0.0.4 otherwise.
 async fn metrics(State(s): State<AppState>, headers: HeaderMap) -> Response {
     let accept = headers.get(header::ACCEPT).and_then(|v| v.to_str().ok());
-    let format = crate::service::metrics::Format::negotiate(accept);
-    ([(header::CONTENT_TYPE, format.content_type())], s.service.metrics_text(format)).into_response()
+    let format = crate::metrics::Format::negotiate(accept);
+    ([(header::CONTENT_TYPE, format.content_type())], crate::metrics::exposition(&s.service, format)).into_response()
 }
 
 async fn readyz(State(s): State<AppState>) -> Response {

@@ -2,8 +2,8 @@
 //! metrics, and the one low-priority thread that runs the checks. `[drives.condition]` is read and checked at load
 //! by [`super::config`] ([`ConditionSettings`]).
 //!
-//! In the service's layout (see [`super`]) it uses [`super::config`], [`super::state`] and [`super::metrics`]; the
-//! MQTT publisher and the HTTP side read it.
+//! In the service's layout (see [`super`]) it uses [`super::config`] and [`super::state`]; the outlets read it. Its
+//! families (fitted parameters, alarms, power and energy) are its own, set by its thread when a check ends.
 //!
 //! The checks run on a thread of their own (`condition`), at nice [`CONDITION_NICE`]: below the poll threads and
 //! the HTTP workers, never on a poll thread and never on the async runtime. The data are the drive's history ring
@@ -22,7 +22,6 @@ use prometheus_client::registry::Registry;
 use tokio_util::sync::CancellationToken;
 
 pub use super::config::ConditionSettings;
-use super::metrics::DriveLabel;
 use super::state::{COLUMNS, DriveState, Point, lock};
 use crate::condition::power::{EnergyReport, Flows, Ledger, Operating, PowerModel, effects_of_findings};
 use crate::condition::{self, Check, Monitor, Store};
@@ -146,6 +145,11 @@ pub struct EfficiencyLabels {
 }
 
 type GaugeF = Gauge<f64, AtomicU64>;
+
+#[derive(Clone, Debug, Hash, PartialEq, Eq, EncodeLabelSet)]
+pub struct DriveLabel {
+    pub drive: String,
+}
 
 /// The condition families (CONTRACT.md "Extensions"), in the service's registry.
 #[derive(Clone)]

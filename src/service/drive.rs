@@ -17,7 +17,6 @@ use tokio_util::sync::CancellationToken;
 use super::config::DriveSettings;
 use super::cycle::{DriveCycle, Verdict, validate};
 use super::freshness::Rejected;
-use super::metrics::{DriveLabel, ErrorLabels, Metrics, PASCALS_PER_BAR};
 use super::recorder::Recorder;
 use super::state::{DriveSnapshot, DriveState, Link, Point};
 use super::timing::{LoopTiming, ThreadSetup, Ticker, TimingStats, use_realtime_priority};
@@ -32,12 +31,9 @@ pub struct DriveLoop {
     client: Connection,
     cycle: DriveCycle,
     state: Arc<DriveState>,
-    metrics: Metrics,
-    label: DriveLabel,
     recorder: Option<Recorder>,
     timing: LoopTiming,
     plan: Vec<(Table, u16, u16)>,
-    reconnects_seen: u64,
     link: Link,
     /// The window's timing statistics, refreshed every [`STATS_EVERY`].
     stats: TimingStats,
@@ -100,34 +96,17 @@ impl DriveLoop {
         client: Connection,
         estimator: Box<dyn Estimator>,
         state: Arc<DriveState>,
-        metrics: Metrics,
         recorder: Option<Recorder>,
         started: Instant,
     ) -> DriveLoop {
-        let label = DriveLabel { drive: settings.name.clone() };
-        // every series exists from the start, at 0, so that dashboards and alerts see it before the first event
-        for family in [&metrics.polls, &metrics.reconnects, &metrics.rejected_samples, &metrics.stale_samples] {
-            let _ = family.get_or_create(&label);
-        }
-        for family in
-            [&metrics.writes, &metrics.overruns, &metrics.writes_refused, &metrics.slow_writes, &metrics.trips]
-        {
-            let _ = family.get_or_create(&label);
-        }
-        for kind in ["connect", "timeout", "transport", "protocol", "exception", "encode", "counter"] {
-            let _ = metrics.errors.get_or_create(&ErrorLabels { drive: label.drive.clone(), kind: kind.into() });
-        }
         DriveLoop {
-            label,
             plan: read_plan(&settings.registers),
             timing: LoopTiming::new(settings.poll),
             cycle: DriveCycle::new(&settings, estimator, started),
             client,
             state,
-            metrics,
             recorder,
             settings,
-            reconnects_seen: 0,
             link: Link::default(),
             stats: TimingStats::default(),
             stats_at: None,
@@ -184,10 +163,7 @@ impl DriveLoop {
         if matches!(e, ClientError::Backoff(_)) {
             return;
         }
-        self.link.errors += 1;
-        self.link.last_error = Some(e.to_string());
-        let labels = ErrorLabels { drive: self.label.drive.clone(), kind: e.kind().to_string() };
-        self.metrics.errors.get_or_create(&labels).inc();
+        self.link.count_error(e.kind(), e.to_string());
         // what a device says back (an exception, a reply of the wrong form) is loud; a lost link shows as stale
         let kind = e.kind();
         if matches!(kind, "exception" | "protocol")
@@ -212,11 +188,8 @@ impl DriveLoop {
     /// One poll cycle.
     pub async fn cycle(&mut self) {
         let now = Instant::now();
-        if let Some(period) = self.timing.start(now) {
-            self.metrics.loop_period.get_or_create(&self.label).observe(period.as_secs_f64());
-        }
+        self.timing.start(now);
         self.link.polls += 1;
-        self.metrics.polls.get_or_create(&self.label).inc();
         if let Some(commands) = self.state.take_commands() {
             self.cycle.command(commands);
         }
@@ -237,12 +210,7 @@ impl DriveLoop {
             },
         }
 
-        let reconnects = self.client.reconnects();
-        if reconnects > self.reconnects_seen {
-            self.metrics.reconnects.get_or_create(&self.label).inc_by(reconnects - self.reconnects_seen);
-            self.reconnects_seen = reconnects;
-        }
-        self.link.reconnects = reconnects;
+        self.link.reconnects = self.client.reconnects();
         self.link.connected = self.client.is_connected();
         self.timing.end(Instant::now());
         self.publish();
@@ -251,12 +219,11 @@ impl DriveLoop {
     fn reject(&mut self, r: &Rejected) {
         self.link.rejected_samples += 1;
         self.link.last_error = Some(format!("rejected sample: {r}"));
-        self.metrics.rejected_samples.get_or_create(&self.label).inc();
         tracing::debug!(drive = %self.settings.name, reason = %r, "sample rejected");
     }
 
     fn stale(&mut self) {
-        self.metrics.stale_samples.get_or_create(&self.label).inc();
+        self.link.stale_samples += 1;
     }
 
     /// Does what a step asks: counts a stale or refused sample; for a fresh one marks the drive fresh, sends the
@@ -266,10 +233,7 @@ impl DriveLoop {
             Verdict::Fresh => {}
             Verdict::Stale => return self.stale(),
             Verdict::CounterBackwards(counter) => {
-                self.link.errors += 1;
-                self.link.last_error = Some(format!("sample counter ran backwards (to {counter})"));
-                let labels = ErrorLabels { drive: self.label.drive.clone(), kind: "counter".into() };
-                self.metrics.errors.get_or_create(&labels).inc();
+                self.link.count_error("counter", format!("sample counter ran backwards (to {counter})"));
                 tracing::debug!(drive = %self.settings.name, counter, "sample counter ran backwards");
                 return self.stale();
             }
@@ -277,17 +241,13 @@ impl DriveLoop {
         }
         self.state.mark_fresh(now);
         if let Some(e) = &step.encode_error {
-            self.link.errors += 1;
-            self.link.last_error = Some(format!("cannot encode the setpoint: {e}"));
-            let labels = ErrorLabels { drive: self.label.drive.clone(), kind: "encode".into() };
-            self.metrics.errors.get_or_create(&labels).inc();
+            self.link.count_error("encode", format!("cannot encode the setpoint: {e}"));
         }
         let Some(mut point) = step.point else { return };
         let mut sent = true;
         let writing = Instant::now();
         for (start, words) in &step.writes {
             self.link.writes += 1;
-            self.metrics.writes.get_or_create(&self.label).inc();
             if let Err(e) = self.client.write(*start, words).await {
                 self.error(&e);
                 self.write_failed(&e);
@@ -305,39 +265,22 @@ impl DriveLoop {
         if !sent {
             point.sample.f_set_hz = f64::NAN;
         }
-        if let Some(done) = self.cycle.confirm(sent) {
-            if done.reset_sent {
-                tracing::info!(drive = %self.settings.name, "fault reset sent");
-            }
-            self.metrics.setpoint.get_or_create(&self.label).set(done.setpoint_hz);
+        if let Some(done) = self.cycle.confirm(sent)
+            && done.reset_sent
+        {
+            tracing::info!(drive = %self.settings.name, "fault reset sent");
         }
         self.pending_history.push(point);
         self.state.push_history(&mut self.pending_history);
         if let Some(r) = &self.recorder {
             r.record(point);
         }
-        let (l, s, est) = (&self.label, &point.sample, &point.estimate);
-        self.metrics.inlet_pressure.get_or_create(l).set(s.p_in_bar * PASCALS_PER_BAR);
-        self.metrics.outlet_pressure.get_or_create(l).set(s.p_out_bar * PASCALS_PER_BAR);
-        self.metrics.drive_frequency.get_or_create(l).set(s.f_drive_hz);
-        self.metrics.omega.get_or_create(l).set(s.omega_rad_s);
-        self.metrics.omega_hat.get_or_create(l).set(est.omega_hat_rad_s);
-        self.metrics.load_hat.get_or_create(l).set(est.load_hat_nm);
-        self.metrics.inertia_hat.get_or_create(l).set(est.inertia_hat_kg_m2);
-        self.metrics.inertia_sd.get_or_create(l).set(est.inertia_sd_kg_m2);
-        self.metrics.viscous_hat.get_or_create(l).set(est.viscous_hat_nm_s_rad);
-        self.metrics.viscous_sd.get_or_create(l).set(est.viscous_sd_nm_s_rad);
-        self.metrics.inertia_identified.get_or_create(l).set(est.inertia_identified);
-        self.metrics.viscous_identified.get_or_create(l).set(est.viscous_identified);
-        self.metrics.load_character.get_or_create(l).set(est.load_character);
-        self.metrics.not_following.get_or_create(l).set(if self.cycle.not_following() { 1.0 } else { 0.0 });
     }
 
     /// A setpoint write refused (or unanswered): counted, said at WARN (rate-limited).
     fn write_failed(&mut self, e: &ClientError) {
         self.writes_failed_in_row = self.writes_failed_in_row.saturating_add(1);
         self.link.writes_refused += 1;
-        self.metrics.writes_refused.get_or_create(&self.label).inc();
         if let Some(held) = self.loud.allow("write", Instant::now()) {
             tracing::warn!(drive = %self.settings.name, error = %e, more_since_last = held,
                 "a setpoint write failed: nothing is taken as written, the next cycle sends it all again");
@@ -351,7 +294,7 @@ impl DriveLoop {
         if took <= poll / 2 {
             return;
         }
-        self.metrics.slow_writes.get_or_create(&self.label).inc();
+        self.link.slow_writes += 1;
         if let Some(held) = self.loud.allow("slow write", Instant::now()) {
             let cycle = Instant::now().saturating_duration_since(cycle_start).max(poll);
             tracing::warn!(drive = %self.settings.name, write_ms = took.as_secs_f64() * 1e3,
@@ -369,7 +312,7 @@ impl DriveLoop {
         self.was_tripped = tripped;
         let word = self.cycle.status().word;
         if tripped {
-            self.metrics.trips.get_or_create(&self.label).inc();
+            self.link.trips += 1;
             tracing::warn!(drive = %self.settings.name, status_word = word,
                 "the drive tripped (fault or comm-loss): no RUN is sent and the setpoint ramps to 0 Hz; \
                  POST /api/drives/<name>/reset re-arms it");
@@ -386,30 +329,8 @@ impl DriveLoop {
             self.stats_at = Some(now);
         }
         self.stats.overruns = self.timing.overruns;
-        let stats = self.stats;
-        let l = &self.label;
-        self.metrics.jitter_p50.get_or_create(l).set(stats.jitter_p50_ms * 1e-3);
-        self.metrics.jitter_p99.get_or_create(l).set(stats.jitter_p99_ms * 1e-3);
-        let new_overruns = stats.overruns.saturating_sub(self.metrics.overruns.get_or_create(l).get());
-        self.metrics.overruns.get_or_create(l).inc_by(new_overruns);
-        self.metrics.link_up.get_or_create(l).set(i64::from(self.link.connected));
-        self.metrics.target.get_or_create(l).set(self.cycle.target_omega_rad_s());
-        let stale = self.cycle.stale_at(now);
-        self.metrics.stale.get_or_create(l).set(i64::from(stale));
+        self.stats.periods = self.timing.periods;
         let recording_health = self.recorder.as_ref().map(|r| r.health.snapshot());
-        if let Some(h) = &recording_health {
-            self.metrics.recording_ok.get_or_create(l).set(i64::from(h.ok));
-            let errors = self.metrics.recording_errors.get_or_create(l);
-            errors.inc_by(h.errors.saturating_sub(errors.get()));
-            let lost = self.metrics.recording_rows_lost.get_or_create(l);
-            lost.inc_by(h.rows_lost.saturating_sub(lost.get()));
-            let files_lost = self.metrics.recording_files_lost.get_or_create(l);
-            files_lost.inc_by(h.files_lost.saturating_sub(files_lost.get()));
-            let deleted = self.metrics.recording_files_deleted.get_or_create(l);
-            deleted.inc_by(h.files_deleted.saturating_sub(deleted.get()));
-            let compressed = self.metrics.recording_files_compressed.get_or_create(l);
-            compressed.inc_by(h.files_compressed.saturating_sub(compressed.get()));
-        }
         // skipped when a reader holds it: the next cycle publishes again
         let _ = self.state.publish(DriveSnapshot {
             name: self.settings.name.clone(),
@@ -424,7 +345,7 @@ impl DriveLoop {
             sample: self.cycle.measured(),
             estimate: self.cycle.estimate(),
             identification: self.cycle.estimate().map(|e| crate::estimator::Identified::of(&e)),
-            timing: stats,
+            timing: self.stats,
             recording: recording_health,
             energy: None,
             condition: Vec::new(),

@@ -4,25 +4,24 @@
 //!
 //! # Layout
 //! The service's modules, floor by floor (a module uses only those listed before it; this file uses them all):
-//! - [`timing`], [`metrics`], [`retention`], [`program`], [`freshness`]: a loop's ticker and timing statistics, the
-//!   metric families and their exposition, the recordings' retention, the demo's target program, whether a decoded
-//!   sample may be used (PURE); none uses another module of the service.
+//! - [`timing`], [`retention`], [`program`], [`freshness`]: a loop's ticker and timing statistics, the recordings'
+//!   retention, the demo's target program, whether a decoded sample may be used (PURE); none uses another module of
+//!   the service.
 //! - [`config`], [`state`]: the config file, parsed and validated; one drive's shared state (its snapshot, its
 //!   history ring of rows, the commands waiting for its loop).
 //! - [`cycle`], [`recorder`], [`condition`]: PURE drive cycle (a validated sample and its time → the writes and the
 //!   row); a drive's rows to disk; a drive's condition checks and alarms, and their thread.
 //! - [`drive`]: one drive's poll loop, the I/O around the cycle.
 //!
-//! Its outlets stand above it, in rooms of their own ([`crate::mqtt`], [`crate::http`]): they read
-//! [`ServiceState`], and an outlet registers its own families in the service's registry
-//! ([`ServiceState::registry`]).
+//! Its outlets stand above it, in rooms of their own ([`crate::metrics`], [`crate::mqtt`], [`crate::http`]): they
+//! read [`ServiceState`] (the drives' snapshots, which count what the loops saw), and an outlet registers its own
+//! families in the service's registry ([`ServiceState::registry`]). The poll loops never touch a metric.
 
 pub mod condition;
 pub mod config;
 pub mod cycle;
 pub mod drive;
 pub mod freshness;
-pub mod metrics;
 pub mod program;
 pub mod recorder;
 pub mod retention;
@@ -43,7 +42,6 @@ pub use state::{DriveSnapshot, DriveState, Measured, Point};
 use crate::modbus::bus::{Bus, Connection};
 use crate::modbus::client::DriveClient;
 use drive::DriveLoop;
-use metrics::Metrics;
 use recorder::Recorder;
 use timing::use_realtime_priority;
 
@@ -58,7 +56,6 @@ pub struct ServiceState {
     pub drives: Vec<Arc<DriveState>>,
     /// Each drive's condition checks and alarms, in `drives` order.
     pub conditions: Vec<Arc<condition::DriveCondition>>,
-    pub metrics: Metrics,
     /// Every family, the drives' and the outlets' (who register theirs when they start); locked only to register
     /// and to encode a scrape, never by a poll loop.
     registry: Mutex<Registry>,
@@ -95,11 +92,6 @@ impl ServiceState {
             .collect()
     }
 
-    /// The metrics exposition in `format` (OpenMetrics or the Prometheus text format).
-    pub fn metrics_text(&self, format: metrics::Format) -> String {
-        metrics::encode(&self.registry(), format)
-    }
-
     /// The registry, for an outlet to register its families in.
     pub fn registry(&self) -> MutexGuard<'_, Registry> {
         // a panic while registering or encoding leaves the registry as whole as it was: go on with it
@@ -110,7 +102,7 @@ impl ServiceState {
 /// Starts one poll loop per drive, each on a thread of its own (named `poll-<drive>`), and one bus task per RTU
 /// line (thread `bus-<port>`) that the drives on it take turns on; they stop when `shutdown` is cancelled.
 pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Result<Service> {
-    let (metrics, mut registry) = Metrics::new();
+    let mut registry = Registry::with_prefix("hydrolens");
     let condition_metrics = condition::ConditionMetrics::register(&mut registry);
     let started = Instant::now();
     let mut drives = Vec::with_capacity(settings.drives.len());
@@ -131,7 +123,7 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
         tracing::info!(drive = %d.name, method = ?d.estimator.method, "estimator");
         let estimator = crate::estimator::build(&d.estimator, &d.model);
         let connection = connection_for(d, &buses);
-        loops.push(DriveLoop::new(d.clone(), connection, estimator, state.clone(), metrics.clone(), recorder, started));
+        loops.push(DriveLoop::new(d.clone(), connection, estimator, state.clone(), recorder, started));
         let cond = Arc::new(condition::DriveCondition::new(&d.name, &d.condition));
         if d.condition.enabled {
             condition_jobs.push(condition::Job::new(
@@ -148,7 +140,6 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
     let state = Arc::new(ServiceState {
         drives,
         conditions,
-        metrics,
         registry: Mutex::new(registry),
         recording_dir: settings.recording.dir.clone(),
         recording_lock,

@@ -122,6 +122,10 @@ pub struct DriveStatus {
     pub not_following: bool,
 }
 
+/// The kinds of failed Modbus call counted apart ([`crate::modbus::client::ClientError::kind`], and the loop's own:
+/// `encode`, a setpoint the register cannot hold; `counter`, a sample counter that ran backwards).
+pub const ERROR_KINDS: [&str; 7] = ["connect", "timeout", "transport", "protocol", "exception", "encode", "counter"];
+
 /// Link health of one drive.
 #[derive(Debug, Clone, PartialEq, Serialize, Default)]
 pub struct Link {
@@ -136,10 +140,28 @@ pub struct Link {
     pub writes: u64,
     /// Setpoint writes the device refused (an exception) or never answered.
     pub writes_refused: u64,
+    /// Reads whose sample counter had not moved; setpoint writes slower than half the poll period; trips seen.
+    pub stale_samples: u64,
+    pub slow_writes: u64,
+    pub trips: u64,
+    /// `errors` by kind, in the order of [`ERROR_KINDS`] (`/metrics` only).
+    #[serde(skip)]
+    pub errors_by_kind: [u64; ERROR_KINDS.len()],
     /// The last writes (3 or more in a row) all failed: the drive is not ready.
     pub writes_failing: bool,
     /// Milliseconds since the last fresh sample; None before the first.
     pub sample_age_ms: Option<f64>,
+}
+
+impl Link {
+    /// A failed Modbus call (or a loop's own error) of `kind`, one of [`ERROR_KINDS`], with what it said.
+    pub fn count_error(&mut self, kind: &str, message: String) {
+        self.errors += 1;
+        if let Some(i) = ERROR_KINDS.iter().position(|k| *k == kind) {
+            self.errors_by_kind[i] += 1;
+        }
+        self.last_error = Some(message);
+    }
 }
 
 /// Everything known about one drive now: what `/api/status` and the SSE stream show.

@@ -23,8 +23,40 @@ pub struct LoopTiming {
     periods_s: VecDeque<f64>,
     last_start: Option<tokio::time::Instant>,
     pub overruns: u64,
+    /// Every period since the start, in buckets (what `/metrics` exposes as `loop_period_seconds`).
+    pub periods: PeriodHistogram,
     /// How the loop's thread is scheduled, once it runs.
     pub thread: ThreadSetup,
+}
+
+/// The upper bounds of [`PeriodHistogram`]'s buckets (s): 0.1 ms doubling to ≈ 1.6 s, then +Inf.
+pub const PERIOD_BOUNDS_S: [f64; 15] = {
+    let mut b = [1e-4; 15];
+    let mut i = 1;
+    while i < 15 {
+        b[i] = b[i - 1] * 2.0;
+        i += 1;
+    }
+    b
+};
+
+/// The loop's periods since the start, counted in the buckets of [`PERIOD_BOUNDS_S`] (the last one: beyond them).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PeriodHistogram {
+    pub counts: [u64; PERIOD_BOUNDS_S.len() + 1],
+    pub sum_s: f64,
+}
+
+impl PeriodHistogram {
+    fn observe(&mut self, period_s: f64) {
+        let bucket = PERIOD_BOUNDS_S.iter().position(|&b| period_s <= b).unwrap_or(PERIOD_BOUNDS_S.len());
+        self.counts[bucket] += 1;
+        self.sum_s += period_s;
+    }
+
+    pub fn count(&self) -> u64 {
+        self.counts.iter().sum()
+    }
 }
 
 /// How a poll thread is scheduled: what the status reports so that an operator sees what the kernel granted.
@@ -46,6 +78,9 @@ pub struct TimingStats {
     pub overruns: u64,
     #[serde(flatten)]
     pub thread: ThreadSetup,
+    /// Every period since the start (`/metrics` only).
+    #[serde(skip)]
+    pub periods: PeriodHistogram,
 }
 
 impl LoopTiming {
@@ -55,6 +90,7 @@ impl LoopTiming {
             periods_s: VecDeque::with_capacity(WINDOW),
             last_start: None,
             overruns: 0,
+            periods: PeriodHistogram::default(),
             thread: ThreadSetup::default(),
         }
     }
@@ -68,6 +104,7 @@ impl LoopTiming {
                 self.periods_s.pop_front();
             }
             self.periods_s.push_back(p.as_secs_f64());
+            self.periods.observe(p.as_secs_f64());
         }
         period
     }
@@ -101,6 +138,7 @@ impl LoopTiming {
             jitter_p99_ms: pct(0.99) * 1e3,
             overruns: self.overruns,
             thread: self.thread,
+            periods: self.periods,
         }
     }
 }

@@ -323,7 +323,7 @@ async fn concurrent_connections_are_bounded() {
             held.push(TcpStream::connect(&addr).await.expect("connect"));
         }
         let taken = (2 + hydrolens::http::conn::RESERVED_CONNECTIONS) as i64;
-        wait_for(Duration::from_secs(15), || async { s.state().metrics.http_connections.get() >= taken })
+        wait_for(Duration::from_secs(15), || async { open_connections(s.state()) >= taken })
             .await
             .expect("all taken by the server");
         let mut next = TcpStream::connect(&addr).await.expect("the kernel queues it");
@@ -809,4 +809,11 @@ async fn a_second_instance_on_the_same_recordings_directory_is_refused() {
         sim_stop.cancel();
     };
     tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
+}
+
+/// `hydrolens_http_connections` as the service's exposition says it.
+fn open_connections(state: &hydrolens::service::ServiceState) -> i64 {
+    let text = hydrolens::metrics::exposition(state, hydrolens::metrics::Format::Text);
+    let line = text.lines().find_map(|l| l.strip_prefix("hydrolens_http_connections ")).expect("the gauge is exposed");
+    line.trim().parse().expect("an integer")
 }
