@@ -28,10 +28,11 @@
 //!   the low-priority thread that runs each drive's [`condition`] checks on its history, and the registry its
 //!   outlets register their families in; its modules' floors are its own `# Layout`. The poll loops count what they
 //!   see in the drives' snapshots and never touch a metric.
-//! - The service's outlets, side by side on the top floor, each reading the service's shared state: [`metrics`],
-//!   the drives' families read from their snapshots at each scrape, and the exposition; [`mqtt`], the publisher's
-//!   thread; [`http`], the axum router, which never uses [`modbus`], serves [`metrics`]' exposition and reports the
-//!   publisher's health in `/api/status`.
+//! - [`metrics`]: the first of the service's outlets, which read its shared state from above: the drives'
+//!   families, read from their snapshots at each scrape, and the exposition.
+//! - [`mqtt`]: the outlet that publishes each drive's status and condition to a broker, on its own thread.
+//! - [`http`]: the outlet an operator uses, the axum router; never uses [`modbus`]; serves [`metrics`]' exposition
+//!   and reports [`mqtt`]'s health in `/api/status`.
 //! - [`server`]: the service and its HTTP front put together (what `serve`, `demo` and the tests run).
 //!
 //! The binary (`main.rs`, which parses the command line, and `commands/`, the subcommands' work) stands above them
