@@ -361,11 +361,6 @@ impl DriveCycle {
     pub fn setpoint_hz(&self) -> Option<f64> {
         self.law.last_hz()
     }
-
-    /// No fresh sample for longer than `stale_ms` before `now`.
-    pub fn stale_at(&self, now: Instant) -> bool {
-        super::freshness::is_stale(self.last_fresh_at.map(|t| now.saturating_duration_since(t)), self.stale_after)
-    }
 }
 
 #[cfg(test)]
@@ -471,7 +466,6 @@ mod tests {
         assert_eq!((gap.verdict, gap.writes.len()), (Verdict::Stale, 0));
         assert!(c.confirm(true).is_none(), "nothing to confirm");
         assert_eq!(c.setpoint_hz(), before, "the law held");
-        assert!(c.stale_at(at + MS), "no fresh sample since 40 ms");
         // a counter that runs backwards
         let back = c.step(&sample(1, 30.0, 20.0, 3), at + MS * 10, at + MS * 11);
         assert_eq!((back.verdict, back.writes.len()), (Verdict::CounterBackwards(1), 0));

@@ -5,8 +5,10 @@
 //!
 //! At the bottom of the service's layout (see [`super`]): it uses no other module of the service.
 
-/// The one staleness verdict, for the poll loop ([`super::cycle::DriveCycle::stale_at`]) and for readers of the
-/// drive's state alike: no fresh sample yet (`age` None), or the last one older than `stale_after`.
+/// The one staleness verdict, taken when the drive's state is read ([`super::state::DriveState::snapshot`]: the
+/// status, readiness, the metrics, MQTT), so that a loop that stopped reads as stale: no fresh sample yet (`age`
+/// None), or the last one older than `stale_after`. The poll loop decides a write only from a sample that is itself
+/// timely against the same `stale_after` ([`super::cycle::DriveCycle::step`]): one this calls fresh.
 pub fn is_stale(age: Option<std::time::Duration>, stale_after: std::time::Duration) -> bool {
     age.is_none_or(|a| a > stale_after)
 }
