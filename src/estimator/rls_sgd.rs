@@ -226,8 +226,9 @@ impl RlsSgd {
     }
 
     /// The verdicts and what stands, for [`RlsSgd::judged`], and the credible standard deviations. What stands is
-    /// decided on J's credible standard deviation and B's own: B's credible one there traded runs that hold on the
-    /// six families for no-harm runs on the new loads (docs/estimator.md), J's cost nothing and gained.
+    /// decided on J's credible standard deviation (or its own while the windows keep it in force, [`Self::standing`])
+    /// and on B's own: B's credible one there traded runs that hold on the six families for no-harm runs on the new
+    /// loads (docs/estimator.md, "Tried and not used").
     fn judge(&self) -> (Judged, (f64, f64)) {
         let ((_, viscous_var), _) = self.combined;
         let ((b, j), sds) = self.credible();
