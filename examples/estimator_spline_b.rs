@@ -1,4 +1,4 @@
-//! B from one long penalised fit (docs/estimator.md, "A smooth load over the whole history"): a diagnostic, not an
+//! B from one long penalised fit: a diagnostic of how far B can be told from a smooth load, not an
 //! estimator. For each battery scenario, the measured speed over `from`…`to` seconds is fitted in integrated form,
 //! `ω = ω₀ + ∫τ/J − (B/J)·∫ω − ∫T_L/J`, with J held at the truth and the load T_L piecewise linear (knots every
 //! `knot` s) under a penalty `lambda` on its second differences; it prints B's error and standard deviation.
