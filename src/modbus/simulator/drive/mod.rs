@@ -86,7 +86,7 @@ pub struct DriveSim {
     pub faults: Faults,
     /// Writes accepted (all holding-register writes), for tests that check a client wrote nothing.
     pub writes: u64,
-    /// Wall-clock pacing once [`Simulator::run`] has started it; None while stepped by hand.
+    /// Wall-clock pacing once [`super::Simulator::run`] has started it; None while stepped by hand.
     pub(super) clock: Option<RealTime>,
 }
 
