@@ -142,15 +142,17 @@ pub(super) fn traces(base: &Scored, improved: &Scored, s: &Series) -> Traces {
     }
 }
 
+/// The correlation of `a` and `b` over the rows where both are measured (a masked row is NaN).
 fn correlation(a: &[f64], b: &[f64]) -> f64 {
-    let n = a.len().min(b.len()) as f64;
+    let pairs: Vec<(f64, f64)> = measured_pairs(a, b).collect();
+    let n = pairs.len() as f64;
     if n < 2.0 {
         return 0.0;
     }
-    let ma = a.iter().sum::<f64>() / n;
-    let mb = b.iter().sum::<f64>() / n;
+    let ma = pairs.iter().map(|p| p.0).sum::<f64>() / n;
+    let mb = pairs.iter().map(|p| p.1).sum::<f64>() / n;
     let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
-    for (x, y) in a.iter().zip(b) {
+    for (x, y) in &pairs {
         sab += (x - ma) * (y - mb);
         saa += (x - ma).powi(2);
         sbb += (y - mb).powi(2);
@@ -174,32 +176,26 @@ pub(super) fn finding(
     let v = s.split;
     let mut corr = 0.0;
     let mut where_it_shows = String::new();
-    let mut best_gain = f64::NEG_INFINITY;
-    for ((name, r0), (_, r1)) in rb.iter().zip(&ra) {
+    if let Some(k) = most_improved(&rb, &ra, v) {
+        let ((name, r0), (_, r1)) = (&rb[k], &ra[k]);
         let change: Vec<f64> = r0[v..].iter().zip(&r1[v..]).map(|(x, y)| x - y).collect();
-        let gain = r0[v..].iter().map(|x| x * x).sum::<f64>() - r1[v..].iter().map(|x| x * x).sum::<f64>();
-        let norm = s_norm(&r0[v..]);
-        if norm > 0.0 && gain / norm > best_gain {
-            best_gain = gain / norm;
-            corr = correlation(&r0[v..], &change);
-            // the windows where the effect removed the most residual
-            let w = ((mismatch::WINDOW_S * s.sample_hz) as usize).max(10);
-            let mut gains: Vec<(f64, usize)> = (0..r0.len() / w)
-                .map(|i| {
-                    let (p, q) = (i * w, (i + 1) * w);
-                    let g = r0[p..q].iter().map(|x| x * x).sum::<f64>() - r1[p..q].iter().map(|x| x * x).sum::<f64>();
-                    (g, p)
-                })
-                .collect();
-            gains.sort_by(|x, y| y.0.total_cmp(&x.0));
-            let top: Vec<usize> = gains.iter().take(5).map(|g| g.1).collect();
-            let mut counts: BTreeMap<String, usize> = BTreeMap::new();
-            for p in top {
-                *counts.entry(cond.describe(s, p, p + w)).or_default() += 1;
-            }
-            let most = counts.into_iter().max_by_key(|c| c.1).map(|c| c.0).unwrap_or_default();
-            where_it_shows = format!("{name}: {most}");
+        corr = correlation(&r0[v..], &change);
+        // the windows where the effect removed the most residual
+        let w = ((mismatch::WINDOW_S * s.sample_hz) as usize).max(10);
+        let mut gains: Vec<(f64, usize)> = (0..r0.len() / w)
+            .map(|i| {
+                let (p, q) = (i * w, (i + 1) * w);
+                (gain_of(&r0[p..q], &r1[p..q]), p)
+            })
+            .collect();
+        gains.sort_by(|x, y| y.0.total_cmp(&x.0));
+        let top: Vec<usize> = gains.iter().take(5).map(|g| g.1).collect();
+        let mut counts: BTreeMap<String, usize> = BTreeMap::new();
+        for p in top {
+            *counts.entry(cond.describe(s, p, p + w)).or_default() += 1;
         }
+        let most = counts.into_iter().max_by_key(|c| c.1).map(|c| c.0).unwrap_or_default();
+        where_it_shows = format!("{name}: {most}");
     }
     let parameters = effect_parameters(&after.model, id);
     let explanation = explain(id, &after.model, s, b, a);
@@ -222,6 +218,55 @@ pub(super) fn finding(
     }
 }
 
+/// The judged signal whose residual an effect lowered most against its own size, on the rows from `v` (before: `rb`,
+/// after: `ra`, the same signals in the same order).
+fn most_improved(rb: &[(&'static str, Vec<f64>)], ra: &[(&'static str, Vec<f64>)], v: usize) -> Option<usize> {
+    let mut best: Option<(usize, f64)> = None;
+    for (k, ((_, r0), (_, r1))) in rb.iter().zip(ra).enumerate() {
+        let norm = s_norm(&r0[v..]);
+        if norm <= 0.0 {
+            continue;
+        }
+        let relative = gain_of(&r0[v..], &r1[v..]) / norm;
+        if best.is_none_or(|(_, b)| relative > b) {
+            best = Some((k, relative));
+        }
+    }
+    best.map(|(k, _)| k)
+}
+
+/// Σ x² over the measured rows (a masked row is NaN).
 fn s_norm(x: &[f64]) -> f64 {
-    x.iter().map(|v| v * v).sum()
+    x.iter().filter(|v| v.is_finite()).map(|v| v * v).sum()
+}
+
+/// The pairs of `a` and `b` where both are measured.
+fn measured_pairs<'a>(a: &'a [f64], b: &'a [f64]) -> impl Iterator<Item = (f64, f64)> + 'a {
+    a.iter().zip(b).map(|(x, y)| (*x, *y)).filter(|(x, y)| x.is_finite() && y.is_finite())
+}
+
+/// Σ r0² − Σ r1² over the rows where both residuals are measured: how much residual an effect removed. A row the
+/// recording did not measure (NaN) counts in neither, so one such row does not make the whole signal's gain NaN
+/// (which no comparison prefers, leaving the choice to another signal whatever its gain).
+fn gain_of(r0: &[f64], r1: &[f64]) -> f64 {
+    measured_pairs(r0, r1).map(|(x, y)| x * x - y * y).sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_row_not_measured_does_not_hide_where_an_effect_shows() {
+        let nan = f64::NAN;
+        // ΔP hardly changes; the drive frequency's residual falls by 90 %, one of its rows not measured
+        let before = vec![("dp", vec![1.0, -1.0, 1.0, -1.0]), ("f_drive", vec![2.0, nan, -2.0, 2.0])];
+        let after = vec![("dp", vec![1.0, -1.0, 1.0, -0.999]), ("f_drive", vec![0.2, nan, -0.2, 0.2])];
+        assert_eq!(most_improved(&before, &after, 0), Some(1));
+        assert!((gain_of(&before[1].1, &after[1].1) - 3.0 * (4.0 - 0.04)).abs() < 1e-12);
+        let change: Vec<f64> = before[1].1.iter().zip(&after[1].1).map(|(x, y)| x - y).collect();
+        assert!((correlation(&before[1].1, &change) - 1.0).abs() < 1e-12, "the removed part is the residual");
+        // nothing measured: no signal to name
+        assert_eq!(most_improved(&[("dp", vec![nan, nan])], &[("dp", vec![nan, nan])], 0), None);
+    }
 }
