@@ -246,6 +246,17 @@ fn recording_families() -> Vec<(Desc, MetricType, Read)> {
     ]
 }
 
+/// A family's descriptor, its help ending with the full stop the registry adds to the help of a family it holds.
+fn describe<'s>(
+    encoder: &'s mut DescriptorEncoder,
+    name: &'s str,
+    help: &str,
+    unit: Option<&'s Unit>,
+    kind: MetricType,
+) -> Result<MetricEncoder<'s>, std::fmt::Error> {
+    encoder.encode_descriptor(name, &format!("{help}."), unit, kind)
+}
+
 /// Writes one family: its descriptor, then each drive's series.
 fn family(
     encoder: &mut DescriptorEncoder,
@@ -254,8 +265,7 @@ fn family(
     kind: MetricType,
     read: Read,
 ) -> std::fmt::Result {
-    // with the full stop the registry adds to the help of a family it holds
-    let mut metric = encoder.encode_descriptor(name, &format!("{help}."), unit.as_ref(), kind)?;
+    let mut metric = describe(encoder, name, help, unit.as_ref(), kind)?;
     for s in snapshots {
         let Some(value) = read(s) else { continue };
         let label = DriveLabel { drive: s.name.clone() };
@@ -277,8 +287,7 @@ impl Collector for Drives {
         if let Some((d, kind, read)) = links.next() {
             family(&mut encoder, &snapshots, &d, kind, read)?;
         }
-        let mut errors =
-            encoder.encode_descriptor("errors", "Failed Modbus calls, by kind.", None, MetricType::Counter)?;
+        let mut errors = describe(&mut encoder, "errors", "Failed Modbus calls, by kind", None, MetricType::Counter)?;
         for s in &snapshots {
             for (kind, n) in ERROR_KINDS.iter().zip(s.link.errors_by_kind) {
                 let label = ErrorLabels { drive: s.name.clone(), kind };
@@ -288,9 +297,10 @@ impl Collector for Drives {
         for (d, kind, read) in links {
             family(&mut encoder, &snapshots, &d, kind, read)?;
         }
-        let mut periods = encoder.encode_descriptor(
+        let mut periods = describe(
+            &mut encoder,
             "loop_period",
-            "Time between poll cycle starts.",
+            "Time between poll cycle starts",
             Some(&Unit::Seconds),
             MetricType::Histogram,
         )?;

@@ -88,22 +88,21 @@ impl WindowPool {
             let slope = (sxy / sw - sx / sw * sy / sw) / var_x;
             (slope, sy / sw, sx / sw, sw * var_x)
         };
+        // each window's squared distance from a line (slope, mean B, mean speed), with the window's variance
+        let about = |(slope, mean_b, mean_x): (f64, f64, f64)| {
+            b.iter().zip(speeds).map(move |(&(y, v), &x)| ((y - mean_b - slope * (x - mean_x)).powi(2), v))
+        };
         // the scatter is measured about the line, not about the mean: a speed dependence is not scatter
         let (slope, mean_b, mean_x, _) = line(0.0);
-        let excess: f64 =
-            b.iter().zip(speeds).map(|(&(y, v), &x)| (y - mean_b - slope * (x - mean_x)).powi(2) - v).sum();
+        let excess: f64 = about((slope, mean_b, mean_x)).map(|(d2, v)| d2 - v).sum();
         let tau2 = (SCATTER_SHARE * excess / (n - 2) as f64).max(0.0);
         let (slope, mean_b, mean_speed, information) = line(tau2);
         if !(information.is_finite() && information > 0.0) {
             return None;
         }
         // residual scatter about the line, for the slope's standard error
-        let resid: f64 = b
-            .iter()
-            .zip(speeds)
-            .map(|(&(y, v), &x)| (y - mean_b - slope * (x - mean_speed)).powi(2) / (v + tau2).max(1e-300))
-            .sum::<f64>()
-            / (n - 2) as f64;
+        let resid: f64 =
+            about((slope, mean_b, mean_speed)).map(|(d2, v)| d2 / (v + tau2).max(1e-300)).sum::<f64>() / (n - 2) as f64;
         let se = (resid.max(1.0) / information).sqrt();
         let (lo, hi) = speeds.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
         Some(SpeedSlope { slope, se, mean_b, speed_range: hi - lo })
