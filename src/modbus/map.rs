@@ -2,6 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::recording::Measured;
+
 /// Which Modbus table an entry lives in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -276,18 +278,15 @@ pub fn read_plan(map: &RegisterMap) -> Vec<(Table, u16, u16)> {
         .collect()
 }
 
-/// The measured entries of one read in engineering units, in [`RegisterMap::measured`] order; not yet checked
-/// against any range (that is the service's policy, not the map's).
+/// One read's sample: the measured columns as the recording names them (SI speed; `t_s` and `f_set_hz` NaN until
+/// the drive cycle stamps them), and the status word and sample counter that say what the data are worth. Every
+/// value is finite and the word and counter whole; whether the values are plausible is the service's policy, not
+/// the map's.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Reading {
-    pub inlet_pressure_bar: f64,
-    pub outlet_pressure_bar: f64,
-    pub shaft_speed_rpm: f64,
-    pub drive_frequency_hz: f64,
-    pub status_word: f64,
-    pub sample_counter: f64,
-    /// The drive's output power (W); None when the map does not read it.
-    pub drive_power_w: Option<f64>,
+pub struct Sample {
+    pub measured: Measured,
+    pub status_word: u16,
+    pub counter: u64,
 }
 
 /// A measured entry that could not be decoded from a cycle's blocks.
@@ -298,28 +297,47 @@ pub struct DecodeError {
     pub message: String,
 }
 
-/// Decodes the measured entries from the blocks of [`read_plan`] (table, first address, words). Pure.
-pub fn decode_sample(map: &RegisterMap, blocks: &[(Table, u16, Vec<u16>)]) -> Result<Reading, DecodeError> {
+/// Decodes the measured entries from the blocks of [`read_plan`] (table, first address, words) into a
+/// [`Sample`]; an error names the register entry. Pure.
+pub fn decode_sample(map: &RegisterMap, blocks: &[(Table, u16, Vec<u16>)]) -> Result<Sample, DecodeError> {
     let decode = |entry: &'static str, spec: RegisterSpec| {
         let Some((_, start, words)) = blocks.iter().find(|(t, _, _)| *t == spec.table) else {
             return Err(DecodeError { entry, message: "its table was not read".into() });
         };
-        RegisterMap::decode_from(&spec, *start, words).map_err(|e| DecodeError { entry, message: e.to_string() })
+        let value = RegisterMap::decode_from(&spec, *start, words)
+            .map_err(|e| DecodeError { entry, message: e.to_string() })?;
+        if value.is_finite() {
+            Ok(value)
+        } else {
+            Err(DecodeError { entry, message: format!("{value} is not a number") })
+        }
+    };
+    let whole = |entry: &'static str, value: f64, max: f64| {
+        if (0.0..=max).contains(&value) && value.fract() == 0.0 {
+            Ok(value)
+        } else {
+            Err(DecodeError { entry, message: format!("{value} is not a whole number from 0 to {max}") })
+        }
     };
     let mut v = [0.0; 6];
     for (x, (entry, spec)) in v.iter_mut().zip(map.measured()) {
         *x = decode(entry, spec)?;
     }
     let drive_power_w = map.drive_power_w.map(|spec| decode("drive_power_w", spec)).transpose()?;
-    let [inlet_pressure_bar, outlet_pressure_bar, shaft_speed_rpm, drive_frequency_hz, status_word, sample_counter] = v;
-    Ok(Reading {
-        inlet_pressure_bar,
-        outlet_pressure_bar,
-        shaft_speed_rpm,
-        drive_frequency_hz,
-        status_word,
-        sample_counter,
-        drive_power_w,
+    let [p_in_bar, p_out_bar, shaft_speed_rpm, f_drive_hz, status_word, counter] = v;
+    let measured = Measured {
+        t_s: f64::NAN,
+        f_set_hz: f64::NAN,
+        f_drive_hz,
+        p_in_bar,
+        p_out_bar,
+        omega_rad_s: crate::units::rpm_to_rad_s(shaft_speed_rpm),
+        drive_power_w: drive_power_w.unwrap_or(f64::NAN),
+    };
+    Ok(Sample {
+        measured,
+        status_word: whole("status_word", status_word, f64::from(u16::MAX))? as u16,
+        counter: whole("sample_counter", counter, f64::from(u32::MAX))? as u64,
     })
 }
 
@@ -426,14 +444,34 @@ mod tests {
         assert_eq!(read_plan(&map), vec![(Table::Input, 0, 5), (Table::Holding, 40, 2)]);
         let blocks = vec![(Table::Input, 0u16, vec![3512, 300, 3820, 2550, 3]), (Table::Holding, 40, vec![1, 2])];
         let r = decode_sample(&map, &blocks).expect("decodes");
-        assert!((r.inlet_pressure_bar - 35.12).abs() < 1e-9);
-        assert!((r.shaft_speed_rpm - 382.0).abs() < 1e-9);
-        assert_eq!((r.status_word, r.sample_counter), (3.0, 65538.0));
+        assert!((r.measured.p_in_bar - 35.12).abs() < 1e-9);
+        assert!((r.measured.omega_rad_s - crate::units::rpm_to_rad_s(382.0)).abs() < 1e-9);
+        assert!(r.measured.t_s.is_nan() && r.measured.f_set_hz.is_nan(), "the cycle's to stamp");
+        assert_eq!((r.status_word, r.counter), (3, 65538));
         let e = decode_sample(&map, &blocks[..1]).expect_err("the holding block is missing");
         assert_eq!(e.entry, "sample_counter");
         let short = vec![(Table::Input, 0u16, vec![1, 2, 3]), blocks[1].clone()];
         assert_eq!(decode_sample(&map, &short).expect_err("too short").entry, "drive_frequency_hz");
-        assert_eq!(r.drive_power_w, None, "not in the map: not read");
+        assert!(r.measured.drive_power_w.is_nan(), "not in the map: not read");
+    }
+
+    #[test]
+    fn a_value_that_is_not_a_number_or_not_whole_is_named_by_its_entry() {
+        let f32_words = |x: f32| [(x.to_bits() >> 16) as u16, x.to_bits() as u16];
+        let map = RegisterMap {
+            inlet_pressure_bar: RegisterSpec::new(Table::Holding, 10, ValueType::F32, 1.0),
+            ..RegisterMap::default()
+        };
+        let blocks = |p: f32, status: u16| {
+            vec![(Table::Input, 0u16, vec![0, 0, 0, 0, status, 9]), (Table::Holding, 10, f32_words(p).to_vec())]
+        };
+        assert_eq!(decode_sample(&map, &blocks(35.5, 3)).expect("decodes").measured.p_in_bar, 35.5);
+        let e = decode_sample(&map, &blocks(f32::NAN, 3)).expect_err("NaN");
+        assert_eq!(e.entry, "inlet_pressure_bar", "{e}");
+        // a status word scaled into fractions is no status word
+        let map = RegisterMap { status_word: RegisterSpec::new(Table::Input, 4, ValueType::U16, 0.1), ..map };
+        let e = decode_sample(&map, &blocks(35.5, 3)).expect_err("0.3 is not a word");
+        assert_eq!(e.entry, "status_word", "{e}");
     }
 
     #[test]
@@ -441,7 +479,7 @@ mod tests {
         let map = RegisterMap { drive_power_w: Some(DRIVE_POWER_W), ..RegisterMap::default() };
         assert_eq!(read_plan(&map), vec![(Table::Input, 0, 7)], "still one read");
         let blocks = vec![(Table::Input, 0u16, vec![3512, 300, 3820, 2550, 3, 9, (-250i16) as u16])];
-        assert_eq!(decode_sample(&map, &blocks).expect("decodes").drive_power_w, Some(-250.0));
+        assert_eq!(decode_sample(&map, &blocks).expect("decodes").measured.drive_power_w, -250.0);
         let short = vec![(Table::Input, 0u16, vec![3512, 300, 3820, 2550, 3, 9])];
         assert_eq!(decode_sample(&map, &short).expect_err("too short").entry, "drive_power_w");
         // a drive counting in 0.01 kW, far from the other registers: a read of its own
@@ -449,7 +487,7 @@ mod tests {
         let map = RegisterMap { drive_power_w: Some(kw), ..RegisterMap::default() };
         assert_eq!(read_plan(&map), vec![(Table::Input, 0, 6), (Table::Holding, 300, 1)]);
         let blocks = vec![(Table::Input, 0u16, vec![0; 6]), (Table::Holding, 300, vec![55])];
-        assert_eq!(decode_sample(&map, &blocks).expect("decodes").drive_power_w, Some(550.0));
+        assert_eq!(decode_sample(&map, &blocks).expect("decodes").measured.drive_power_w, 550.0);
         assert_eq!(map.span(Table::Holding), Some((0, 301)));
         // absent from the map's TOML by default, and back when written
         let text = toml::to_string(&RegisterMap::default()).expect("serialises");

@@ -10,20 +10,26 @@ use super::model::PlantModel;
 use crate::error::KeyError;
 use crate::units::pa_to_bar;
 
-/// The columns `simulate` writes, in order (CONTRACT.md: measured columns, then `true_*`).
-pub const COLUMNS: [&str; 11] = [
-    "t_s",
-    "f_set_hz",
-    "f_drive_hz",
-    "p_in_bar",
-    "p_out_bar",
-    "omega_rad_s",
-    "load_nm",
-    "true_omega_rad_s",
-    "true_p_in_bar",
-    "true_load_nm",
-    "true_f_drive_hz",
-];
+crate::units::columns! {
+    /// One row `simulate` writes (CONTRACT.md: measured columns, then `true_*`); [`COLUMNS`] names them in order.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub struct Row {
+        pub t_s: f64,
+        pub f_set_hz: f64,
+        pub f_drive_hz: f64,
+        pub p_in_bar: f64,
+        pub p_out_bar: f64,
+        pub omega_rad_s: f64,
+        pub load_nm: f64,
+        pub true_omega_rad_s: f64,
+        pub true_p_in_bar: f64,
+        pub true_load_nm: f64,
+        pub true_f_drive_hz: f64,
+    }
+}
+
+/// The columns `simulate` writes, in order.
+pub const COLUMNS: [&str; Row::COLUMNS.len()] = Row::COLUMNS;
 
 /// What drives a run: the setpoint program over time, and the load as a function of (t_s, ω rad/s, shaft angle
 /// rad). The load is evaluated once a sample, from the plant's state at the sample's start, and held over it.
@@ -66,20 +72,20 @@ pub fn run_into(
         let s = plant.state();
         let load = (inputs.load_nm)(t, s.omega_rad_s, angle_rad);
         let p_in_bar = pa_to_bar(s.p_in_pa);
-        let row = [
-            t,
-            f_set,
-            s.f_hz,
-            noise.pressure_reading(p_in_bar),
-            noise.pressure_reading(back_pressure_bar),
-            s.omega_rad_s + noise.speed(),
-            load + noise.load(),
-            s.omega_rad_s,
-            p_in_bar,
-            load,
-            s.f_hz,
-        ];
-        sink(&row).map_err(RunError::Sink)?;
+        let row = Row {
+            t_s: t,
+            f_set_hz: f_set,
+            f_drive_hz: s.f_hz,
+            p_in_bar: noise.pressure_reading(p_in_bar),
+            p_out_bar: noise.pressure_reading(back_pressure_bar),
+            omega_rad_s: s.omega_rad_s + noise.speed(),
+            load_nm: load + noise.load(),
+            true_omega_rad_s: s.omega_rad_s,
+            true_p_in_bar: p_in_bar,
+            true_load_nm: load,
+            true_f_drive_hz: s.f_hz,
+        };
+        sink(&row.values()).map_err(RunError::Sink)?;
         plant.wear(model);
         plant.advance(dt, f_set, load);
         angle_rad += 0.5 * (s.omega_rad_s + plant.state().omega_rad_s) * dt;

@@ -27,14 +27,35 @@ pub const ESTIMATE_COLUMNS: [&str; 9] = [
     "load_character",
 ];
 
+crate::units::columns! {
+    /// The measured columns of a sample, named as the recording names them: decoded from the registers
+    /// ([`crate::modbus::map::decode_sample`], which leaves `t_s` and `f_set_hz` NaN), stamped by the drive cycle
+    /// with its time and setpoint, and read as they are by the recording, the history, the status JSON, the metrics
+    /// and MQTT.
+    #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+    pub struct Measured {
+        /// Seconds since the service started.
+        pub t_s: f64,
+        /// Setpoint written in this cycle; NaN (null) when nothing was written.
+        pub f_set_hz: f64,
+        pub f_drive_hz: f64,
+        pub p_in_bar: f64,
+        pub p_out_bar: f64,
+        pub omega_rad_s: f64,
+        /// The drive's output power (W) where `[drives.registers.drive_power_w]` reads it; NaN (null) otherwise.
+        pub drive_power_w: f64,
+    }
+}
+
 /// The columns the contract names; anything else in a file is kept but reported once as unknown.
 pub const KNOWN_COLUMNS: [&str; 21] = concat(
-    concat::<9, 9, 18>(
-        ["t_s", "f_set_hz", "f_drive_hz", "p_in_bar", "p_out_bar", "omega_rad_s", "theta_rad", "load_nm", "torque_nm"],
+    concat::<10, 9, 19>(
+        // the measured columns, and what a test stand measures beside them
+        concat::<7, 3, 10>(Measured::COLUMNS, ["theta_rad", "load_nm", "torque_nm"]),
         ESTIMATE_COLUMNS,
     ),
-    // service recordings: the drive's output power where the register map reads it, the speed target
-    ["status_word", "drive_power_w", "target_omega_rad_s"],
+    // service recordings: the status word and the speed target
+    ["status_word", "target_omega_rad_s"],
 );
 
 /// Inlet and outlet pressure a sensor reads (bar, gauge): the service's `[drives.limits]` defaults too.

@@ -16,59 +16,11 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 use super::config::DriveSettings;
-use super::freshness::{CounterCheck, CounterVerdict, Rejected, Sample, ValidRanges, implausible_jump};
+use super::freshness::{CounterCheck, CounterVerdict, Rejected, ValidRanges, implausible_jump};
 use super::state::{Commands, DriveStatus, Measured, Point};
 use crate::control::{Inputs, Mode, SpeedLaw};
 use crate::estimator::{Estimate, Estimator, Measurement};
-use crate::modbus::map::{MapError, Reading, RegisterMap, control, plan_writes, status};
-use crate::units::rpm_to_rad_s;
-
-/// Checks a decoded reading against the valid ranges. Pure.
-pub fn validate(r: &Reading, ranges: &ValidRanges) -> Result<Sample, Rejected> {
-    let entries = [
-        ("inlet_pressure_bar", r.inlet_pressure_bar),
-        ("outlet_pressure_bar", r.outlet_pressure_bar),
-        ("shaft_speed_rpm", r.shaft_speed_rpm),
-        ("drive_frequency_hz", r.drive_frequency_hz),
-        ("status_word", r.status_word),
-        ("sample_counter", r.sample_counter),
-    ];
-    if let Some(&(entry, value)) = entries.iter().find(|(_, v)| !v.is_finite()) {
-        return Err(Rejected::Range { entry, value });
-    }
-    if let Some(p) = r.drive_power_w.filter(|p| !p.is_finite()) {
-        return Err(Rejected::Range { entry: "drive_power_w", value: p });
-    }
-    let pressure_ok = |p: f64| (ranges.min_pressure_bar..=ranges.max_pressure_bar).contains(&p);
-    if !pressure_ok(r.inlet_pressure_bar) {
-        return Err(Rejected::Range { entry: "inlet_pressure_bar", value: r.inlet_pressure_bar });
-    }
-    if !pressure_ok(r.outlet_pressure_bar) {
-        return Err(Rejected::Range { entry: "outlet_pressure_bar", value: r.outlet_pressure_bar });
-    }
-    let omega = rpm_to_rad_s(r.shaft_speed_rpm);
-    if omega.abs() > ranges.max_speed_rad_s {
-        return Err(Rejected::Range { entry: "shaft_speed_rpm", value: r.shaft_speed_rpm });
-    }
-    if !(crate::recording::MIN_FREQUENCY_HZ..=ranges.max_frequency_hz).contains(&r.drive_frequency_hz) {
-        return Err(Rejected::Range { entry: "drive_frequency_hz", value: r.drive_frequency_hz });
-    }
-    if !(0.0..=65535.0).contains(&r.status_word) || r.status_word.fract() != 0.0 {
-        return Err(Rejected::Range { entry: "status_word", value: r.status_word });
-    }
-    if !(0.0..=u32::MAX as f64).contains(&r.sample_counter) {
-        return Err(Rejected::Range { entry: "sample_counter", value: r.sample_counter });
-    }
-    Ok(Sample {
-        p_in_bar: r.inlet_pressure_bar,
-        p_out_bar: r.outlet_pressure_bar,
-        omega_rad_s: omega,
-        f_drive_hz: r.drive_frequency_hz,
-        status_word: r.status_word as u16,
-        counter: r.sample_counter as u64,
-        drive_power_w: r.drive_power_w,
-    })
-}
+use crate::modbus::map::{MapError, RegisterMap, Sample, control, plan_writes, status};
 
 /// The state bits of a status word.
 pub fn drive_status(word: u16) -> DriveStatus {
@@ -143,7 +95,7 @@ pub struct DriveCycle {
     counter: CounterCheck,
     /// The last sample that passed every check but timeliness, and when it was read: the reference of the
     /// rate-of-change check and of the gap between new samples.
-    last_valid: Option<(Instant, Sample)>,
+    last_valid: Option<(Instant, Measured)>,
     last_fresh_at: Option<Instant>,
     /// When the watchdog value last changed: it must change at least every `watchdog_ms`.
     last_watchdog_at: Option<Instant>,
@@ -214,11 +166,11 @@ impl DriveCycle {
         let previous = self.last_valid;
         if let Some((at, prev)) = previous {
             let dt = now.saturating_duration_since(at).max(self.poll);
-            if let Some(r) = implausible_jump(&prev, sample, dt.as_secs_f64(), &self.ranges) {
+            if let Some(r) = implausible_jump(&prev, &sample.measured, dt.as_secs_f64(), &self.ranges) {
                 return nothing(Verdict::Rejected(r));
             }
         }
-        self.last_valid = Some((now, *sample));
+        self.last_valid = Some((now, sample.measured));
         // timely: the reply came within stale_ms, and so did this sample after the one before; else readiness
         // would call the drive stale while the loop wrote from it
         let limit = self.stale_after;
@@ -233,10 +185,11 @@ impl DriveCycle {
         // poll's step
         let resumed = first || dt > 2 * self.poll;
         self.last_fresh_at = Some(now);
-        let torque = self.motor_m3_rad * (sample.p_in_bar - sample.p_out_bar) * crate::units::PA_PER_BAR;
+        let m = &sample.measured;
+        let torque = self.motor_m3_rad * (m.p_in_bar - m.p_out_bar) * crate::units::PA_PER_BAR;
         let est = self.estimator.update(&Measurement {
             dt_s: dt.as_secs_f64(),
-            omega_rad_s: sample.omega_rad_s,
+            omega_rad_s: m.omega_rad_s,
             drive_torque_nm: torque,
         });
         self.estimate = Some(est);
@@ -246,7 +199,7 @@ impl DriveCycle {
             tripped: self.tripped(),
             omega_hat_rad_s: est.omega_hat_rad_s,
             load_hat_nm: est.load_hat_nm,
-            drive_hz: sample.f_drive_hz,
+            drive_hz: m.f_drive_hz,
             drive_running: self.status.ready && self.status.running,
             resumed,
         });
@@ -258,15 +211,7 @@ impl DriveCycle {
                 Err(e) => encode_error = Some(e),
             }
         }
-        let measured = Measured {
-            t_s: now.saturating_duration_since(self.started).as_secs_f64(),
-            f_set_hz,
-            f_drive_hz: sample.f_drive_hz,
-            p_in_bar: sample.p_in_bar,
-            p_out_bar: sample.p_out_bar,
-            omega_rad_s: sample.omega_rad_s,
-            drive_power_w: sample.drive_power_w.unwrap_or(f64::NAN),
-        };
+        let measured = Measured { t_s: now.saturating_duration_since(self.started).as_secs_f64(), f_set_hz, ..*m };
         self.measured = Some(measured);
         // the target the law regulated to; none (NaN) outside speed mode, where no target is followed
         let target_omega_rad_s = if self.mode == Mode::Speed { self.law.target_omega_rad_s } else { f64::NAN };
@@ -387,7 +332,16 @@ mod tests {
     }
 
     fn sample(counter: u64, omega_rad_s: f64, f_drive_hz: f64, status_word: u16) -> Sample {
-        Sample { p_in_bar: 40.0, p_out_bar: 5.0, omega_rad_s, f_drive_hz, status_word, counter, drive_power_w: None }
+        let measured = Measured {
+            t_s: f64::NAN,
+            f_set_hz: f64::NAN,
+            p_in_bar: 40.0,
+            p_out_bar: 5.0,
+            omega_rad_s,
+            f_drive_hz,
+            drive_power_w: f64::NAN,
+        };
+        Sample { measured, status_word, counter }
     }
 
     /// Steps samples `k0 .. k0 + n` (counter k read at k·10 ms after `t0`, replied 1 ms later), confirming each

@@ -15,8 +15,8 @@ use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 use super::config::DriveSettings;
-use super::cycle::{DriveCycle, Verdict, validate};
-use super::freshness::Rejected;
+use super::cycle::{DriveCycle, Verdict};
+use super::freshness::{Rejected, out_of_range};
 use super::recorder::Recorder;
 use super::state::{DriveSnapshot, DriveState, Link, Point};
 use super::timing::{LoopTiming, ThreadSetup, Ticker, TimingStats, use_realtime_priority};
@@ -198,7 +198,7 @@ impl DriveLoop {
             Err(e) => self.error(&e),
             Ok(blocks) => match decode_sample(&self.settings.registers, &blocks)
                 .map_err(Rejected::from)
-                .and_then(|r| validate(&r, &self.settings.ranges))
+                .and_then(|s| out_of_range(&s, &self.settings.ranges).map_or(Ok(s), Err))
             {
                 Err(r) => self.reject(&r),
                 Ok(sample) => {

@@ -1,9 +1,12 @@
 //! Whether a decoded sample may be used: the plausible ranges and rates of its values ([`ValidRanges`], from
-//! `[drives.limits]`), a sample in range ([`Sample`]) or why one was refused ([`Rejected`]), the sample counter's
+//! `[drives.limits]`), whether a decoded [`Sample`] lies in them or why it was refused ([`Rejected`]), the sample counter's
 //! verdict (moved, unchanged, or impossible) and the rate-of-change plausibility of the measured values. Pure: fed
 //! counters, samples and Δt.
 //!
 //! At the bottom of the service's layout (see [`super`]): it uses no other module of the service.
+
+use crate::modbus::map::Sample;
+use crate::recording::Measured;
 
 /// The one staleness verdict, taken when the drive's state is read ([`super::state::DriveState::snapshot`]: the
 /// status, readiness, the metrics, MQTT), so that a loop that stopped reads as stale: no fresh sample yet (`age`
@@ -11,19 +14,6 @@
 /// timely against the same `stale_after` ([`super::cycle::DriveCycle::step`]): one this calls fresh.
 pub fn is_stale(age: Option<std::time::Duration>, stale_after: std::time::Duration) -> bool {
     age.is_none_or(|a| a > stale_after)
-}
-
-/// A decoded sample whose values are in range.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Sample {
-    pub p_in_bar: f64,
-    pub p_out_bar: f64,
-    pub omega_rad_s: f64,
-    pub f_drive_hz: f64,
-    pub status_word: u16,
-    pub counter: u64,
-    /// The drive's output power (W), where the register map reads it.
-    pub drive_power_w: Option<f64>,
 }
 
 /// Why a read's values were refused.
@@ -112,9 +102,26 @@ pub struct ValidRanges {
     pub rates: RateLimits,
 }
 
+/// Refuses a sample with a value outside `ranges`, naming its register entry (the speed in the register's rpm).
+pub fn out_of_range(sample: &Sample, ranges: &ValidRanges) -> Option<Rejected> {
+    let m = &sample.measured;
+    let pressures = ranges.min_pressure_bar..=ranges.max_pressure_bar;
+    let checks = [
+        ("inlet_pressure_bar", m.p_in_bar, pressures.contains(&m.p_in_bar)),
+        ("outlet_pressure_bar", m.p_out_bar, pressures.contains(&m.p_out_bar)),
+        ("shaft_speed_rpm", crate::units::rad_s_to_rpm(m.omega_rad_s), m.omega_rad_s.abs() <= ranges.max_speed_rad_s),
+        (
+            "drive_frequency_hz",
+            m.f_drive_hz,
+            (crate::recording::MIN_FREQUENCY_HZ..=ranges.max_frequency_hz).contains(&m.f_drive_hz),
+        ),
+    ];
+    checks.into_iter().find(|(_, _, ok)| !ok).map(|(entry, value, _)| Rejected::Range { entry, value })
+}
+
 /// Rejects `next` when a measured value moved faster than `ranges` allow since `prev`, `dt_s` earlier (the caller
 /// floors Δt at the poll period, so that a late tick followed by an early one does not turn noise into a jump).
-pub fn implausible_jump(prev: &Sample, next: &Sample, dt_s: f64, ranges: &ValidRanges) -> Option<Rejected> {
+pub fn implausible_jump(prev: &Measured, next: &Measured, dt_s: f64, ranges: &ValidRanges) -> Option<Rejected> {
     let r = &ranges.rates;
     let checks = [
         ("inlet_pressure_bar", prev.p_in_bar, next.p_in_bar, r.pressure_bar_per_s),
@@ -172,22 +179,45 @@ mod tests {
     }
 
     #[test]
-    fn jumps_beyond_the_rate_are_rejected() {
-        let a = Sample {
+    fn a_value_out_of_range_is_refused_by_its_register_entry() {
+        let measured = Measured {
+            t_s: f64::NAN,
+            f_set_hz: f64::NAN,
             p_in_bar: 50.0,
             p_out_bar: 3.0,
             omega_rad_s: 40.0,
             f_drive_hz: 25.0,
-            status_word: 3,
-            counter: 1,
-            drive_power_w: None,
+            drive_power_w: f64::NAN,
         };
-        let b = Sample { omega_rad_s: 343.0, ..a };
+        let sample = |measured| Sample { measured, status_word: 3, counter: 1 };
+        assert_eq!(out_of_range(&sample(measured), &ranges()), None);
+        let r = out_of_range(&sample(Measured { p_out_bar: 650.0, ..measured }), &ranges());
+        assert_eq!(r, Some(Rejected::Range { entry: "outlet_pressure_bar", value: 650.0 }));
+        // the speed in the register's unit, rpm
+        let r = out_of_range(&sample(Measured { omega_rad_s: -1100.0, ..measured }), &ranges());
+        let Some(Rejected::Range { entry: "shaft_speed_rpm", value }) = r else { panic!("{r:?}") };
+        assert!((value - crate::units::rad_s_to_rpm(-1100.0)).abs() < 1e-9);
+        let r = out_of_range(&sample(Measured { f_drive_hz: -3.0, ..measured }), &ranges());
+        assert_eq!(r, Some(Rejected::Range { entry: "drive_frequency_hz", value: -3.0 }));
+    }
+
+    #[test]
+    fn jumps_beyond_the_rate_are_rejected() {
+        let a = Measured {
+            t_s: f64::NAN,
+            f_set_hz: f64::NAN,
+            p_in_bar: 50.0,
+            p_out_bar: 3.0,
+            omega_rad_s: 40.0,
+            f_drive_hz: 25.0,
+            drive_power_w: f64::NAN,
+        };
+        let b = Measured { omega_rad_s: 343.0, ..a };
         let r = implausible_jump(&a, &b, 0.01, &ranges());
         assert!(matches!(r, Some(Rejected::Jump { entry: "omega_rad_s", .. })), "{r:?}");
         // the same change over a second is physics
         assert_eq!(implausible_jump(&a, &b, 1.0, &ranges()), None);
-        let noisy = Sample { omega_rad_s: 42.0, p_in_bar: 51.0, ..a };
+        let noisy = Measured { omega_rad_s: 42.0, p_in_bar: 51.0, ..a };
         assert_eq!(implausible_jump(&a, &noisy, 0.001, &ranges()), None);
     }
 }

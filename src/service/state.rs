@@ -16,6 +16,7 @@ use super::timing::TimingStats;
 use crate::control::Mode;
 use crate::estimator::Estimate;
 use crate::recording;
+pub use crate::recording::Measured;
 
 /// Locks a mutex whose data are plain values (a poisoned lock is taken over).
 pub(crate) fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -28,23 +29,6 @@ fn try_lock<T>(m: &Mutex<T>) -> Option<MutexGuard<'_, T>> {
         Ok(g) => Some(g),
         Err(std::sync::TryLockError::Poisoned(e)) => Some(e.into_inner()),
         Err(std::sync::TryLockError::WouldBlock) => None,
-    }
-}
-
-crate::units::columns! {
-    /// The measured columns of a fresh sample: the snapshot's `sample`, and the start of a row.
-    #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
-    pub struct Measured {
-        /// Seconds since the service started.
-        pub t_s: f64,
-        /// Setpoint written in this cycle; NaN (null) when nothing was written.
-        pub f_set_hz: f64,
-        pub f_drive_hz: f64,
-        pub p_in_bar: f64,
-        pub p_out_bar: f64,
-        pub omega_rad_s: f64,
-        /// The drive's output power (W) where `[drives.registers.drive_power_w]` reads it; NaN (null) otherwise.
-        pub drive_power_w: f64,
     }
 }
 
