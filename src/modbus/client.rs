@@ -72,17 +72,20 @@ pub enum ClientError {
 }
 
 impl ClientError {
-    /// A short label for the `errors_total{kind}` metric.
+    /// Every label [`ClientError::kind`] gives, written once: the poll loop counts each but `backoff` (a wait it
+    /// chose, not a failed call) in `errors_total{kind}`.
+    pub const KINDS: [&'static str; 6] = ["backoff", "connect", "timeout", "transport", "protocol", "exception"];
+
+    /// A short label for the `errors_total{kind}` metric, one of [`ClientError::KINDS`].
     pub fn kind(&self) -> &'static str {
-        match self {
-            ClientError::Backoff(_) => "backoff",
-            ClientError::Connect { .. } => "connect",
-            ClientError::Timeout(_) => "timeout",
-            ClientError::Transport(_) => "transport",
-            ClientError::Protocol(_) => "protocol",
-            ClientError::Exception(_) => "exception",
-            ClientError::WrongLength { .. } => "protocol",
-        }
+        Self::KINDS[match self {
+            ClientError::Backoff(_) => 0,
+            ClientError::Connect { .. } => 1,
+            ClientError::Timeout(_) => 2,
+            ClientError::Transport(_) => 3,
+            ClientError::Protocol(_) | ClientError::WrongLength { .. } => 4,
+            ClientError::Exception(_) => 5,
+        }]
     }
 }
 

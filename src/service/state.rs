@@ -141,7 +141,9 @@ impl Link {
     /// A failed Modbus call (or a loop's own error) of `kind`, one of [`ERROR_KINDS`], with what it said.
     pub fn count_error(&mut self, kind: &str, message: String) {
         self.errors += 1;
-        if let Some(i) = ERROR_KINDS.iter().position(|k| *k == kind) {
+        let i = ERROR_KINDS.iter().position(|k| *k == kind);
+        debug_assert!(i.is_some(), "error kind {kind} is not in ERROR_KINDS: no errors_total series would count it");
+        if let Some(i) = i {
             self.errors_by_kind[i] += 1;
         }
         self.last_error = Some(message);
@@ -458,6 +460,17 @@ mod tests {
         d.mark_fresh(earlier);
         assert!(!d.ready(), "no fresh sample for 60 ms > 50 ms");
         assert!(d.snapshot().link.stale);
+    }
+
+    #[test]
+    fn every_kind_of_failed_call_the_loop_counts_has_its_series() {
+        use crate::modbus::client::ClientError;
+        let counted = ClientError::KINDS.iter().filter(|k| **k != "backoff");
+        for kind in counted.chain(&["encode", "counter"]) {
+            let mut link = Link::default();
+            link.count_error(kind, String::new());
+            assert_eq!(link.errors_by_kind.iter().sum::<u64>(), 1, "{kind} is counted in errors_total{{kind}}");
+        }
     }
 
     #[test]
