@@ -426,7 +426,10 @@ async fn requests_on_a_line_keep_the_inter_frame_gap() {
         let served = seen.clone();
         let task = tokio::spawn(async move { device.serve_until(served, async move { s.cancelled().await }).await });
         let endpoint = Endpoint::Serial { port: line.end("a").display().to_string(), line: slow };
-        let mut client = DriveClient::on(endpoint, 1, Duration::from_millis(500));
+        // a reply's deadline far beyond the line's time (20 ms a frame pair at 9600 baud): the test measures the
+        // gaps, and on a loaded machine socat and the device task can be scheduled late (a 500 ms deadline timed
+        // out once in the repeated suite runs, beside a release build)
+        let mut client = DriveClient::on(endpoint, 1, Duration::from_secs(10));
         for _ in 0..20 {
             client.read(Table::Input, 0, 6).await.expect("a reply");
         }
