@@ -139,9 +139,18 @@ async fn at_a_10_ms_poll_rls_sgd_identifies_inertia_under_a_random_brake_program
         let stack = Stack::start_on(plant, 10, &extra).await;
         let identified = |s: &serde_json::Value| s["identification"]["inertia"]["state"] == "identified";
         let targets = [30.0, 45.0, 20.0, 40.0, 25.0, 50.0, 35.0];
+        // a dwell is 170 fresh samples, not 170 polls: on a starved machine a poll can come back stale (the reply or
+        // the gap since the last sample over `stale_ms`), and the estimator learns only from fresh ones
+        let fresh = |l: &hydrolens::service::state::Link| {
+            l.polls.saturating_sub(l.stale_samples + l.rejected_samples + l.errors)
+        };
         for target in targets.iter().cycle().take(20) {
             assert_eq!(post_target(&stack, *target, Some(TOKEN)).await, reqwest::StatusCode::OK);
-            stack.wait_polls(170, "a target's dwell").await;
+            let from = fresh(&stack.state.drives[0].snapshot().link);
+            let dwell = support::wait_for(Duration::from_secs(30), || async {
+                fresh(&stack.state.drives[0].snapshot().link) >= from + 170
+            });
+            dwell.await.expect("170 fresh samples within 30 s");
             if identified(&stack.status().await) {
                 break;
             }
@@ -164,7 +173,13 @@ async fn at_a_10_ms_poll_rls_sgd_identifies_inertia_under_a_random_brake_program
              B {b:.4} ± {b_sd:.4} (true 0.04), |T̂_L − T_L| {load_mae:.2} N·m; {}",
             status["identification"]
         );
-        assert!(identified(&status), "J not identified in 20 targets: {}", status["identification"]);
+        assert!(
+            identified(&status),
+            "J not identified in 20 targets: {}; link {}; timing {}",
+            status["identification"],
+            status["link"],
+            status["timing"]
+        );
         assert!((j / 0.08 - 1.0).abs() <= 0.15, "J {j} ± {j_sd}");
         assert!(j_sd > 0.0 && j_sd < 0.1 * j, "σ_J {j_sd}");
         // (4 sd: one run, not a coverage figure; the battery judges coverage)
@@ -173,7 +188,7 @@ async fn at_a_10_ms_poll_rls_sgd_identifies_inertia_under_a_random_brake_program
         assert!(load_mae < 2.0, "T̂_L mean abs error {load_mae} N·m");
         stack.stop().await;
     };
-    tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
+    tokio::time::timeout(Duration::from_secs(240), run).await.expect("bounded");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
