@@ -178,9 +178,9 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_value_out_of_range_is_refused_by_its_register_entry() {
-        let measured = Measured {
+    /// A decoded sample's measured columns (no time or setpoint stamped yet).
+    fn decoded() -> Measured {
+        Measured {
             t_s: f64::NAN,
             f_set_hz: f64::NAN,
             p_in_bar: 50.0,
@@ -188,7 +188,12 @@ mod tests {
             omega_rad_s: 40.0,
             f_drive_hz: 25.0,
             drive_power_w: f64::NAN,
-        };
+        }
+    }
+
+    #[test]
+    fn a_value_out_of_range_is_refused_by_its_register_entry() {
+        let measured = decoded();
         let sample = |measured| Sample { measured, status_word: 3, counter: 1 };
         assert_eq!(out_of_range(&sample(measured), &ranges()), None);
         let r = out_of_range(&sample(Measured { p_out_bar: 650.0, ..measured }), &ranges());
@@ -203,15 +208,7 @@ mod tests {
 
     #[test]
     fn jumps_beyond_the_rate_are_rejected() {
-        let a = Measured {
-            t_s: f64::NAN,
-            f_set_hz: f64::NAN,
-            p_in_bar: 50.0,
-            p_out_bar: 3.0,
-            omega_rad_s: 40.0,
-            f_drive_hz: 25.0,
-            drive_power_w: f64::NAN,
-        };
+        let a = decoded();
         let b = Measured { omega_rad_s: 343.0, ..a };
         let r = implausible_jump(&a, &b, 0.01, &ranges());
         assert!(matches!(r, Some(Rejected::Jump { entry: "omega_rad_s", .. })), "{r:?}");
