@@ -208,6 +208,9 @@ async fn a_silent_device_does_not_starve_its_neighbour_on_the_line() {
     let run = async {
         let pair = TwoOnOneLine::regulating().await;
         let (url, one, two) = (pair.service.url.clone(), pair.one.clone(), pair.two.clone());
+        // vfd1's polls a second with both devices answering, the reference for the rate beside a silent one below
+        // (a rate of the same machine at the same time, so that a loaded machine slows both alike)
+        let answering = vfd1_rate(&url).await;
 
         // unit 2 stops answering: it goes stale and trips; unit 1 keeps being polled and regulated throughout
         two.lock().faults.no_reply = true;
@@ -241,18 +244,14 @@ async fn a_silent_device_does_not_starve_its_neighbour_on_the_line() {
         assert!(fresh_checks > 10, "vfd1 checked {fresh_checks} times");
         let t = one.lock().truth();
         assert!(!t.tripped && (t.omega_rad_s - 30.0).abs() < 2.0, "vfd1 still regulated: {t:?}");
-        // the silent device is held back on its own: vfd1 keeps most of its polls (25 a second at 40 ms), measured
-        // over its next 25 samples in the service's own time stamps
-        let t0 = vfd1_times(&url, f64::NEG_INFINITY).await.last().copied().unwrap_or(0.0);
-        wait_for(Duration::from_secs(15), || async { vfd1_times(&url, t0).await.len() >= 25 })
-            .await
-            .expect("vfd1 keeps being polled");
-        let span_s = vfd1_times(&url, t0).await[24] - t0;
-        let per_s = 25.0 / span_s;
-        // measured: 25 a second with the device held back alone, 7 when the whole line backs off after each of its
-        // timeouts; 14 with this process starved at load 12. The bound lies between the two designs, not near either.
-        eprintln!("vfd1 kept {per_s:.1} polls a second (of about 25) beside a silent vfd2");
-        assert!(per_s >= 12.0, "vfd1 kept {per_s:.1} polls a second (of about 25)");
+        // the silent device is held back on its own: vfd1 keeps most of its polls
+        let per_s = vfd1_rate(&url).await;
+        // measured on an idle machine: 25 a second both before and beside the silent device with the device held
+        // back alone, 7 beside it when the whole line backs off after each of its timeouts (a ratio of 0.28). The
+        // bound lies between the two designs; a ratio, because a starved machine slows both rates (one run beside
+        // release builds kept 5.8 a second, under the absolute bound of 12 this test had)
+        eprintln!("vfd1 kept {per_s:.1} polls a second beside a silent vfd2, {answering:.1} with both answering");
+        assert!(per_s >= 0.5 * answering, "vfd1 kept {per_s:.1} polls a second, {answering:.1} before");
         assert_eq!(readyz(&url).await, 503, "not ready while vfd2 is stale");
 
         pair.stop().await;
@@ -261,6 +260,15 @@ async fn a_silent_device_does_not_starve_its_neighbour_on_the_line() {
 }
 
 /// The time stamps (`t_s`) of vfd1's samples in the last 10 s of its history, those after `after_s`.
+/// vfd1's polls a second over its next 25 fresh samples, in the service's own time stamps.
+async fn vfd1_rate(url: &str) -> f64 {
+    let t0 = vfd1_times(url, f64::NEG_INFINITY).await.last().copied().unwrap_or(0.0);
+    wait_for(Duration::from_secs(15), || async { vfd1_times(url, t0).await.len() >= 25 })
+        .await
+        .expect("vfd1 keeps being polled");
+    25.0 / (vfd1_times(url, t0).await[24] - t0)
+}
+
 async fn vfd1_times(url: &str, after_s: f64) -> Vec<f64> {
     let h = get_json(format!("{url}/api/history?drive=vfd1&seconds=10")).await;
     h["t_s"].as_array().map_or(Vec::new(), |a| a.iter().filter_map(|v| v.as_f64()).filter(|t| *t > after_s).collect())
