@@ -108,7 +108,11 @@ pub struct DriveStatus {
 
 /// The kinds of failed Modbus call counted apart ([`crate::modbus::client::ClientError::kind`], and the loop's own:
 /// `encode`, a setpoint the register cannot hold; `counter`, a sample counter that ran backwards).
-pub const ERROR_KINDS: [&str; 7] = ["connect", "timeout", "transport", "protocol", "exception", "encode", "counter"];
+pub const ERROR_KINDS: [&str; 7] = {
+    // every kind a Modbus call gives but `backoff` (a wait the client chose, not a failed call), then the loop's own
+    let k = crate::modbus::client::ClientError::KINDS;
+    [k[1], k[2], k[3], k[4], k[5], "encode", "counter"]
+};
 
 /// Link health of one drive.
 #[derive(Debug, Clone, PartialEq, Serialize, Default)]
