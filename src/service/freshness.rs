@@ -1,7 +1,7 @@
 //! Whether a decoded sample may be used: the plausible ranges and rates of its values ([`ValidRanges`], from
-//! `[drives.limits]`), whether a decoded [`Sample`] lies in them or why it was refused ([`Rejected`]), the sample counter's
-//! verdict (moved, unchanged, or impossible) and the rate-of-change plausibility of the measured values. Pure: fed
-//! counters, samples and Δt.
+//! `[drives.limits]`), whether a decoded [`Sample`] lies in them or why it was refused ([`Rejected`]), the sample
+//! counter's verdict (moved, unchanged, or impossible) and the rate-of-change plausibility of the measured values.
+//! Pure: fed counters, samples and Δt.
 //!
 //! At the bottom of the service's layout (see [`super`]): it uses no other module of the service.
 

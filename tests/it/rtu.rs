@@ -259,7 +259,6 @@ async fn a_silent_device_does_not_starve_its_neighbour_on_the_line() {
     tokio::time::timeout(Duration::from_secs(120), run).await.expect("within 120 s");
 }
 
-/// The time stamps (`t_s`) of vfd1's samples in the last 10 s of its history, those after `after_s`.
 /// vfd1's polls a second over its next 25 fresh samples, in the service's own time stamps.
 async fn vfd1_rate(url: &str) -> f64 {
     let t0 = vfd1_times(url, f64::NEG_INFINITY).await.last().copied().unwrap_or(0.0);
@@ -269,6 +268,7 @@ async fn vfd1_rate(url: &str) -> f64 {
     25.0 / (vfd1_times(url, t0).await[24] - t0)
 }
 
+/// The time stamps (`t_s`) of vfd1's samples in the last 10 s of its history, those after `after_s`.
 async fn vfd1_times(url: &str, after_s: f64) -> Vec<f64> {
     let h = get_json(format!("{url}/api/history?drive=vfd1&seconds=10")).await;
     h["t_s"].as_array().map_or(Vec::new(), |a| a.iter().filter_map(|v| v.as_f64()).filter(|t| *t > after_s).collect())
