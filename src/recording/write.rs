@@ -90,6 +90,9 @@ pub struct RotatingWriter {
     max_bytes: u64,
     flush_every: Duration,
     current: Option<Current>,
+    /// Files closed (by rotation, [`RotatingWriter::close`] or [`RotatingWriter::abandon`]) since
+    /// [`RotatingWriter::take_closed`] was last asked: several, when one call wrote rows enough for several files.
+    closed: Vec<PathBuf>,
 }
 
 struct Current {
@@ -201,12 +204,25 @@ impl RotatingWriter {
             max_bytes,
             flush_every: Duration::from_millis(500),
             current: None,
+            closed: Vec::new(),
         }
     }
 
     /// The file being written, if any.
     pub fn current_path(&self) -> Option<&Path> {
         self.current.as_ref().map(|c| c.path.as_path())
+    }
+
+    /// The files closed since the last call, oldest first (a file that held no row may have been removed).
+    /// A file given up as lost is not among them: its path no longer names it.
+    pub fn take_closed(&mut self) -> Vec<PathBuf> {
+        std::mem::take(&mut self.closed)
+    }
+
+    /// Ends `c`, noting its path as closed.
+    fn end(&mut self, c: Current) -> std::io::Result<()> {
+        self.closed.push(c.path.clone());
+        c.end()
     }
 
     fn open(&mut self, now: Instant) -> std::io::Result<()> {
@@ -277,14 +293,14 @@ impl RotatingWriter {
     /// reported already.
     pub fn abandon(&mut self) {
         if let Some(c) = self.current.take() {
-            let _ = c.end();
+            let _ = self.end(c);
         }
     }
 
     /// Flushes and closes the current file, syncing it to disk.
     pub fn close(&mut self) -> std::io::Result<()> {
         match self.current.take() {
-            Some(c) => c.end(),
+            Some(c) => self.end(c),
             None => Ok(()),
         }
     }

@@ -64,8 +64,14 @@ pub struct Recorder {
     pub health: Arc<Health>,
 }
 
-/// What the writer thread tells the keeper when its file changes: the file now open (None: none).
-struct Opened(Option<PathBuf>);
+/// What the writer thread tells the keeper of its files.
+enum FileEvent {
+    /// A file was opened: written to until it is closed, and never touched by the keeper meanwhile.
+    Opened(PathBuf),
+    /// A file was closed: compressed at the keeper's next turn. Every file closed is told, however many closed
+    /// in one drain.
+    Closed(PathBuf),
+}
 
 /// The keeper thread's state: the open file (never touched), and closed files still to compress.
 struct Keeper {
@@ -119,26 +125,30 @@ impl Keeper {
         }
     }
 
-    /// The file changed: the one that was open is closed, and compressed at this turn.
-    fn opened(&mut self, now: Option<PathBuf>) {
-        if let Some(closed) = std::mem::replace(&mut self.open, now)
-            && self.compress
-            && !self.to_compress.contains(&closed)
-        {
-            self.to_compress.push(closed);
+    fn heard(&mut self, event: FileEvent) {
+        match event {
+            FileEvent::Opened(path) => self.open = Some(path),
+            FileEvent::Closed(path) => {
+                if self.open.as_ref() == Some(&path) {
+                    self.open = None;
+                }
+                if self.compress && !self.to_compress.contains(&path) {
+                    self.to_compress.push(path);
+                }
+            }
         }
     }
 
     /// Runs until the writer thread has gone, then compresses its last file.
-    fn run(mut self, rx: mpsc::Receiver<Opened>) {
+    fn run(mut self, rx: mpsc::Receiver<FileEvent>) {
         self.turn();
         loop {
             match rx.recv_timeout(PRUNE_EVERY) {
-                Ok(Opened(now)) => {
-                    self.opened(now);
-                    // a burst of changes (rows abandoned on a full disk) makes one turn
-                    while let Ok(Opened(now)) = rx.try_recv() {
-                        self.opened(now);
+                Ok(event) => {
+                    self.heard(event);
+                    // a burst of changes (rotations in one drain, rows abandoned on a full disk) makes one turn
+                    while let Ok(event) = rx.try_recv() {
+                        self.heard(event);
                     }
                 }
                 Err(mpsc::RecvTimeoutError::Timeout) => {}
@@ -146,7 +156,10 @@ impl Keeper {
             }
             self.turn();
         }
-        self.opened(None);
+        // a writer that went without closing its file (it panicked; dropping it closed the file)
+        if let Some(open) = self.open.take() {
+            self.heard(FileEvent::Closed(open));
+        }
         self.turn();
     }
 }
@@ -305,14 +318,13 @@ impl DirLock {
 }
 
 /// The recorder thread: every [`DRAIN_EVERY`] writes the rows waiting in `rx`, flushes every [`FLUSH_EVERY`] (and
-/// at the end), tells the keeper of each new file, and when `rx` closes closes the last file (dropping `keeper_tx`
-/// then tells the keeper it is closed).
+/// at the end), tells the keeper of each file it closes and opens, and when `rx` closes closes the last file.
 fn write_rows(
     name: &str,
     health: &Health,
     mut writer: RotatingWriter,
     rx: &mpsc::Receiver<Point>,
-    keeper_tx: &mpsc::Sender<Opened>,
+    keeper_tx: &mpsc::Sender<FileEvent>,
     lock: Option<&DirLock>,
 ) {
     let mut spell = Spell { name, health, retry_at: None };
@@ -320,6 +332,11 @@ fn write_rows(
     // would be woken by every row, a context switch per poll per drive (a tenth of a 50-drive service's CPU)
     let mut flushed = Instant::now();
     let mut told: Option<PathBuf> = None;
+    let tell_closed = |writer: &mut RotatingWriter| {
+        for path in writer.take_closed() {
+            let _ = keeper_tx.send(FileEvent::Closed(path));
+        }
+    };
     loop {
         std::thread::sleep(DRAIN_EVERY);
         let (open, wrote) = drain(rx, &mut writer, &mut spell);
@@ -340,11 +357,14 @@ fn write_rows(
             }
             flushed = Instant::now();
         }
-        // the keeper hears of each new file: the one before it is closed
+        // the keeper hears of each file closed, then of the one open now
+        tell_closed(&mut writer);
         let current = writer.current_path().map(Path::to_path_buf);
         if current != told {
             told.clone_from(&current);
-            let _ = keeper_tx.send(Opened(current));
+            if let Some(path) = current {
+                let _ = keeper_tx.send(FileEvent::Opened(path));
+            }
         }
         if !open {
             break;
@@ -353,6 +373,7 @@ fn write_rows(
     if let Err(e) = writer.close() {
         spell.failed(&mut writer, &e);
     }
+    tell_closed(&mut writer);
 }
 
 /// Writes the rows waiting in `rx` (none while a failure's retry is not due): whether `rx` is still open, and
@@ -392,7 +413,7 @@ impl Recorder {
         let found = leftovers(dir, drive)?;
         let writer = RotatingWriter::new(dir, drive, &COLUMNS, rotate_after, max_bytes);
         let (tx, rx) = mpsc::channel::<Point>();
-        let (keeper_tx, keeper_rx) = mpsc::channel::<Opened>();
+        let (keeper_tx, keeper_rx) = mpsc::channel::<FileEvent>();
         let name = drive.to_string();
         let health = Arc::new(Health::default());
         let keeper = Keeper {
@@ -516,6 +537,29 @@ mod tests {
         let files = with_rows(&dir);
         assert_eq!(files.len(), 1, "{files:?}");
         crate::recording::load(&files[0]).expect("a valid recording");
+    }
+
+    /// Rows that come faster than the writer drains them (its thread starved) fill several files in one drain: each
+    /// file closed is compressed, not only the last (the middle ones were once left plain for good).
+    #[test]
+    fn every_closed_file_is_compressed_however_many_close_in_one_drain() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let rec =
+            Recorder::start(dir.path(), "pump1", Duration::from_secs(3600), 2_000, Retention::default(), true, None)
+                .expect("starts");
+        // all sent long before the writer's first drain: a drain of many rotations
+        for i in 0..400 {
+            rec.record(point(f64::from(i) * 1e-3));
+        }
+        rec.finish();
+        let names: Vec<String> = std::fs::read_dir(dir.path())
+            .expect("dir")
+            .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+            .collect();
+        assert!(names.len() > 3, "several files: {names:?}");
+        assert!(names.iter().all(|n| n.ends_with(".csv.gz")), "every closed file compressed: {names:?}");
+        let rows: usize = names.iter().map(|n| crate::recording::load(&dir.path().join(n)).expect("loads").len()).sum();
+        assert_eq!(rows, 400, "every row kept");
     }
 
     #[test]
