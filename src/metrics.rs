@@ -72,12 +72,13 @@ fn desc(name: &'static str, help: &'static str) -> Desc {
     Desc(name, help, None)
 }
 
-fn with_unit(name: &'static str, help: &'static str, unit: &str) -> Desc {
-    let unit = match unit {
-        "seconds" => Unit::Seconds,
-        other => Unit::Other(other.to_string()),
-    };
+fn with_unit(name: &'static str, help: &'static str, unit: Unit) -> Desc {
     Desc(name, help, Some(unit))
+}
+
+/// A unit prometheus-client has no variant for, by the name the series ends in.
+fn other(unit: &str) -> Unit {
+    Unit::Other(unit.to_string())
 }
 
 /// A drive's series of one family; None: no series (nothing measured yet, say).
@@ -125,44 +126,50 @@ fn signal_families() -> Vec<(Desc, MetricType, Read)> {
     use Value::Float;
     vec![
         (
-            with_unit("loop_jitter_p50", "Median |period − poll period| over the last 1000 cycles", "seconds"),
+            with_unit("loop_jitter_p50", "Median |period − poll period| over the last 1000 cycles", Unit::Seconds),
             Gauge,
             |s| Some(Float(s.timing.jitter_p50_ms * 1e-3)),
         ),
         (
-            with_unit("loop_jitter_p99", "99th percentile |period − poll period| over the last 1000 cycles", "seconds"),
+            with_unit(
+                "loop_jitter_p99",
+                "99th percentile |period − poll period| over the last 1000 cycles",
+                Unit::Seconds,
+            ),
             Gauge,
             |s| Some(Float(s.timing.jitter_p99_ms * 1e-3)),
         ),
-        (with_unit("inlet_pressure", "Measured inlet pressure", "pascals"), Gauge, |s| {
+        (with_unit("inlet_pressure", "Measured inlet pressure", other("pascals")), Gauge, |s| {
             measured(s).map(|m| Float(m.p_in_bar * PASCALS_PER_BAR))
         }),
-        (with_unit("outlet_pressure", "Measured outlet pressure", "pascals"), Gauge, |s| {
+        (with_unit("outlet_pressure", "Measured outlet pressure", other("pascals")), Gauge, |s| {
             measured(s).map(|m| Float(m.p_out_bar * PASCALS_PER_BAR))
         }),
-        (with_unit("drive_frequency", "Output frequency the drive reports", "hertz"), Gauge, |s| {
+        (with_unit("drive_frequency", "Output frequency the drive reports", other("hertz")), Gauge, |s| {
             measured(s).map(|m| Float(m.f_drive_hz))
         }),
-        (with_unit("omega", "Measured shaft speed", RAD_S), Gauge, |s| measured(s).map(|m| Float(m.omega_rad_s))),
-        (with_unit("omega_hat", "Estimated shaft speed", RAD_S), Gauge, |s| {
+        (with_unit("omega", "Measured shaft speed", other(RAD_S)), Gauge, |s| {
+            measured(s).map(|m| Float(m.omega_rad_s))
+        }),
+        (with_unit("omega_hat", "Estimated shaft speed", other(RAD_S)), Gauge, |s| {
             estimate(s).map(|e| Float(e.omega_hat_rad_s))
         }),
-        (with_unit("load_hat", "Estimated load torque", "newton_meters"), Gauge, |s| {
+        (with_unit("load_hat", "Estimated load torque", other("newton_meters")), Gauge, |s| {
             estimate(s).map(|e| Float(e.load_hat_nm))
         }),
-        (with_unit("inertia_hat", "Estimated inertia J", KG_M2), Gauge, |s| {
+        (with_unit("inertia_hat", "Estimated inertia J", other(KG_M2)), Gauge, |s| {
             estimate(s).map(|e| Float(e.inertia_hat_kg_m2))
         }),
         (
-            with_unit("inertia_sd", "Standard deviation of the estimated J (0: taken from the model)", KG_M2),
+            with_unit("inertia_sd", "Standard deviation of the estimated J (0: taken from the model)", other(KG_M2)),
             Gauge,
             |s| estimate(s).map(|e| Float(e.inertia_sd_kg_m2)),
         ),
-        (with_unit("viscous_hat", "Estimated viscous friction B", NM_S_RAD), Gauge, |s| {
+        (with_unit("viscous_hat", "Estimated viscous friction B", other(NM_S_RAD)), Gauge, |s| {
             estimate(s).map(|e| Float(e.viscous_hat_nm_s_rad))
         }),
         (
-            with_unit("viscous_sd", "Standard deviation of the estimated B (0: taken from the model)", NM_S_RAD),
+            with_unit("viscous_sd", "Standard deviation of the estimated B (0: taken from the model)", other(NM_S_RAD)),
             Gauge,
             |s| estimate(s).map(|e| Float(e.viscous_sd_nm_s_rad)),
         ),
@@ -198,8 +205,8 @@ fn signal_families() -> Vec<(Desc, MetricType, Read)> {
             Gauge,
             |s| measured(s).map(|_| Float(if s.status.not_following { 1.0 } else { 0.0 })),
         ),
-        (with_unit("setpoint", "Last frequency setpoint written", "hertz"), Gauge, |s| s.setpoint_hz.map(Float)),
-        (with_unit("target_omega", "Speed target", RAD_S), Gauge, |s| Some(Float(s.target_omega_rad_s))),
+        (with_unit("setpoint", "Last frequency setpoint written", other("hertz")), Gauge, |s| s.setpoint_hz.map(Float)),
+        (with_unit("target_omega", "Speed target", other(RAD_S)), Gauge, |s| Some(Float(s.target_omega_rad_s))),
     ]
 }
 

@@ -1,6 +1,7 @@
 //! The HTTP side's own families (no drive label): open connections and event streams, wrong tokens, and what was
-//! turned away to keep capacity. Registered in the service's registry when the router's state is made
-//! ([`super::AppState::new`]), and counted by the connection layer and the routes.
+//! turned away to keep capacity. Registered in the service's registry by whoever makes the router's state
+//! ([`HttpMetrics::register`], then [`super::AppState::new`]; `server::start` does), and counted by the connection
+//! layer and the routes.
 
 use prometheus_client::encoding::EncodeLabelSet;
 use prometheus_client::metrics::counter::Counter;

@@ -55,14 +55,14 @@ pub struct AppState {
 }
 
 impl AppState {
-    /// The state of a router over `service`, with the token and body limit of `http`; the caches start empty, and
-    /// this side's families are registered in the service's registry.
+    /// The state of a router over `service`, with the token and body limit of `http` and this side's `metrics`
+    /// ([`HttpMetrics::register`]ed by the caller in the service's registry); the caches start empty.
     pub fn new(
         service: Arc<ServiceState>,
         http: &crate::service::config::HttpSettings,
+        metrics: HttpMetrics,
         shutdown: CancellationToken,
     ) -> AppState {
-        let metrics = HttpMetrics::register(&mut service.registry());
         AppState {
             metrics,
             service,

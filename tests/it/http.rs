@@ -27,7 +27,8 @@ fn make_app(token: Option<&str>, mode: &str) -> (axum::Router, CancellationToken
     let mut http = settings.http.clone();
     http.token = token.map(str::to_string);
     http.max_body_bytes = 1024;
-    let state = AppState::new(svc.state.clone(), &http, shutdown.clone());
+    let metrics = hydrolens::http::HttpMetrics::register(&mut svc.state.registry());
+    let state = AppState::new(svc.state.clone(), &http, metrics, shutdown.clone());
     (router(state), shutdown, dir)
 }
 
