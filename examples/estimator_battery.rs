@@ -167,9 +167,10 @@ fn main() {
     println!("\nthe guard's gates, per family (docs/estimator.md)");
     println!(
         "| family | runs | T̂_L ≤ 1.05× nominal Kalman | J, B identified: T̂_L ≤ 1.3× Kalman told the truth \
-         | truth within 2 sd or flagged (checkpoints) | J within ±15 % where identified | final J / B identified |"
+         | truth within 2 sd or flagged (checkpoints) | J within ±15 % where identified | final J / B identified \
+         | J / B fell back from identified (times) |"
     );
-    println!("|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|");
     let mut names: Vec<&str> = Vec::new();
     for r in &results {
         if !names.contains(&r.family.name()) {
@@ -189,8 +190,9 @@ fn main() {
         let code = |c: f64| c == hydrolens::estimator::Identification::Identified.code();
         let j_id = rs.iter().filter(|r| code(r.rls.last.inertia_identified)).count();
         let b_id = rs.iter().filter(|r| code(r.rls.last.viscous_identified)).count();
+        let lost = rs.iter().fold((0, 0), |a, r| (a.0 + r.rls.identified_lost.0, a.1 + r.rls.identified_lost.1));
         println!(
-            "| {name} | {} | {no_harm} | {}/{} | {}/{} ({:.0} %) | {}/{} | {j_id} / {b_id} |",
+            "| {name} | {} | {no_harm} | {}/{} | {}/{} ({:.0} %) | {}/{} | {j_id} / {b_id} | {} / {} |",
             rs.len(),
             ident.iter().filter(|x| **x).count(),
             ident.len(),
@@ -199,6 +201,8 @@ fn main() {
             100.0 * covered.0 as f64 / covered.1.max(1) as f64,
             sound.1,
             sound.0,
+            lost.0,
+            lost.1,
         );
     }
     let holding = results.iter().filter(|r| r.holds()).count();

@@ -43,6 +43,9 @@ pub struct Score {
     pub viscous_error: f64,
     /// The estimate at each of [`CHECKPOINTS_S`] the run reaches: how it converges, not only where it ends.
     pub checkpoints: Vec<(f64, Estimate)>,
+    /// How often J and B fell back from identified to too little excitation or the nominal predicting as well (over
+    /// every row): a state a user can rely on does not flap.
+    pub identified_lost: (usize, usize),
 }
 
 /// One scenario at one poll period.
@@ -220,8 +223,18 @@ pub fn score(polled: &Polled, settings: &EstimatorSettings, model: &PlantModel, 
     let (mut se_w, mut se_l, mut n) = (0.0, 0.0, 0usize);
     let mut last = est.estimate();
     let mut checkpoints = Vec::new();
+    let mut identified_lost = (0, 0);
+    // identified, then back to too little excitation or the nominal predicting as well: the evidence lost (not a
+    // reading refined to friction-or-load or a load following the speed)
+    let lost = |before: f64, now: f64| {
+        use super::Identification::{Identified, NominalPredictsAsWell, TooLittleExcitation};
+        before == Identified.code() && (now == TooLittleExcitation.code() || now == NominalPredictsAsWell.code())
+    };
     for (k, m) in polled.measurements.iter().enumerate() {
+        let before = last;
         last = est.update(m);
+        identified_lost.0 += usize::from(lost(before.inertia_identified, last.inertia_identified));
+        identified_lost.1 += usize::from(lost(before.viscous_identified, last.viscous_identified));
         if let Some(&c) = CHECKPOINTS_S.get(checkpoints.len())
             && polled.t_s[k] >= c - 1e-9
         {
@@ -241,6 +254,7 @@ pub fn score(polled: &Polled, settings: &EstimatorSettings, model: &PlantModel, 
         inertia_error: last.inertia_hat_kg_m2 / truth.motor.inertia_kg_m2 - 1.0,
         viscous_error: last.viscous_hat_nm_s_rad / truth.motor.viscous_nm_s_rad - 1.0,
         checkpoints,
+        identified_lost,
     }
 }
 

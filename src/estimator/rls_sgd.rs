@@ -89,6 +89,12 @@ const IDENTIFIED_Z: f64 = 1.0;
 const INERTIA_IDENTIFIED_SD: f64 = 0.05;
 /// B known to this relative standard deviation is identified.
 const VISCOUS_IDENTIFIED_SD: f64 = 0.25;
+/// Once identified, a parameter stays so until the evidence is clearly gone (a hysteresis, as the validation's own):
+/// its standard deviation past this factor of the limit that let it in, or the sign test's z below
+/// `IDENTIFIED_HOLD_Z`. Without it the state flapped within a second of first being reached, as z and the credible
+/// standard deviation wander about their thresholds.
+const IDENTIFIED_HOLD_SD_FACTOR: f64 = 1.1;
+const IDENTIFIED_HOLD_Z: f64 = 0.0;
 
 impl RlsSgd {
     pub fn new(s: Resolved) -> RlsSgd {
@@ -259,24 +265,32 @@ impl RlsSgd {
     fn verdicts(&self, (b, j): (f64, f64), (j_sd, b_sd): (f64, f64)) -> (Identification, Identification) {
         let (j0, b0) = self.nominal_parameters();
         let in_force = self.validation.in_force;
-        let known = |sd: f64, x: f64, limit: f64| sd <= limit * x.abs();
+        let ((was_j, was_b), _) = self.judged;
+        // a parameter identified at the last judgement is held to the looser bounds (`IDENTIFIED_HOLD_*`)
+        let held = |was: Identification| was == Identification::Identified;
+        let known = |sd: f64, x: f64, limit: f64, was: Identification| {
+            sd <= limit * x.abs() * if held(was) { IDENTIFIED_HOLD_SD_FACTOR } else { 1.0 }
+        };
         // identified needs evidence: the windows said the adapted values predict better, or they agree with the
         // nominal ones (then neither can beat the other)
-        let earned = |x: f64, x0: f64, sd: f64| self.validation.z() >= IDENTIFIED_Z || (x - x0).abs() <= 2.0 * sd;
-        let inertia = match (in_force, known(j_sd, j, INERTIA_IDENTIFIED_SD), earned(j, j0, j_sd)) {
+        let earned = |x: f64, x0: f64, sd: f64, was: Identification| {
+            let z = if held(was) { IDENTIFIED_HOLD_Z } else { IDENTIFIED_Z };
+            self.validation.z() >= z || (x - x0).abs() <= 2.0 * sd
+        };
+        let inertia = match (in_force, known(j_sd, j, INERTIA_IDENTIFIED_SD, was_j), earned(j, j0, j_sd, was_j)) {
             (true, true, true) => Identification::Identified,
             (false, true, _) => Identification::NominalPredictsAsWell,
             _ => Identification::TooLittleExcitation,
         };
         // B comes with J from the same windows: never identified where J is not
         let j_known = inertia == Identification::Identified;
-        let viscous =
-            match (self.load_follows_speed(), in_force, known(b_sd, b, VISCOUS_IDENTIFIED_SD), earned(b, b0, b_sd)) {
-                (true, _, _, _) => Identification::LoadFollowsSpeed,
-                (false, true, true, true) if j_known => Identification::Identified,
-                (false, false, true, _) => Identification::NominalPredictsAsWell,
-                _ => Identification::TooLittleExcitation,
-            };
+        let b_known = known(b_sd, b, VISCOUS_IDENTIFIED_SD, was_b);
+        let viscous = match (self.load_follows_speed(), in_force, b_known, earned(b, b0, b_sd, was_b)) {
+            (true, _, _, _) => Identification::LoadFollowsSpeed,
+            (false, true, true, true) if j_known => Identification::Identified,
+            (false, false, true, _) => Identification::NominalPredictsAsWell,
+            _ => Identification::TooLittleExcitation,
+        };
         (inertia, viscous)
     }
 
