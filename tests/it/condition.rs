@@ -136,6 +136,7 @@ fn leaks(v: &serde_json::Value) -> Vec<Option<f64>> {
 async fn over_tcp_a_growing_leak_shows_rising_across_checks_and_raises_its_alarm() {
     let run = async {
         // 3.6 l/min/bar an hour: 0.001 a second, past the 0.02 limit after 20 s of plant time
+        let started = std::time::Instant::now();
         let stack = support::Stack::start_on(plant(3.6), 5, &condition_config(20.0, 8.0)).await;
         let stop = tokio_util::sync::CancellationToken::new();
         tokio::spawn(move_targets(stack.state.drives[0].clone(), stop.clone()));
@@ -188,7 +189,10 @@ async fn over_tcp_a_growing_leak_shows_rising_across_checks_and_raises_its_alarm
         // an ulp off: one run read 0.028753882025018926 from the metrics and 0.02875388202501893 from the JSON)
         assert!(param.is_some_and(|p| (p - last).abs() <= 1e-12 * last.abs()), "{param:?} against {last}");
         let took = support::metric(&metrics, "hydrolens_condition_check_duration_seconds{drive=\"pump1\"}");
-        assert!(took.is_some_and(|s| s > 0.0 && s < 5.0), "{took:?}");
+        // in seconds: a check cannot have taken longer than the service has run (how long it took is the machine's
+        // business: one run beside other work took 8.8 s)
+        let ran = started.elapsed().as_secs_f64();
+        assert!(took.is_some_and(|s| s > 0.0 && s < ran), "{took:?} in a service that ran {ran:.1} s");
         // the power budget and the trend, in /api/status and /metrics
         let d = drive_status(&stack.url).await;
         let e = &d["energy"];
