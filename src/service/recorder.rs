@@ -496,6 +496,16 @@ mod tests {
         files
     }
 
+    /// The names of the files in `dir`, sorted.
+    fn file_names(dir: &Path) -> Vec<String> {
+        let mut names: Vec<String> = std::fs::read_dir(dir)
+            .expect("dir")
+            .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        names
+    }
+
     /// Sends a row every 5 ms until `done` holds (true) or 10 s pass (false).
     fn record_until(rec: &Recorder, t: &mut f64, mut done: impl FnMut() -> bool) -> bool {
         let deadline = Instant::now() + Duration::from_secs(10);
@@ -552,10 +562,7 @@ mod tests {
             rec.record(point(f64::from(i) * 1e-3));
         }
         rec.finish();
-        let names: Vec<String> = std::fs::read_dir(dir.path())
-            .expect("dir")
-            .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
-            .collect();
+        let names = file_names(dir.path());
         assert!(names.len() > 3, "several files: {names:?}");
         assert!(names.iter().all(|n| n.ends_with(".csv.gz")), "every closed file compressed: {names:?}");
         let rows: usize = names.iter().map(|n| crate::recording::load(&dir.path().join(n)).expect("loads").len()).sum();
@@ -581,11 +588,7 @@ mod tests {
             health: Arc::new(Health::default()),
         };
         keeper.turn();
-        let mut names: Vec<String> = std::fs::read_dir(dir.path())
-            .expect("dir")
-            .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
-            .collect();
-        names.sort();
+        let names = file_names(dir.path());
         assert_eq!(names, vec!["pump1-3.csv.gz"], "the empty and header-only files are removed, not compressed");
         assert_eq!(keeper.health.snapshot().files_compressed, 1);
     }
