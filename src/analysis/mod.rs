@@ -196,9 +196,13 @@ fn analyze_series(
     }
     sel.final_fold_models();
     let baseline_intervals =
-        jackknife(&baseline.model, &sel.fold_baseline, &interval_keys(&baseline.model, family, &sel.kept));
-    let improved_intervals =
-        jackknife(&sel.current.model, &sel.fold_current, &interval_keys(&sel.current.model, family, &sel.kept));
+        jackknife(&baseline.model, &sel.fold_baseline, &interval_keys(&baseline.model, family, &sel.kept), s.sample_hz);
+    let improved_intervals = jackknife(
+        &sel.current.model,
+        &sel.fold_current,
+        &interval_keys(&sel.current.model, family, &sel.kept),
+        s.sample_hz,
+    );
     progress(0.95);
 
     let conditions = mismatch::Conditions::new(&s);

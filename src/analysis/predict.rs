@@ -22,8 +22,12 @@ pub struct Prediction {
     pub dp_bar: Option<Vec<f64>>,
     /// Drive torque the model needs to move as measured (inverse dynamics, N·m), torque family.
     pub torque_nm: Option<Vec<f64>>,
-    /// The drive model's frequency run from the setpoint (Hz), flow family with `f_drive_hz` and `f_set_hz`.
+    /// The drive model's frequency run from the setpoint (Hz), where `f_drive_hz` and `f_set_hz` were recorded
+    /// (flow and hydraulic families).
     pub f_drive_hz: Option<Vec<f64>>,
+    /// Hydraulic family, for a model whose dead time is not the nominal model's: the drive model run with the
+    /// nominal dead time on the same rows, which the score's drive factor compares against.
+    pub f_drive_nominal_hz: Option<Vec<f64>>,
     /// Flow family: the mean square (bar²) that the speed sensor's noise adds to this model's ΔP prediction.
     pub dp_noise_bar2: f64,
 }
@@ -38,9 +42,13 @@ pub struct Errors {
     /// ‖τ − τ̂‖/‖τ‖, the EMPS benchmark's relative force error.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub torque_relative_error: Option<f64>,
-    /// Flow family: the drive model run from `f_set_hz` against `f_drive_hz` (where the dead time shows).
+    /// The drive model run from `f_set_hz` against `f_drive_hz` (where the dead time shows), where both were
+    /// recorded.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub f_drive_nrmse: Option<f64>,
+    /// Hydraulic family: the same for the nominal dead time, where the model's differs (see [`Errors::score`]).
+    #[serde(skip)]
+    pub f_drive_nominal_nrmse: Option<f64>,
     /// Flow family: the part of `dp_nrmse²` expected from the speed noise that drives the pressure equation;
     /// the score takes it out (see [`Series::speed_noise_f`]).
     #[serde(skip)]
@@ -53,10 +61,21 @@ impl Errors {
     /// so its free-run speed is reported but not judged).
     pub fn score(&self, family: Family) -> f64 {
         match family {
-            Family::Hydraulic => match self.dp_nrmse {
-                Some(dp) => 0.5 * (self.omega_nrmse.powi(2) + dp.powi(2)),
-                None => self.omega_nrmse.powi(2),
-            },
+            // the drive factor: a dead time acts first on the drive, and the frequency read back shows it directly,
+            // where the free run of speed and ΔP may be dominated by what it does not explain (a motor crawling and
+            // sticking under the brake). A model whose dead time differs from the nominal one is scored times the
+            // ratio of the drive's squared errors; any other model's score is the free run's alone, so the ratios
+            // between candidates that leave the drive as it is are those of the free run, exactly
+            Family::Hydraulic => {
+                let free = match self.dp_nrmse {
+                    Some(dp) => 0.5 * (self.omega_nrmse.powi(2) + dp.powi(2)),
+                    None => self.omega_nrmse.powi(2),
+                };
+                match (self.f_drive_nrmse, self.f_drive_nominal_nrmse) {
+                    (Some(f), Some(f0)) if f.is_finite() && f0.is_finite() && f0 > 0.0 => free * (f / f0).powi(2),
+                    _ => free,
+                }
+            }
             Family::Torque => self.torque_nrmse.map_or(self.omega_nrmse.powi(2), |t| t.powi(2)),
             // the speed is an input here. ΔP and the drive frequency have noise floors two orders of magnitude
             // apart (sensor noise against 0.01 Hz quantisation), so they are combined geometrically: a relative
@@ -94,12 +113,16 @@ pub fn predict_rows(
         Family::Hydraulic => {
             let c = Coefficients::from_model(model)
                 .map_err(|crate::error::KeyError { key, message: msg }| BadInput(format!("model: `{key}` {msg}")))?;
-            let (omega, dp) = free_run_hydraulic(&c, s, start, end, restarts);
+            let (omega, dp, f) = free_run_hydraulic(&c, s, start, end, restarts);
+            let read_back = s.f_drive_hz.is_some() && s.setpoint_hz.is_some();
+            let nominal = (read_back && c.dead_time_s != s.nominal_dead_time_s)
+                .then(|| free_run_drive(&c, s.nominal_dead_time_s, s, start, end, restarts));
             Ok(Prediction {
                 omega_rad_s: omega,
                 dp_bar: Some(dp),
                 torque_nm: None,
-                f_drive_hz: None,
+                f_drive_hz: read_back.then_some(f),
+                f_drive_nominal_hz: nominal,
                 dp_noise_bar2: 0.0,
             })
         }
@@ -114,6 +137,7 @@ pub fn predict_rows(
                 dp_bar: Some(dp),
                 torque_nm: None,
                 f_drive_hz: compare_f.then_some(f),
+                f_drive_nominal_hz: None,
                 dp_noise_bar2: noise_in_dp_bar2(&c, s),
             })
         }
@@ -124,6 +148,7 @@ pub fn predict_rows(
                 dp_bar: None,
                 torque_nm: Some(inverse_dynamics(&m, s, end)),
                 f_drive_hz: None,
+                f_drive_nominal_hz: None,
                 dp_noise_bar2: 0.0,
             })
         }
@@ -159,12 +184,22 @@ pub fn errors(p: &Prediction, s: &Series, from: usize, to: usize) -> Errors {
         }
         None => (None, None),
     };
-    let f_drive_nrmse = match (&p.f_drive_hz, &s.f_drive_hz) {
+    let drive_nrmse = |sim: &Option<Vec<f64>>| match (sim, &s.f_drive_hz) {
         (Some(sim), Some(meas)) => Some(measured_nrmse(&sim[from..to], &meas[from..to], &s.measured_f_drive[from..to]))
             .filter(|v| v.is_finite()),
         _ => None,
     };
-    Errors { omega_nrmse, dp_nrmse, torque_nrmse, torque_relative_error, f_drive_nrmse, dp_noise_nrmse2 }
+    let f_drive_nrmse = drive_nrmse(&p.f_drive_hz);
+    let f_drive_nominal_nrmse = drive_nrmse(&p.f_drive_nominal_hz);
+    Errors {
+        omega_nrmse,
+        dp_nrmse,
+        torque_nrmse,
+        torque_relative_error,
+        f_drive_nrmse,
+        f_drive_nominal_nrmse,
+        dp_noise_nrmse2,
+    }
 }
 
 /// A window's NRMSE needs at least this share of its rows measured (and [`MIN_MEASURED_ROWS`]); less gives NaN
@@ -184,18 +219,21 @@ fn measured_nrmse(sim: &[f64], meas: &[f64], measured: &[bool]) -> f64 {
 }
 
 /// Free run of the whole plant from the recorded setpoint and load. Row k is the state at t_k; the inputs of row k
-/// hold over [t_k, t_k+1), the setpoint delayed by the dead time exactly as the simulator does.
+/// hold over [t_k, t_k+1), the setpoint delayed by the dead time exactly as the simulator does. Returns the speed,
+/// ΔP (bar) and the drive's frequency per row.
 fn free_run_hydraulic(
     c: &Coefficients,
     s: &Series,
     start: usize,
     end: usize,
     restarts: &[usize],
-) -> (Vec<f64>, Vec<f64>) {
+) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let mut omega = vec![f64::NAN; start];
     let mut dp = vec![f64::NAN; start];
+    let mut f = vec![f64::NAN; start];
     omega.reserve(end - start);
     dp.reserve(end - start);
+    f.reserve(end - start);
     let empty = Vec::new();
     let u = s.setpoint_hz.as_ref().unwrap_or(&empty);
     let back = c.back_pressure_pa;
@@ -233,6 +271,7 @@ fn free_run_hydraulic(
         }
         omega.push(x.omega_rad_s);
         dp.push(pa_to_bar(x.p_in_pa - back));
+        f.push(x.f_hz);
         if k + 1 == end {
             break;
         }
@@ -244,7 +283,61 @@ fn free_run_hydraulic(
         integrate(&mut x, first, cmd(k - 1), load);
         integrate(&mut x, len - first, cmd(k), load);
     }
-    (omega, dp)
+    (omega, dp, f)
+}
+
+/// The drive alone, as [`free_run_hydraulic`] runs it (the same steps, restarts and measured states), with the
+/// setpoint delayed by `delay_s`: the frequency per row.
+fn free_run_drive(
+    c: &Coefficients,
+    delay_s: f64,
+    s: &Series,
+    start: usize,
+    end: usize,
+    restarts: &[usize],
+) -> Vec<f64> {
+    let mut out = vec![f64::NAN; start];
+    out.reserve(end - start);
+    let empty = Vec::new();
+    let u = s.setpoint_hz.as_ref().unwrap_or(&empty);
+    let measured = |k: usize| if k == 0 { s.f0_hz } else { s.state_f_hz.get(k).copied().unwrap_or(0.0) };
+    let mut f = measured(start);
+    let restarts = with_gaps(s, restarts);
+    let mut next_restart = restarts.iter().copied().filter(|r| *r > start).peekable();
+    let dt_nominal = 1.0 / s.sample_hz;
+    let delay = delay_s.max(0.0);
+    let m = (delay / dt_nominal).floor() as usize;
+    let r = delay - m as f64 * dt_nominal;
+    let cmd = |j: isize| -> f64 {
+        let v = if j < 0 { u.first().copied().unwrap_or(0.0) } else { u.get(j as usize).copied().unwrap_or(0.0) };
+        if v.is_finite() { v.clamp(0.0, c.max_hz) } else { 0.0 }
+    };
+    let integrate = |f: &mut f64, len: f64, f_cmd: f64| {
+        if len <= 0.0 {
+            return;
+        }
+        let steps = (len / FREE_RUN_STEP_S).ceil().max(1.0);
+        let h = len / steps;
+        for _ in 0..steps as usize {
+            *f = c.drive_rk4(*f, f_cmd, h);
+        }
+    };
+    for k in start..end {
+        if next_restart.peek() == Some(&k) {
+            next_restart.next();
+            f = measured(k);
+        }
+        out.push(f);
+        if k + 1 == end {
+            break;
+        }
+        let len = if next_restart.peek() == Some(&(k + 1)) { 0.0 } else { s.t_s[k + 1] - s.t_s[k] };
+        let k = k as isize - m as isize;
+        let first = r.min(len);
+        integrate(&mut f, first, cmd(k - 1));
+        integrate(&mut f, len - first, cmd(k));
+    }
+    out
 }
 
 /// Free run of the flow balance with the load unknown: the drive model from the (delayed) setpoint, and the

@@ -64,8 +64,11 @@ pub struct Series {
     pub dp_bar: Option<Vec<f64>>,
     /// The frequency setpoint (Hz), for the hydraulic family (and the flow family when it was written).
     pub setpoint_hz: Option<Vec<f64>>,
-    /// The drive frequency read back (Hz), for the flow family when recorded.
+    /// The drive frequency read back (Hz), when recorded: the flow family's pump speed and, with the hydraulic
+    /// family's, what the drive model is judged against.
     pub f_drive_hz: Option<Vec<f64>>,
+    /// The nominal model's dead time (s): the hydraulic score's drive factor compares a model's drive with it.
+    pub nominal_dead_time_s: f64,
     /// Where the load came from: `recorded` (`load_nm`), `model` (the model's `[load]` profile) or `unknown`.
     pub load: &'static str,
     /// Rows that follow a gap in the recording (stale cycles skipped, a link outage): the flow family's free run
@@ -400,7 +403,8 @@ impl Series {
             cutoff_hz,
             speed_source: speed.source,
             sign_speed: SIGN_SPEED_RAD_S,
-            f_drive_hz: f_drive.filter(|_| family == Family::Flow),
+            f_drive_hz: f_drive.filter(|_| family != Family::Torque),
+            nominal_dead_time_s: model.effects.dead_time.map_or(0.0, |d| d.ms * 1e-3),
             load,
             restarts,
             speed_noise_f,

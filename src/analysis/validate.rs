@@ -45,6 +45,7 @@ pub(super) fn out_of_fold(
             dp_bar: p.dp_bar.as_ref().map(|_| vec![f64::NAN; n]),
             torque_nm: p.torque_nm.as_ref().map(|_| vec![f64::NAN; n]),
             f_drive_hz: p.f_drive_hz.as_ref().map(|_| vec![f64::NAN; n]),
+            f_drive_nominal_hz: p.f_drive_nominal_hz.as_ref().map(|_| vec![f64::NAN; n]),
             dp_noise_bar2: p.dp_noise_bar2,
         });
         copy(&mut o.omega_rad_s, &p.omega_rad_s, a, b);
@@ -55,6 +56,9 @@ pub(super) fn out_of_fold(
             copy(d, v, a, b);
         }
         if let (Some(d), Some(v)) = (o.f_drive_hz.as_mut(), p.f_drive_hz.as_ref()) {
+            copy(d, v, a, b);
+        }
+        if let (Some(d), Some(v)) = (o.f_drive_nominal_hz.as_mut(), p.f_drive_nominal_hz.as_ref()) {
             copy(d, v, a, b);
         }
     }
@@ -163,11 +167,15 @@ pub(super) fn cross_validate(
     Some(CrossValidated { models, score, regime })
 }
 
-/// Delete-one-block jackknife: 95 % interval of each `key` around the reported value, from the fold estimates.
+/// Delete-one-block jackknife: 95 % interval of each `key` around the reported value, from the fold estimates. A
+/// dead time's half-width is at least the recording's time resolution, a sample period over √12 (where in its
+/// period a row was stamped): the drive read back gives every fold the same lag to a few µs, and what the folds
+/// cannot show is how the free run's timing differs from the plant's (on the slow programs, 12.477 ms for 12.5).
 pub(super) fn jackknife(
     reported: &PlantModel,
     folds: &[Option<(PlantModel, MechTerms)>],
     keys: &[String],
+    sample_hz: f64,
 ) -> BTreeMap<String, Interval> {
     let reported = parameters(reported);
     let fold_params: Vec<BTreeMap<String, f64>> = folds.iter().flatten().map(|(m, _)| parameters(m)).collect();
@@ -191,7 +199,9 @@ pub(super) fn jackknife(
             7 => 2.365,
             _ => 2.306,
         };
-        out.insert(key.clone(), Interval { low: theta - t * se, high: theta + t * se });
+        let floor = if key == "dead_time.ms" { 1e3 / (sample_hz * 12f64.sqrt()) } else { 0.0 };
+        let half = (t * se).max(floor);
+        out.insert(key.clone(), Interval { low: theta - half, high: theta + half });
     }
     out
 }

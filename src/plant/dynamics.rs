@@ -119,6 +119,17 @@ impl Coefficients {
         PlantState { f_hz: df, p_in_pa: dp_in, omega_rad_s: domega }
     }
 
+    /// One classic RK4 step of the drive's frequency alone, of length `h`: the drive's state depends on nothing
+    /// but its command, so this is the frequency [`Coefficients::rk4`] gives, to the bit.
+    pub fn drive_rk4(&self, f_hz: f64, f_cmd_hz: f64, h: f64) -> f64 {
+        let rate = |f: f64| ((f_cmd_hz - f) / self.time_constant_s).clamp(-self.ramp_hz_per_s, self.ramp_hz_per_s);
+        let k1 = rate(f_hz);
+        let k2 = rate(f_hz + h / 2.0 * k1);
+        let k3 = rate(f_hz + h / 2.0 * k2);
+        let k4 = rate(f_hz + h * k3);
+        f_hz + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    }
+
     /// One classic RK4 step of length `h`.
     pub fn rk4(&self, s: &PlantState, f_cmd_hz: f64, load_nm: f64, h: f64) -> PlantState {
         let k1 = self.derivative(s, f_cmd_hz, load_nm);

@@ -305,7 +305,7 @@ fn slow_program_sweep() {
                     .map(|u| format!("{} {} {:.1} %", u.signal, u.condition, 100.0 * u.share))
                     .collect();
                 println!(
-                    "| ×{scale} | {seed} | {} | {c} | {st} | {ws} | {dt} | {:.5} → {:.5} | {} |",
+                    "| ×{scale} | {seed} | {} | {c} | {st} | {ws} | {dt} | {:.2e} → {:.2e} | {} |",
                     n.join(", "),
                     a.baseline.cross_validation_score.unwrap_or(f64::NAN),
                     a.improved.cross_validation_score.unwrap_or(f64::NAN),

@@ -106,6 +106,8 @@ struct Outcome {
     named: Vec<String>,
     errors: Vec<(&'static str, Option<f64>)>,
     viscous_error: f64,
+    /// B's 95 % interval, relative to the truth.
+    viscous_interval: Option<(f64, f64)>,
 }
 
 fn judge(a: &Analysis, hidden: &Hidden) -> Outcome {
@@ -123,7 +125,12 @@ fn judge(a: &Analysis, hidden: &Hidden) -> Outcome {
         errors.push(("dead_time", value("dead_time", "ms").map(|v| v / ms - 1.0)));
     }
     let b_true = PlantModel::reference().motor.viscous_nm_s_rad;
-    Outcome { named, errors, viscous_error: a.improved_model.motor.viscous_nm_s_rad / b_true - 1.0 }
+    let viscous_interval = a
+        .improved
+        .confidence_intervals
+        .get("viscous_nm_s_rad")
+        .map(|ci| (ci.low / b_true - 1.0, ci.high / b_true - 1.0));
+    Outcome { named, errors, viscous_error: a.improved_model.motor.viscous_nm_s_rad / b_true - 1.0, viscous_interval }
 }
 
 impl Outcome {
@@ -161,13 +168,15 @@ fn coulomb_stribeck_and_dead_time_on_a_slow_program_are_all_named() {
 }
 
 /// The sweep of issue 33: programs of other speed ranges and dwell times, one, two and three effects of drawn
-/// sizes, clean runs; tuned and held-out seeds, named / missed / false per effect and B against the truth.
+/// sizes, clean runs; tuned and held-out seeds, named / missed / false per effect and B against the truth. It asks
+/// what the issue asks: at least 90 % of the runs on seeds not tuned on hold (the tuned ones are printed).
 #[test]
 #[ignore = "sweep: cargo test --release --test it -- --ignored slow_programs::sweep --nocapture"]
 fn sweep() {
     let programs =
         [((1.5, 12.0), (1.5, 4.0)), ((1.0, 8.0), (3.0, 8.0)), ((2.0, 20.0), (0.8, 2.5)), ((1.5, 30.0), (2.0, 5.0))];
     let mut failures = Vec::new();
+    let mut untuned = None;
     // SLOW_CASES="seed:program,…" runs only those cases (diagnosis), printing each candidate and the improved model
     let only: Option<Vec<(u64, usize)>> = std::env::var("SLOW_CASES").ok().map(|v| {
         v.split(',')
@@ -175,11 +184,17 @@ fn sweep() {
             .filter_map(|(a, b)| Some((a.trim().parse().ok()?, b.trim().parse().ok()?)))
             .collect()
     });
-    for (set, seeds) in [("tuned", 1u64..=3), ("held-out", 101u64..=106)] {
+    // SLOW_SET=name runs one seed set
+    let only_set = std::env::var("SLOW_SET").ok();
+    // 201–206 were added after the method met the issue on 101–106, and run once
+    for (set, seeds) in [("tuned", 1u64..=3), ("held-out", 101u64..=106), ("fresh", 201u64..=206)] {
+        if only_set.as_ref().is_some_and(|o| o != set) {
+            continue;
+        }
         println!(
-            "\n**{set}**\n\n| seed | program Hz, dwell s | hidden | named | errors | B |\n|---|---|---|---|---|---|"
+            "\n**{set}**\n\n| seed | program Hz, dwell s | hidden | named | errors | B (95 %) |\n|---|---|---|---|---|---|"
         );
-        let (mut held, mut runs, mut b_ok) = (0, 0, 0);
+        let (mut held, mut runs, mut b_ok, mut b_covered) = (0, 0, 0, 0);
         // per effect: named (hidden and named within ±30 %), off (named, outside ±30 %), missed, false
         let mut tally: std::collections::BTreeMap<&str, [usize; 4]> = Default::default();
         for seed in seeds {
@@ -228,6 +243,7 @@ fn sweep() {
                 let o = judge(&a, &hidden);
                 let ok = o.holds(&hidden);
                 b_ok += usize::from(o.viscous_error.abs() <= 0.25);
+                b_covered += usize::from(o.viscous_interval.is_some_and(|(lo, hi)| lo <= 0.0 && 0.0 <= hi));
                 for id in ["coulomb_friction", "dead_time", "stribeck_friction"] {
                     let t = tally.entry(id).or_default();
                     match (o.errors.iter().find(|e| e.0 == id), o.named.iter().any(|n| n == id)) {
@@ -244,8 +260,11 @@ fn sweep() {
                     .iter()
                     .map(|(id, e)| format!("{id} {}", e.map_or("missed".into(), |e| format!("{:+.0} %", 100.0 * e))))
                     .collect();
+                let interval = o
+                    .viscous_interval
+                    .map_or(String::new(), |(lo, hi)| format!(" ({:+.0}…{:+.0} %)", 100.0 * lo, 100.0 * hi));
                 println!(
-                    "| {seed} | {range:?}, {dwell:?} | {:?} | {} | {} | {:+.0} %{} |",
+                    "| {seed} | {range:?}, {dwell:?} | {:?} | {} | {} | {:+.0} %{interval}{} |",
                     hidden.ids(),
                     o.named.join(", "),
                     errors.join("; "),
@@ -264,8 +283,12 @@ fn sweep() {
             }
         }
         println!(
-            "\n{set}: {held}/{runs} hold (all hidden named within ±30 %, nothing else, B within ±25 %); B within ±25 %: {b_ok}/{runs}"
+            "\n{set}: {held}/{runs} hold (all hidden named within ±30 %, nothing else, B within ±25 %); B within ±25 %: {b_ok}/{runs}; B's 95 % interval holds the truth: {b_covered}/{runs}"
         );
+        if set != "tuned" && only.is_none() {
+            let (h, r) = untuned.unwrap_or((0, 0));
+            untuned = Some((h + held, r + runs));
+        }
         println!(
             "\n| effect | named within ±30 % | named, outside | missed | named, not hidden |\n|---|---|---|---|---|"
         );
@@ -274,4 +297,10 @@ fn sweep() {
         }
     }
     println!("failures: {failures:?}");
+    if let Some((held, runs)) = untuned {
+        assert!(
+            10 * held >= 9 * runs,
+            "{held} of {runs} runs on seeds not tuned on hold, fewer than 90 %: {failures:?}"
+        );
+    }
 }
