@@ -205,3 +205,24 @@ pub(super) fn jackknife(
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_dead_time_interval_is_never_narrower_than_the_recordings_time_resolution() {
+        let mut m = PlantModel::reference();
+        m.effects.dead_time = Some(crate::plant::effects::DeadTime { ms: 12.5 });
+        // every fold finds the same lag: the spread alone would give an interval of no width
+        let folds: Vec<Option<(PlantModel, MechTerms)>> =
+            (0..4).map(|_| Some((m.clone(), MechTerms::default()))).collect();
+        let keys = ["dead_time.ms".to_string(), "inertia_kg_m2".to_string()];
+        let ci = jackknife(&m, &folds, &keys, 1000.0);
+        let half = 1.0 / 12f64.sqrt();
+        assert!((ci["dead_time.ms"].high - 12.5 - half).abs() < 1e-12, "{:?}", ci["dead_time.ms"]);
+        assert!((12.5 - ci["dead_time.ms"].low - half).abs() < 1e-12);
+        // no floor on the other parameters
+        assert_eq!(ci["inertia_kg_m2"].high, m.motor.inertia_kg_m2);
+    }
+}

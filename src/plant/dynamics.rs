@@ -293,6 +293,21 @@ mod tests {
     }
 
     #[test]
+    fn the_drive_alone_steps_as_the_whole_plant_does_to_the_bit() {
+        let c = reference();
+        let mut x = PlantState { f_hz: 3.0, p_in_pa: 2e6, omega_rad_s: 10.0 };
+        let mut f = x.f_hz;
+        // a step up and a step down, at two step lengths: the ramp limit and the lag both act
+        for (k, f_cmd) in (0..600).map(|k| (k, if k < 400 { 40.0 } else { 0.0 })) {
+            let h = if k % 3 == 0 { 1e-3 } else { 0.7e-3 };
+            x = c.rk4(&x, f_cmd, 5.0, h);
+            f = c.drive_rk4(f, f_cmd, h);
+            assert_eq!(f.to_bits(), x.f_hz.to_bits(), "step {k}");
+        }
+        assert!(x.f_hz > 3.0, "the drive moved: {}", x.f_hz);
+    }
+
+    #[test]
     fn pressure_never_negative() {
         let mut p = Plant::new(reference());
         for _ in 0..2000 {

@@ -441,3 +441,16 @@ pub fn delta_bic(score_before: f64, score_after: f64, added_params: usize, n: f6
     }
     n * (score_before / score_after).ln() - added_params as f64 * n.ln()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::near_standstill;
+
+    #[test]
+    fn rows_within_reach_of_a_standstill_are_near_it() {
+        let w = [5.0, 5.0, 5.0, 0.1, 5.0, 5.0, 5.0, 5.0, -0.2, 5.0];
+        let near = near_standstill(&w, 0.5, 1);
+        assert_eq!(near, [false, false, true, true, true, false, false, true, true, true]);
+        assert!(near_standstill(&w, 0.5, 0).iter().zip(&w).all(|(n, x)| *n == (x.abs() <= 0.5)));
+    }
+}
