@@ -234,8 +234,6 @@ fn free_run_hydraulic(
     omega.reserve(end - start);
     dp.reserve(end - start);
     f.reserve(end - start);
-    let empty = Vec::new();
-    let u = s.setpoint_hz.as_ref().unwrap_or(&empty);
     let back = c.back_pressure_pa;
     // the measured state at row k (row 0: the recording's first values)
     let measured = |k: usize| PlantState {
@@ -246,24 +244,7 @@ fn free_run_hydraulic(
     let mut x = measured(start);
     let restarts = with_gaps(s, restarts);
     let mut next_restart = restarts.iter().copied().filter(|r| *r > start).peekable();
-    let dt_nominal = 1.0 / s.sample_hz;
-    let delay = c.dead_time_s.max(0.0);
-    let m = (delay / dt_nominal).floor() as usize;
-    let r = delay - m as f64 * dt_nominal;
-    let cmd = |j: isize| -> f64 {
-        let v = if j < 0 { u.first().copied().unwrap_or(0.0) } else { u.get(j as usize).copied().unwrap_or(0.0) };
-        if v.is_finite() { v.clamp(0.0, c.max_hz) } else { 0.0 }
-    };
-    let integrate = |x: &mut PlantState, len: f64, f_cmd: f64, load: f64| {
-        if len <= 0.0 {
-            return;
-        }
-        let steps = (len / FREE_RUN_STEP_S).ceil().max(1.0);
-        let h = len / steps;
-        for _ in 0..steps as usize {
-            *x = c.rk4(x, f_cmd, load, h);
-        }
-    };
+    let setpoint = Delayed::new(s, c.dead_time_s, c.max_hz);
     for k in start..end {
         if next_restart.peek() == Some(&k) {
             next_restart.next();
@@ -278,12 +259,57 @@ fn free_run_hydraulic(
         // across a gap nothing is integrated: the run restarts from the measured state after it
         let len = if next_restart.peek() == Some(&(k + 1)) { 0.0 } else { s.t_s[k + 1] - s.t_s[k] };
         let load = s.load_nm[k];
-        let k = k as isize - m as isize;
-        let first = r.min(len);
-        integrate(&mut x, first, cmd(k - 1), load);
-        integrate(&mut x, len - first, cmd(k), load);
+        for (len, f_cmd) in setpoint.pieces(k, len) {
+            substeps(len, |h| x = c.rk4(&x, f_cmd, load, h));
+        }
     }
     (omega, dp, f)
+}
+
+/// The setpoint as the free run's drive sees it, delayed by a dead time exactly as the simulator delays it: whole
+/// samples, then the command switches inside the sample.
+struct Delayed<'a> {
+    u: &'a [f64],
+    max_hz: f64,
+    /// Whole samples of the delay, and the rest (s).
+    samples: usize,
+    rest_s: f64,
+}
+
+impl<'a> Delayed<'a> {
+    fn new(s: &'a Series, delay_s: f64, max_hz: f64) -> Delayed<'a> {
+        let dt_nominal = 1.0 / s.sample_hz;
+        let delay = delay_s.max(0.0);
+        let samples = (delay / dt_nominal).floor() as usize;
+        let rest_s = delay - samples as f64 * dt_nominal;
+        Delayed { u: s.setpoint_hz.as_deref().unwrap_or(&[]), max_hz, samples, rest_s }
+    }
+
+    /// The setpoint of row `j` (the first before the recording), clamped to the drive's range.
+    fn command(&self, j: isize) -> f64 {
+        let u = self.u;
+        let v = if j < 0 { u.first().copied().unwrap_or(0.0) } else { u.get(j as usize).copied().unwrap_or(0.0) };
+        if v.is_finite() { v.clamp(0.0, self.max_hz) } else { 0.0 }
+    }
+
+    /// Row `k`'s interval of `len` s as two pieces, (length, command) each: the delayed setpoint switches inside it.
+    fn pieces(&self, k: usize, len: f64) -> [(f64, f64); 2] {
+        let k = k as isize - self.samples as isize;
+        let first = self.rest_s.min(len);
+        [(first, self.command(k - 1)), (len - first, self.command(k))]
+    }
+}
+
+/// Calls `step(h)` for RK4 steps of at most [`FREE_RUN_STEP_S`] over `len` s (none when `len` is not positive).
+fn substeps(len: f64, mut step: impl FnMut(f64)) {
+    if len <= 0.0 {
+        return;
+    }
+    let steps = (len / FREE_RUN_STEP_S).ceil().max(1.0);
+    let h = len / steps;
+    for _ in 0..steps as usize {
+        step(h);
+    }
 }
 
 /// The drive alone, as [`free_run_hydraulic`] runs it (the same steps, restarts and measured states), with the
@@ -298,30 +324,11 @@ fn free_run_drive(
 ) -> Vec<f64> {
     let mut out = vec![f64::NAN; start];
     out.reserve(end - start);
-    let empty = Vec::new();
-    let u = s.setpoint_hz.as_ref().unwrap_or(&empty);
     let measured = |k: usize| if k == 0 { s.f0_hz } else { s.state_f_hz.get(k).copied().unwrap_or(0.0) };
     let mut f = measured(start);
     let restarts = with_gaps(s, restarts);
     let mut next_restart = restarts.iter().copied().filter(|r| *r > start).peekable();
-    let dt_nominal = 1.0 / s.sample_hz;
-    let delay = delay_s.max(0.0);
-    let m = (delay / dt_nominal).floor() as usize;
-    let r = delay - m as f64 * dt_nominal;
-    let cmd = |j: isize| -> f64 {
-        let v = if j < 0 { u.first().copied().unwrap_or(0.0) } else { u.get(j as usize).copied().unwrap_or(0.0) };
-        if v.is_finite() { v.clamp(0.0, c.max_hz) } else { 0.0 }
-    };
-    let integrate = |f: &mut f64, len: f64, f_cmd: f64| {
-        if len <= 0.0 {
-            return;
-        }
-        let steps = (len / FREE_RUN_STEP_S).ceil().max(1.0);
-        let h = len / steps;
-        for _ in 0..steps as usize {
-            *f = c.drive_rk4(*f, f_cmd, h);
-        }
-    };
+    let setpoint = Delayed::new(s, delay_s, c.max_hz);
     for k in start..end {
         if next_restart.peek() == Some(&k) {
             next_restart.next();
@@ -332,10 +339,9 @@ fn free_run_drive(
             break;
         }
         let len = if next_restart.peek() == Some(&(k + 1)) { 0.0 } else { s.t_s[k + 1] - s.t_s[k] };
-        let k = k as isize - m as isize;
-        let first = r.min(len);
-        integrate(&mut f, first, cmd(k - 1));
-        integrate(&mut f, len - first, cmd(k));
+        for (len, f_cmd) in setpoint.pieces(k, len) {
+            substeps(len, |h| f = c.drive_rk4(f, f_cmd, h));
+        }
     }
     out
 }
