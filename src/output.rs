@@ -182,18 +182,20 @@ fn process_alive(_pid: u32) -> bool {
     true
 }
 
+/// The names of the files in `dir`, sorted: what the tests of the rooms that write files look at.
+#[cfg(test)]
+pub(crate) fn file_names(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .expect("dir")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn files_in(dir: &Path) -> Vec<String> {
-        let mut names: Vec<String> = std::fs::read_dir(dir)
-            .expect("dir")
-            .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
-            .collect();
-        names.sort();
-        names
-    }
 
     #[test]
     fn an_output_that_is_an_input_or_another_output_or_nowhere_is_refused_by_flag() {
@@ -232,10 +234,10 @@ mod tests {
         std::io::Write::write_all(r.file(), b"new").expect("write");
         assert_eq!(std::fs::read_to_string(&out).expect("read"), "old");
         drop(r); // as on an error
-        assert_eq!(files_in(dir.path()), ["est.csv"]);
+        assert_eq!(file_names(dir.path()), ["est.csv"]);
         assert_eq!(std::fs::read_to_string(&out).expect("read"), "old");
         replace(&out, b"new").expect("replace");
-        assert_eq!(files_in(dir.path()), ["est.csv"]);
+        assert_eq!(file_names(dir.path()), ["est.csv"]);
         assert_eq!(std::fs::read_to_string(&out).expect("read"), "new");
     }
 }

@@ -310,6 +310,7 @@ impl Output {
 mod tests {
     use super::*;
     use crate::estimator::{EstimatorSettings, Method, try_build};
+    use crate::output::file_names;
     use crate::recording::simulated;
 
     fn estimator(method: Method) -> Box<dyn Estimator> {
@@ -323,15 +324,6 @@ mod tests {
         let mut text = Vec::new();
         crate::recording::write_csv(&mut text, &rec).expect("to memory");
         String::from_utf8(text).expect("UTF-8")
-    }
-
-    fn files_in(dir: &Path) -> Vec<String> {
-        let mut names: Vec<String> = std::fs::read_dir(dir)
-            .expect("dir")
-            .map(|e| e.expect("entry").file_name().to_string_lossy().into())
-            .collect();
-        names.sort();
-        names
     }
 
     #[test]
@@ -352,7 +344,7 @@ mod tests {
                 assert!(got == expected, "{method}, batches of {batch_rows}: the output differs");
             }
         }
-        assert_eq!(files_in(dir.path()), ["est.csv", "r.csv"]);
+        assert_eq!(file_names(dir.path()), ["est.csv", "r.csv"]);
     }
 
     #[test]
@@ -361,14 +353,14 @@ mod tests {
         let out = dir.path().join("est.csv");
         std::fs::write(&out, "before").expect("write");
         let o = Output::create(&out).expect("create");
-        assert_eq!(files_in(dir.path()).len(), 2, "a temporary file beside the output");
+        assert_eq!(file_names(dir.path()).len(), 2, "a temporary file beside the output");
         drop(o); // as on an error or a panic
-        assert_eq!(files_in(dir.path()), ["est.csv"]);
+        assert_eq!(file_names(dir.path()), ["est.csv"]);
         assert_eq!(std::fs::read(&out).expect("output"), b"before");
         let mut o = Output::create(&out).expect("create");
         o.write(b"0,1,2,3,4\n");
         o.commit().expect("commit");
-        assert_eq!(files_in(dir.path()), ["est.csv"]);
+        assert_eq!(file_names(dir.path()), ["est.csv"]);
         assert!(std::fs::read_to_string(&out).expect("output").starts_with("t_s,"));
         // written in place: no temporary file
         use crate::output::written_in_place;
@@ -400,7 +392,7 @@ mod tests {
                     assert!(err.contains(p), "batches of {batch_rows}: `{p}` not in {err}");
                 }
                 assert_eq!(std::fs::read(&out).expect("output"), b"before");
-                assert_eq!(files_in(dir.path()), ["bad.csv", "est.csv"]);
+                assert_eq!(file_names(dir.path()), ["bad.csv", "est.csv"]);
             }
         }
     }

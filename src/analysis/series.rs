@@ -404,7 +404,7 @@ impl Series {
             speed_source: speed.source,
             sign_speed: SIGN_SPEED_RAD_S,
             f_drive_hz: f_drive.filter(|_| family != Family::Torque),
-            nominal_dead_time_s: model.effects.dead_time.map_or(0.0, |d| d.ms * 1e-3),
+            nominal_dead_time_s: model.effects.dead_time.map_or(0.0, |d| d.seconds()),
             load,
             restarts,
             speed_noise_f,

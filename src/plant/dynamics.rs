@@ -99,7 +99,7 @@ impl Coefficients {
             leakage_si: l_min_per_bar_to_si(leak),
             back_pressure_pa: bar_to_pa(h.hydraulics.back_pressure_bar),
             slip_rad_s_per_nm: e.motor_slip.map_or(0.0, |s| rpm_to_rad_s(s.rpm_per_nm)),
-            dead_time_s: e.dead_time.map_or(0.0, |d| d.ms * 1e-3),
+            dead_time_s: e.dead_time.map_or(0.0, |d| d.seconds()),
             mechanics: Mechanics::from_model(model),
         })
     }

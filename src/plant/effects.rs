@@ -39,6 +39,13 @@ pub struct DeadTime {
     pub ms: f64,
 }
 
+impl DeadTime {
+    /// The delay in seconds, as the plant and the analysis both take it.
+    pub fn seconds(&self) -> f64 {
+        self.ms * 1e-3
+    }
+}
+
 /// Air in the oil: the effective bulk modulus replaces the model's.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]

@@ -459,6 +459,7 @@ impl Recorder {
 mod tests {
     use super::*;
     use crate::estimator::Estimate;
+    use crate::output::file_names;
     use crate::service::state::Measured;
 
     fn point(t_s: f64) -> Point {
@@ -494,16 +495,6 @@ mod tests {
             .collect();
         files.sort();
         files
-    }
-
-    /// The names of the files in `dir`, sorted.
-    fn file_names(dir: &Path) -> Vec<String> {
-        let mut names: Vec<String> = std::fs::read_dir(dir)
-            .expect("dir")
-            .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
-            .collect();
-        names.sort();
-        names
     }
 
     /// Sends a row every 5 ms until `done` holds (true) or 10 s pass (false).

@@ -309,9 +309,10 @@ impl Instruments {
     }
 }
 
-/// The torque balance's regressors at `rows` for speed `w` and acceleration `a`: α, ω, then sign(ω) and 1 as
+/// The torque balance's regressors at `rows`, from the filtered speed and acceleration: α, ω, then sign(ω) and 1 as
 /// `terms` asks (the Stribeck shape, which depends on ω_s, is [`stribeck_column`]).
-fn balance_columns(s: &Series, (w, a): (&[f64], &[f64]), rows: &BalanceRows, terms: MechTerms) -> Vec<Vec<f64>> {
+fn balance_columns(s: &Series, rows: &BalanceRows, terms: MechTerms) -> Vec<Vec<f64>> {
+    let (w, a) = (&s.omega_f, &s.alpha_f);
     let mut cols = vec![rows.column(|k| a[k]), rows.column(|k| w[k])];
     if terms.coulomb {
         cols.push(rows.column(|k| s.sign(w[k])));
@@ -323,7 +324,8 @@ fn balance_columns(s: &Series, (w, a): (&[f64], &[f64]), rows: &BalanceRows, ter
 }
 
 /// The Stribeck shape's column at Stribeck speed `ws`.
-fn stribeck_column(s: &Series, w: &[f64], rows: &BalanceRows, ws: f64) -> Vec<f64> {
+fn stribeck_column(s: &Series, rows: &BalanceRows, ws: f64) -> Vec<f64> {
+    let w = &s.omega_f;
     rows.column(|k| (-(w[k] / ws).powi(2)).exp() * s.sign(w[k]))
 }
 
@@ -342,12 +344,12 @@ fn fit_mechanics_holding(
     let y =
         rows.column(|k| s.drive_torque_f[k] - s.load_f[k] - held.map_or(0.0, |h| extra_torque_nm(h, s, s.omega_f[k])));
     // the columns but the Stribeck shape's do not depend on ω_s: read once
-    let fixed = balance_columns(s, (&s.omega_f, &s.alpha_f), &rows, terms);
+    let fixed = balance_columns(s, &rows, terms);
     let instrument = instruments.map(|z| z.acceleration(&rows));
     let solve = |ws: Option<f64>| -> Option<(Vec<f64>, f64)> {
         let mut x = fixed.clone();
         if let Some(ws) = ws {
-            x.push(stribeck_column(s, &s.omega_f, &rows, ws));
+            x.push(stribeck_column(s, &rows, ws));
         }
         let theta = match &instrument {
             Some(alpha) => {
