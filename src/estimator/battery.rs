@@ -259,7 +259,7 @@ pub fn score(polled: &Polled, settings: &EstimatorSettings, model: &PlantModel, 
 }
 
 /// The first seed of a named seed set (docs/estimator.md): `tuned` 1…, `held-out` 1001…, `fresh` 5001…, `unseen`
-/// 7001…, `final` 9001…; `None` for another name.
+/// 7001…, `final` 9001…, `sealed` 11001…, `novel` 13001…, `last` 15001…, `spare` 17001…; `None` for another name.
 pub fn first_seed(set: &str) -> Option<u64> {
     match set {
         "tuned" => Some(1),
@@ -270,6 +270,7 @@ pub fn first_seed(set: &str) -> Option<u64> {
         "sealed" => Some(11001),
         "novel" => Some(13001),
         "last" => Some(15001),
+        "spare" => Some(17001),
         _ => None,
     }
 }

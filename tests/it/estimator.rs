@@ -382,9 +382,9 @@ fn battery_fast_subset_holds_against_the_kalman_reference() {
 
 /// The guard on loads the estimator was not built for (docs/estimator.md, `loads=new`): one scenario of each new
 /// family (tuned seeds 1–7) at 1, 5 and 10 ms, every poll. Today T̂_L is no worse than the nominal-model Kalman
-/// filter's (within 1.05×) in 17 of the 21 runs (a fan at 5 and 10 ms, a gearbox at 1 and 10 ms: docs/estimator.md
-/// says why), J is within ±15 % at 69 of the 71 checkpoints where it is reported identified, and the truth of J
-/// and B is within 2 sd (or flagged not identified) at 156 of 168; fewer is a regression. A J or B reported
+/// filter's (within 1.05×) in 19 of the 21 runs (a fan and a gearbox at 5 ms: docs/estimator.md says why), J is within
+/// ±15 % at all 62 checkpoints where it is reported identified, and the truth of J and B is within 2 sd (or flagged
+/// not identified) at 163 of 168 (97 %; the issue's bar is 95 %); fewer is a regression. A J or B reported
 /// identified must not be far off at the end: none beyond ±50 %.
 #[test]
 fn battery_new_loads_fast_subset_does_no_harm() {
@@ -401,9 +401,9 @@ fn battery_new_loads_fast_subset_does_no_harm() {
          {checkpoints}",
         runs.len()
     );
-    assert!(harmless >= 17, "no harm in {harmless} of {}", runs.len());
+    assert!(harmless >= 19, "no harm in {harmless} of {}", runs.len());
     assert!(sound * 100 >= identified * 95, "J within ±15 % at {sound} of {identified}");
-    assert!(covered * 100 >= checkpoints * 92, "covered {covered} of {checkpoints}");
+    assert!(covered * 100 >= checkpoints * 95, "covered {covered} of {checkpoints}");
     let identified = hydrolens::estimator::Identification::Identified.code();
     for r in &runs {
         let e = &r.rls.last;
