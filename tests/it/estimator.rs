@@ -383,7 +383,7 @@ fn battery_fast_subset_holds_against_the_kalman_reference() {
 /// The guard on loads the estimator was not built for (docs/estimator.md, `loads=new`): one scenario of each new
 /// family (tuned seeds 1–7) at 1, 5 and 10 ms, every poll. Today T̂_L is no worse than the nominal-model Kalman
 /// filter's (within 1.05×) in 19 of the 21 runs (a fan and a gearbox at 5 ms: docs/estimator.md says why), J is within
-/// ±15 % at all 62 checkpoints where it is reported identified, and the truth of J and B is within 2 sd (or flagged
+/// ±15 % at all 64 checkpoints where it is reported identified, and the truth of J and B is within 2 sd (or flagged
 /// not identified) at 163 of 168 (97 %; the bar is 95 %); fewer is a regression. A J or B reported
 /// identified must not be far off at the end: none beyond ±50 %.
 #[test]
