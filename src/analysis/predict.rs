@@ -278,10 +278,7 @@ struct Delayed<'a> {
 
 impl<'a> Delayed<'a> {
     fn new(s: &'a Series, delay_s: f64, max_hz: f64) -> Delayed<'a> {
-        let dt_nominal = 1.0 / s.sample_hz;
-        let delay = delay_s.max(0.0);
-        let samples = (delay / dt_nominal).floor() as usize;
-        let rest_s = delay - samples as f64 * dt_nominal;
+        let (samples, rest_s) = delay_split(s, delay_s);
         Delayed { u: s.setpoint_hz.as_deref().unwrap_or(&[]), max_hz, samples, rest_s }
     }
 
@@ -298,6 +295,15 @@ impl<'a> Delayed<'a> {
         let first = self.rest_s.min(len);
         [(first, self.command(k - 1)), (len - first, self.command(k))]
     }
+}
+
+/// A dead time as the simulator applies it: whole samples of the recording, and the rest (s) after which the
+/// command switches inside a sample.
+fn delay_split(s: &Series, delay_s: f64) -> (usize, f64) {
+    let dt_nominal = 1.0 / s.sample_hz;
+    let delay = delay_s.max(0.0);
+    let samples = (delay / dt_nominal).floor() as usize;
+    (samples, delay - samples as f64 * dt_nominal)
 }
 
 /// Calls `step(h)` for RK4 steps of at most [`FREE_RUN_STEP_S`] over `len` s (none when `len` is not positive).
@@ -360,10 +366,7 @@ fn free_run_flow(c: &Coefficients, s: &Series, start: usize, end: usize, restart
     let meas_dp = s.dp_bar.as_deref().unwrap_or(&[]);
     let f_meas = s.f_drive_hz.as_deref();
     let u = s.setpoint_hz.as_deref();
-    let dt_nominal = 1.0 / s.sample_hz;
-    let delay = c.dead_time_s.max(0.0);
-    let m = (delay / dt_nominal).floor() as usize;
-    let r = delay - m as f64 * dt_nominal;
+    let (m, r) = delay_split(s, c.dead_time_s);
     let cmd = |j: isize| command(u, f_meas, j, c.max_hz);
     let mut f = s.f0_hz;
     let mut p = bar_to_pa(s.p_in0_bar).max(0.0);
@@ -563,17 +566,15 @@ fn free_run_mechanics(m: &Mechanics, s: &Series, start: usize, end: usize, resta
             continue;
         }
         let len = s.t_s[k + 1] - s.t_s[k];
-        let steps = (len / FREE_RUN_STEP_S).ceil().max(1.0);
-        let h = len / steps;
         let (tau, load) = (s.drive_torque_nm[k], s.load_nm[k]);
         let acc = |w: f64| (tau - load - m.viscous_nm_s_rad * w - extra_torque_nm(m, s, w)) / m.inertia_kg_m2;
-        for _ in 0..steps as usize {
+        substeps(len, |h| {
             let k1 = acc(w);
             let k2 = acc(w + 0.5 * h * k1);
             let k3 = acc(w + 0.5 * h * k2);
             let k4 = acc(w + h * k3);
             w += h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
-        }
+        });
         if !w.is_finite() {
             w = 0.0;
         }
