@@ -223,12 +223,16 @@ impl RlsSgd {
 
     /// The load follows the speed: the adapted B (all the torque proportional to speed) lies beyond what friction
     /// plausibly is (more than `PLAUSIBLE_VISCOUS_FACTOR` from the nominal either way), or the windows' B depends on
-    /// the speed they saw (a fan's slope grows with the speed; friction's does not).
+    /// the speed they saw (a fan's slope grows with the speed; friction's does not), shown once and then kept while
+    /// the slope stays clear of zero (`pool::SPEED_SLOPE_HOLD_Z`).
     fn load_follows_speed(&self) -> bool {
         let ((b, _), _) = self.combined;
         let reference = self.rls.b0;
         let implausible = b > PLAUSIBLE_VISCOUS_FACTOR * reference || b < reference / PLAUSIBLE_VISCOUS_FACTOR;
-        implausible || (self.periodic.estimate().is_none() && self.rls.viscous.depends_on_speed())
+        let ((_, shown), _) = self.judged;
+        implausible
+            || (self.periodic.estimate().is_none()
+                && self.rls.viscous.depends_on_speed(shown == Identification::LoadFollowsSpeed))
     }
 
     /// The adapted J and B (the windows' and the periodic fit's, combined): what the adapted tracker predicts with.
