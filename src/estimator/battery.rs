@@ -271,6 +271,8 @@ pub fn first_seed(set: &str) -> Option<u64> {
         "novel" => Some(13001),
         "last" => Some(15001),
         "spare" => Some(17001),
+        "reserve" => Some(19001),
+        "blind" => Some(21001),
         _ => None,
     }
 }

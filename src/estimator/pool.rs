@@ -70,6 +70,12 @@ impl WindowPool {
             .is_some_and(|s| (s.slope / s.se).abs() > z && (s.slope * s.speed_range).abs() > 0.5 * s.mean_b.abs())
     }
 
+    /// Whether enough windows are in to look for a speed dependence, and their B shows no hint of one: the slope
+    /// within `SPEED_SLOPE_HOLD_Z` standard errors of zero.
+    pub(super) fn shows_no_speed_dependence(&self) -> bool {
+        self.speed_slope().is_some_and(|s| (s.slope / s.se).abs() <= SPEED_SLOPE_HOLD_Z)
+    }
+
     /// The weighted line of the windows' B on their mean speed (a meta-regression: each window weighted by its
     /// variance plus the between-window scatter about the line); `None` before `SPEED_SLOPE_WINDOWS` windows.
     fn speed_slope(&self) -> Option<SpeedSlope> {
@@ -259,6 +265,8 @@ mod tests {
         let friction = pool(&|i, _, sd| 0.04 + sd * [0.9, -0.6, 0.3, -1.0, 0.5, -0.2, 0.8, -0.7][i % 8]);
         assert!(!friction.depends_on_speed(false));
         assert!(!friction.depends_on_speed(true), "once shown or not, friction shows no speed dependence");
+        assert!(friction.shows_no_speed_dependence());
+        assert!(!pool(&|_, b_w, _| b_w).shows_no_speed_dependence());
     }
 
     /// A speed dependence once shown is kept on weaker evidence (`SPEED_SLOPE_HOLD_Z`): the first ten windows of
@@ -273,5 +281,7 @@ mod tests {
         }
         assert!(!p.depends_on_speed(false));
         assert!(p.depends_on_speed(true));
+        // nor is it a B clear of any hint of one, which may stand away from a nominal the data reject
+        assert!(!p.shows_no_speed_dependence());
     }
 }
