@@ -63,7 +63,8 @@ impl WindowPool {
     /// Whether the windows' B grows (or falls) with the speed they were measured at: the slope of B on the window's
     /// mean speed (weighted by each window's variance plus the between-window scatter) is `SPEED_SLOPE_Z` standard
     /// errors from zero and moves B by more than half its mean over the speeds seen. Viscous friction is one number
-    /// at every speed; a fan's torque has a slope that doubles with the speed.
+    /// at every speed; a fan's torque has a slope that doubles with the speed. Once `shown`, `SPEED_SLOPE_HOLD_Z`
+    /// standard errors keep it: the verdict flapped as windows left the pool.
     pub(super) fn depends_on_speed(&self, shown: bool) -> bool {
         let z = if shown { SPEED_SLOPE_HOLD_Z } else { SPEED_SLOPE_Z };
         self.speed_slope()
