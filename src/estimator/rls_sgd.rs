@@ -238,8 +238,15 @@ impl RlsSgd {
         let implausible = b > PLAUSIBLE_VISCOUS_FACTOR * reference || b < reference / PLAUSIBLE_VISCOUS_FACTOR;
         let ((_, shown), _) = self.judged;
         implausible
-            || (self.periodic.estimate().is_none()
+            || (self.speed_test_applies()
                 && self.rls.viscous.depends_on_speed(shown == Identification::LoadFollowsSpeed))
+    }
+
+    /// Whether the windows' B against their speed says anything of a load that follows the speed: not where the
+    /// periodic fit explains the load (a load periodic in time, whose windows' B can line up with the speed by chance
+    /// before two periods are seen).
+    fn speed_test_applies(&self) -> bool {
+        self.periodic.estimate().is_none()
     }
 
     /// The adapted J and B (the windows' and the periodic fit's, combined): what the adapted tracker predicts with.
@@ -328,13 +335,13 @@ impl RlsSgd {
                 && credible_j_sd <= INERTIA_CONTRADICTED_SD * j);
         // B, before the evidence is in, where it is known to its limit and near enough the nominal
         // (`UNEARNED_VISCOUS_FACTOR`) that friction is the likely reading, unless the windows' B hints that it moves
-        // with the speed (a fan, before the speed test can show it; not where the periodic fit explains the load, as
-        // in `load_follows_speed`: over eleven seed sets no harm on the new loads 1115 -> 1122 of 1232, on the six
-        // families 1047 -> 1049, their holds 974 -> 973 of 1056; with the hint heeded under periodic loads too, 960);
-        // or where the data reject the nominal (`NOMINAL_REJECTED_Z`)
+        // with the speed (a fan, before the speed test can show it; where `speed_test_applies`: over eleven seed sets
+        // no harm on the new loads 1115 -> 1122 of 1232, on the six families 1047 -> 1049, their holds 974 -> 973 of
+        // 1056; with the hint heeded under periodic loads too, 960); or where the data reject the nominal
+        // (`NOMINAL_REJECTED_Z`)
         let b0 = self.rls.b0;
         let near = b <= UNEARNED_VISCOUS_FACTOR * b0 && b >= b0 / UNEARNED_VISCOUS_FACTOR;
-        let hint = if self.periodic.estimate().is_none() { self.rls.viscous.speed_hint() } else { Some(false) };
+        let hint = if self.speed_test_applies() { self.rls.viscous.speed_hint() } else { Some(false) };
         let rejects_nominal = (b - self.nominal_parameters().1).abs() > NOMINAL_REJECTED_Z * viscous_var.sqrt()
             && self.validation.z() >= IDENTIFIED_Z
             && hint == Some(false);
