@@ -12,8 +12,8 @@
 //! looked at before their figures went into docs/estimator.md), `set=unseen` seeds 7001…7000+N (first run once, for the
 //! figures of the pooled B), `set=final` seeds 9001…9000+N (run once, with the code of 3fb5f98, for the
 //! battery table), `set=sealed` seeds 11001…11000+N (run once, for the table of the periodic-load fit), `set=novel`,
-//! `set=last`, `set=spare`, `set=reserve` and `set=blind` seeds 13001…, 15001…, 17001…, 19001…, 21001… (how each was
-//! used: docs/estimator.md).
+//! `set=last`, `set=spare`, `set=reserve`, `set=blind` and `set=untouched` seeds 13001…, 15001…, 17001…, 19001…,
+//! 21001…, 23001… (how each was used: docs/estimator.md).
 //! `periodic=0` runs rls-sgd without its periodic-load fit (the version before it). `kalman-jump=0` runs the reference
 //! Kalman filter without its jump test (the filter before it). `viscous=true-start` starts rls-sgd from the true B
 //! (J still wrong, B's prior as uncertain as usual); `viscous=known` also holds B there (prior σ 0.1 %): which

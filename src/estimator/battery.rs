@@ -259,7 +259,8 @@ pub fn score(polled: &Polled, settings: &EstimatorSettings, model: &PlantModel, 
 }
 
 /// The first seed of a named seed set (docs/estimator.md): `tuned` 1…, `held-out` 1001…, `fresh` 5001…, `unseen`
-/// 7001…, `final` 9001…, `sealed` 11001…, `novel` 13001…, `last` 15001…, `spare` 17001…; `None` for another name.
+/// 7001…, `final` 9001…, `sealed` 11001…, `novel` 13001…, `last` 15001…, `spare` 17001…, `reserve` 19001…, `blind`
+/// 21001…, `untouched` 23001…; `None` for another name.
 pub fn first_seed(set: &str) -> Option<u64> {
     match set {
         "tuned" => Some(1),
@@ -273,6 +274,7 @@ pub fn first_seed(set: &str) -> Option<u64> {
         "spare" => Some(17001),
         "reserve" => Some(19001),
         "blind" => Some(21001),
+        "untouched" => Some(23001),
         _ => None,
     }
 }
