@@ -42,12 +42,12 @@ impl Read for RecordingFile {
 /// Opens `path`, leaving out a last line that has no newline; a gzip file is decompressed as it is read.
 pub fn open(path: &Path) -> Result<RecordingFile, RecordingError> {
     let name = path.display().to_string();
-    let io = |source| RecordingError::Io { path: name.clone(), source };
+    let io = |error| RecordingError::Io { path: name.clone(), error };
     let file = File::open(path).map_err(io)?;
     let meta = file.metadata().map_err(io)?;
     if meta.is_dir() {
-        let source = std::io::Error::new(std::io::ErrorKind::IsADirectory, "a directory, not a recording file");
-        return Err(io(source));
+        let error = std::io::Error::new(std::io::ErrorKind::IsADirectory, "a directory, not a recording file");
+        return Err(io(error));
     }
     let mut file = file;
     let mut head = [0u8; 2];

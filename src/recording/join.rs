@@ -117,7 +117,7 @@ pub fn drive_file_key(name: &str, drive: &str) -> Option<(Vec<u64>, bool)> {
 /// found both plain and compressed (compressing was cut short after its rename) is taken once, plain. A file that
 /// holds no row (empty, or a header alone: a full disk left it) is skipped with a warning naming it.
 pub fn drive_files(dir: &Path, drive: &str) -> Result<Vec<PathBuf>, RecordingError> {
-    let io = |source| RecordingError::Io { path: dir.display().to_string(), source };
+    let io = |error| RecordingError::Io { path: dir.display().to_string(), error };
     let mut found: Vec<((Vec<u64>, bool), PathBuf)> = Vec::new();
     let mut skipped = 0;
     for entry in std::fs::read_dir(dir).map_err(io)? {

@@ -294,7 +294,7 @@ fn a_killed_runs_temporary_file_is_removed_by_the_next_run() {
 // ---- finding 3: unreadable files exit 2 naming the path (once); no colour codes in a file
 
 #[test]
-fn missing_or_directory_configs_and_a_non_utf8_model_exit_2_naming_the_path_once() {
+fn missing_or_directory_configs_recordings_and_a_non_utf8_model_exit_2_naming_the_path_once() {
     let dir = tempfile::tempdir().expect("tmp");
     let missing = dir.path().join("missing.toml");
     let out = exits_2_naming(&["serve".as_ref(), "--config".as_ref(), missing.as_os_str()], &["missing.toml"]);
@@ -314,6 +314,23 @@ fn missing_or_directory_configs_and_a_non_utf8_model_exit_2_naming_the_path_once
         &["estimator.model", "missing.toml"],
     );
     assert_eq!(out.matches("No such file").count(), 1, "the reason once: {out}");
+    // a recording that is not there, or a directory: the path and the reason, each once
+    let model = dir.path().join("plant.toml");
+    std::fs::write(&model, reference_model()).expect("write");
+    let missing_csv = dir.path().join("missing.csv");
+    let est_out = dir.path().join("est.csv");
+    for (recording, reason) in [(missing_csv.as_path(), "No such file"), (dir.path(), "a directory")] {
+        let estimate = [
+            "estimate".as_ref(),
+            "--model".as_ref(),
+            model.as_os_str(),
+            "--out".as_ref(),
+            est_out.as_os_str(),
+            recording.as_os_str(),
+        ];
+        let out = exits_2_naming(&estimate, &[&*recording.to_string_lossy(), reason]);
+        assert_eq!(out.matches(reason).count(), 1, "the reason once: {out}");
+    }
 }
 
 #[test]

@@ -43,8 +43,9 @@ const UTF8_BOM: &[u8] = b"\xef\xbb\xbf";
 /// What can be wrong with a recording. Everything but `Io` is bad input (exit 2).
 #[derive(Debug, thiserror::Error)]
 pub enum RecordingError {
-    #[error("cannot read recording {path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    /// (`error` is not a `source`: the message carries it, and a chain printed with `{:#}` would say it twice)
+    #[error("cannot read recording {path}: {error}")]
+    Io { path: String, error: std::io::Error },
     #[error("recording {path}: {message}")]
     File { path: String, message: String },
     #[error("recording {path}, line {line}: {message}")]
@@ -59,8 +60,8 @@ impl RecordingError {
     pub fn is_bad_input(&self) -> bool {
         use std::io::ErrorKind as K;
         match self {
-            RecordingError::Io { source, .. } => {
-                matches!(source.kind(), K::NotFound | K::InvalidData | K::PermissionDenied | K::IsADirectory)
+            RecordingError::Io { error, .. } => {
+                matches!(error.kind(), K::NotFound | K::InvalidData | K::PermissionDenied | K::IsADirectory)
             }
             _ => true,
         }
@@ -478,7 +479,7 @@ impl<R: Read> Lines<R> {
 }
 
 fn io_error(origin: &str, source: std::io::Error) -> RecordingError {
-    RecordingError::Io { path: origin.to_string(), source }
+    RecordingError::Io { path: origin.to_string(), error: source }
 }
 
 /// The header's names (trimmed), checked: not empty, `t_s` present, no name twice; unknown names are logged once.
