@@ -234,7 +234,10 @@ pub fn demo(http_addr: &str, modbus_addr: &str, recordings: &Path, plant: DemoPl
         })
         .context("simulator")
     })?;
-    let result = http_runtime()?.block_on(async move {
+    // the plant stops however the service ends, a bad config included (it returned before its own cancel, and the
+    // join below then waited for ever)
+    let stop_plant = shutdown.clone();
+    let result = http_runtime().and_then(|rt| rt.block_on(async move {
         file_size_limit_is_an_error();
         let signalled = shutdown_on_signal();
         let stop = shutdown.clone();
@@ -267,7 +270,8 @@ pub fn demo(http_addr: &str, modbus_addr: &str, recordings: &Path, plant: DemoPl
         .await;
         shutdown.cancel();
         result
-    });
+    }));
+    stop_plant.cancel();
     match plant.join() {
         Ok(r) => r?,
         Err(_) => tracing::error!("the simulator thread panicked"),

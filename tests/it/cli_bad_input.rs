@@ -334,6 +334,24 @@ fn missing_or_directory_configs_recordings_and_a_non_utf8_model_exit_2_naming_th
 }
 
 #[test]
+fn demo_with_recordings_under_a_file_exits_2_and_stops_its_simulator() {
+    // the config's error returned before the simulator was told to stop, and demo then waited for it for ever
+    let dir = tempfile::tempdir().expect("tmp");
+    let file = dir.path().join("not-a-dir");
+    std::fs::write(&file, "x").expect("write");
+    for recordings in [file.clone(), file.join("sub")] {
+        let args = [
+            "demo".as_ref(),
+            "--http".as_ref(),
+            "127.0.0.1:0".as_ref(),
+            "--recordings".as_ref(),
+            recordings.as_os_str(),
+        ];
+        exits_2_naming(&args, &["not-a-dir"]);
+    }
+}
+
+#[test]
 fn a_model_or_config_beyond_the_size_cap_exits_2_without_reading_it_whole() {
     let dir = tempfile::tempdir().expect("tmp");
     // /dev/zero never ends: before the cap it grew the process by 1 GB/s
