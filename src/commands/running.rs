@@ -234,49 +234,42 @@ pub fn demo(http_addr: &str, modbus_addr: &str, recordings: &Path, plant: DemoPl
         })
         .context("simulator")
     })?;
-    // the plant stops however the service ends, a bad config included (it returned before its own cancel, and the
-    // join below then waited for ever)
+    // the plant stops however the service ends: a bad config returns from the block below before its own cancel,
+    // and the join would then wait for ever
     let stop_plant = shutdown.clone();
-    let result = http_runtime().and_then(|rt| {
-        rt.block_on(async move {
-            file_size_limit_is_an_error();
-            let signalled = shutdown_on_signal();
-            let stop = shutdown.clone();
-            tokio::spawn(async move {
-                signalled.cancelled().await;
-                stop.cancel();
-            });
-            let token = demo_token();
-            let text = demo_config(modbus_addr, http_addr, recordings, target, &token);
-            let settings = service::config::parse(&text, "demo config", None)?;
-            let program_stop = shutdown.clone();
-            let result = run_service(settings, shutdown.clone(), |url, state| {
+    let result = http_runtime()?.block_on(async move {
+        file_size_limit_is_an_error();
+        let signalled = shutdown_on_signal();
+        let stop = shutdown.clone();
+        tokio::spawn(async move {
+            signalled.cancelled().await;
+            stop.cancel();
+        });
+        let token = demo_token();
+        let text = demo_config(modbus_addr, http_addr, recordings, target, &token);
+        let settings = service::config::parse(&text, "demo config", None)?;
+        let program_stop = shutdown.clone();
+        let result = run_service(settings, shutdown.clone(), |url, state| {
+            eprintln!("hydrolens demo: plant simulator on modbus tcp://{modbus_addr} ({plant_name}, brake-load steps)");
+            if hold {
+                eprintln!("hydrolens demo: speed mode, target {target} rad/s, recordings in {}", recordings.display());
+            } else {
                 eprintln!(
-                    "hydrolens demo: plant simulator on modbus tcp://{modbus_addr} ({plant_name}, brake-load steps)"
-                );
-                if hold {
-                    eprintln!(
-                        "hydrolens demo: speed mode, target {target} rad/s, recordings in {}",
-                        recordings.display()
-                    );
-                } else {
-                    eprintln!(
-                        "hydrolens demo: speed mode, target program around {target} rad/s (0.3 to 1.3 times, every \
+                    "hydrolens demo: speed mode, target program around {target} rad/s (0.3 to 1.3 times, every \
                      {} s), recordings in {}",
-                        service::program::CYCLE_S,
-                        recordings.display()
-                    );
-                    if let Some(drive) = state.drives.first() {
-                        tokio::spawn(run_demo_program(drive.clone(), target, program_stop));
-                    }
+                    service::program::CYCLE_S,
+                    recordings.display()
+                );
+                if let Some(drive) = state.drives.first() {
+                    tokio::spawn(run_demo_program(drive.clone(), target, program_stop));
                 }
-                eprintln!("hydrolens demo: write token (for POST /api/drives/pump1/target): {token}");
-                println!("dashboard: {url}/");
-            })
-            .await;
-            shutdown.cancel();
-            result
+            }
+            eprintln!("hydrolens demo: write token (for POST /api/drives/pump1/target): {token}");
+            println!("dashboard: {url}/");
         })
+        .await;
+        shutdown.cancel();
+        result
     });
     stop_plant.cancel();
     match plant.join() {

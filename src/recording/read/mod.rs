@@ -478,8 +478,8 @@ impl<R: Read> Lines<R> {
     }
 }
 
-fn io_error(origin: &str, source: std::io::Error) -> RecordingError {
-    RecordingError::Io { path: origin.to_string(), error: source }
+fn io_error(origin: &str, error: std::io::Error) -> RecordingError {
+    RecordingError::Io { path: origin.to_string(), error }
 }
 
 /// The header's names (trimmed), checked: not empty, `t_s` present, no name twice; unknown names are logged once.
