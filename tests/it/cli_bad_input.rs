@@ -369,6 +369,20 @@ fn a_model_or_config_beyond_the_size_cap_exits_2_without_reading_it_whole() {
     assert!(!out.exists(), "nothing written");
 }
 
+#[test]
+fn a_setpoint_mapped_onto_the_control_word_exits_2_naming_both_entries() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let config = dir.path().join("svc.toml");
+    let text = service_config(dir.path(), "a-token-long-enough-1234", None)
+        + "[drives.control]\nmode = \"speed\"\n[drives.registers.frequency_setpoint_hz]\naddress = 1\n";
+    std::fs::write(&config, text).expect("write");
+    exits_2_naming(
+        &["serve".as_ref(), "--config".as_ref(), config.as_os_str()],
+        &["svc.toml", "drives[0].registers.control_word.address", "frequency_setpoint_hz"],
+    );
+    assert!(!dir.path().join("rec").exists(), "nothing started, nothing recorded");
+}
+
 /// A service config with one drive that nobody answers, recording into `dir`.
 fn service_config(dir: &Path, token: &str, model: Option<&Path>) -> String {
     let model = model.map_or_else(|| root().join("config/plant.toml"), Path::to_path_buf);

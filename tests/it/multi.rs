@@ -54,11 +54,15 @@ async fn two_drives_are_polled_and_regulated_independently() {
 }
 
 /// The inlet pressure read as an f32 spanning registers 0–1: a high word of 0x7FC0 is NaN whatever the low word.
+/// Register 1 is then the f32's alone (entries may not share a word), so the outlet pressure is read from the
+/// simulator's spare register 6, scaled small and offset to stay a plausible pressure.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_non_finite_sensor_value_is_rejected_and_never_reaches_the_estimator() {
     let run = async {
         let extra = "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\n\
-                     [drives.registers.inlet_pressure_bar]\naddress = 0\ntype = \"f32\"\nscale = 1.0\n";
+                     [drives.registers.inlet_pressure_bar]\naddress = 0\ntype = \"f32\"\nscale = 1.0\n\
+                     [drives.registers.outlet_pressure_bar]\naddress = 6\ntype = \"i16\"\nscale = 0.0001\n\
+                     offset = 5.0\n";
         let stack = Stack::start(5.0, 10, extra).await;
         wait_for(Duration::from_secs(15), || async { stack.state.ready() }).await.expect("fresh data");
         stack.sim.lock().faults.inlet_pressure_override_bar = Some(f64::from(0x7FC0u16) * 0.01);

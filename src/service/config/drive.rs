@@ -310,6 +310,29 @@ pub(super) fn apply_overrides(overrides: BTreeMap<String, RawRegister>, key: &st
             return Err(KeyError::new(format!("{key}.{name}.address"), "runs past register 65535".into()));
         }
     }
+    // two entries on one word: a setpoint written onto the control word (run, fault reset), or a value read from
+    // another's register, is a wiring error the drive would act on
+    let all: Vec<(&str, RegisterSpec)> =
+        map.entries().into_iter().chain(map.drive_power_w.map(|s| ("drive_power_w", s))).collect();
+    for (i, (a, sa)) in all.iter().enumerate() {
+        for (b, sb) in &all[i + 1..] {
+            let words = |s: &RegisterSpec| u32::from(s.address)..u32::from(s.address) + u32::from(s.kind.words());
+            let (wa, wb) = (words(sa), words(sb));
+            if sa.table == sb.table && wa.start < wb.end && wb.start < wa.end {
+                return Err(KeyError::new(
+                    format!("{key}.{b}.address"),
+                    format!(
+                        "{:?} register {} overlaps {a} ({:?} register {}, {} word(s)): each entry needs its own words",
+                        sb.table,
+                        sb.address,
+                        sa.table,
+                        sa.address,
+                        sa.kind.words()
+                    ),
+                ));
+            }
+        }
+    }
     for table in [Table::Input, Table::Holding] {
         if let Some((_, count)) = map.span(table)
             && count > 125

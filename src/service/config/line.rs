@@ -136,8 +136,11 @@ pub(super) fn host_port(address: Option<&str>, kind: &str, key: &dyn Fn(&str) ->
     match address {
         None => Err(KeyError::new(key("address"), format!("is required with transport = {kind:?} (host:port)"))),
         Some(a) => match a.rsplit_once(':') {
-            Some((host, port)) if !host.is_empty() && port.parse::<u16>().is_ok() => Ok(a.to_string()),
-            _ => Err(KeyError::new(key("address"), format!("{a:?} is not host:port such as 127.0.0.1:5020"))),
+            Some((host, port)) if !host.is_empty() && port.parse::<u16>().is_ok_and(|p| p != 0) => Ok(a.to_string()),
+            _ => Err(KeyError::new(
+                key("address"),
+                format!("{a:?} is not host:port (port 1 ..= 65535) such as 127.0.0.1:5020"),
+            )),
         },
     }
 }

@@ -47,6 +47,9 @@ fn errors_name_the_key() {
     assert!(e.contains("watchdog.table"), "{e}");
     let e = err(&format!("{MINIMAL}[drives.control]\nmode = \"turbo\"\n"));
     assert!(e.contains("turbo"), "{e}");
+    // port 0 is "any port" to bind, and no drive listens on it
+    let e = err(&MINIMAL.replace(":5020", ":0"));
+    assert!(e.contains("drives[0].address") && e.contains("port 1 ..= 65535"), "{e}");
 }
 
 #[test]
@@ -227,4 +230,21 @@ mod drives_condition {
         assert_eq!(s.every, Duration::from_secs(60));
         assert_eq!(s.limits["entrained_air"]["bulk_modulus_bar"], 8000.0);
     }
+}
+
+#[test]
+fn entries_sharing_a_word_are_refused_naming_both() {
+    // the setpoint on the control word's holding register: each write would run or fault-reset the drive
+    let e = err(&format!("{MINIMAL}[drives.registers.frequency_setpoint_hz]\naddress = 1\n"));
+    assert!(e.contains("drives[0].registers.control_word.address") && e.contains("frequency_setpoint_hz"), "{e}");
+    // a two-word value reaching into the next entry's word
+    let e = err(&format!("{MINIMAL}[drives.registers.inlet_pressure_bar]\ntype = \"f32\"\n"));
+    assert!(e.contains("outlet_pressure_bar.address") && e.contains("inlet_pressure_bar"), "{e}");
+    // the optional power register on a measured one
+    let e = err(&format!("{MINIMAL}[drives.registers.drive_power_w]\naddress = 5\n"));
+    assert!(e.contains("drive_power_w.address") && e.contains("sample_counter"), "{e}");
+    // the same address in the other table is a different register
+    let text =
+        format!("{MINIMAL}[drives.registers.watchdog]\naddress = 3\n[drives.registers.drive_power_w]\naddress = 10\n");
+    parse(&text, "t.toml", None).expect("holding 3 shares a number with input 3, not a word");
 }
