@@ -57,7 +57,7 @@ pub fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyh
     let mut sink = |row: &[f64; plant::simulate::COLUMNS.len()]| writer.write_row(row.iter().copied());
     let rows = plant::simulate::run_into(&model, duration, seed, &inputs, &mut progress("simulate"), &mut sink)
         .map_err(|e| match e {
-            plant::simulate::RunError::Model(e) => {
+            e @ (plant::simulate::RunError::Model(_) | plant::simulate::RunError::Diverged(..)) => {
                 anyhow::Error::new(BadInput(format!("model file {}: {e}", model_path.display())))
             }
             plant::simulate::RunError::Sink(e) => anyhow::Error::new(e).context(format!("writing {}", out.display())),
@@ -155,7 +155,12 @@ pub fn analyze(
     let mut report_file = report.map(create).transpose()?;
     let rec = analysis_recording(&files, drive)?;
     let source = rec.source.clone();
-    let result = analysis::analyze_owned(rec, &model, &analysis::Options::default(), &mut progress("analyze"))?;
+    let result = analysis::analyze_owned(rec, &model, &analysis::Options::default(), &mut progress("analyze"))
+        // the analysis says `model: …` of what the model lacks for this recording; the user needs its path
+        .map_err(|BadInput(m)| match m.strip_prefix("model: ") {
+            Some(rest) => BadInput(format!("model file {}: {rest}", model_path.display())),
+            None => BadInput(m),
+        })?;
     if result.load == "unknown" && model.load == plant::LoadSpec::Recorded {
         eprintln!(
             "analyze: note: {} has no `load_nm` although the model's [load] kind is \"recorded\": analysed with the \

@@ -12,6 +12,10 @@ pub const SIGN_SPEED_RAD_S: f64 = 0.05;
 /// The largest internal integration step; well below the hydraulic natural period (≈ 150 ms for the reference plant).
 pub const MAX_SUBSTEP_S: f64 = 2e-4;
 
+/// The shortest internal step the simulator takes: a plant whose fastest mode needs shorter steps is refused at load
+/// ([`stiffness`]), since at 500 RK4 steps a 1 ms sample it could no longer run in real time.
+pub const MIN_SUBSTEP_S: f64 = 2e-6;
+
 /// `sgn(ω)` as the model takes it: `tanh(ω/0.05)`.
 pub fn smooth_sign(omega_rad_s: f64) -> f64 {
     (omega_rad_s / SIGN_SPEED_RAD_S).tanh()
@@ -49,6 +53,17 @@ impl Mechanics {
             t += (breakaway - self.coulomb_nm) * (-(omega / speed).powi(2)).exp() * sgn;
         }
         t
+    }
+
+    /// The largest |∂(dω/dt)/∂ω| (1/s): viscous friction and the steepest slope of the friction effects (at
+    /// standstill, where the smooth sign turns), over the inertia.
+    pub fn friction_rate(&self) -> f64 {
+        let j = self.inertia_kg_m2;
+        let coulomb = self.coulomb_nm.abs() / SIGN_SPEED_RAD_S / j;
+        let stribeck = self.stribeck.map_or(0.0, |(breakaway, speed)| {
+            (breakaway - self.coulomb_nm).abs() * (1.0 / SIGN_SPEED_RAD_S + 1.0 / speed) / j
+        });
+        self.viscous_nm_s_rad / j + coulomb + stribeck
     }
 
     /// dω/dt for a drive torque and a load torque.
@@ -104,6 +119,28 @@ impl Coefficients {
         })
     }
 
+    /// The fastest rate (1/s) of the plant linearised about standstill: the line's pressure (leakage and slip against its stiffness β/V), the shaft (friction over inertia), and the
+    /// oscillation between them (β·D_m²/(V·J)). RK4 is accurate and stable while step × rate ≤ 1. The drive's
+    /// frequency is left out: its rate is clamped to the ramp, so a short time constant bounds its error by
+    /// ramp × step instead of growing.
+    pub fn fastest_rate(&self) -> f64 {
+        let stiffness = self.bulk_modulus_pa / self.volume_m3;
+        let slip = self.pump_m3_rad.powi(2) * self.slip_rad_s_per_nm;
+        let pressure = stiffness * (self.leakage_si + slip);
+        let shaft = self.mechanics.friction_rate();
+        let coupling = stiffness * self.motor_m3_rad.powi(2) / self.mechanics.inertia_kg_m2;
+        // the 2×2 system [[-pressure, -β/V·D_m], [D_m/J, -shaft]]: its larger |eigenvalue|
+        let half = 0.5 * (pressure + shaft);
+        let disc = 0.25 * (pressure - shaft).powi(2) - coupling;
+        if disc >= 0.0 { half + disc.sqrt() } else { (pressure * shaft + coupling).sqrt() }
+    }
+
+    /// The internal step for this plant: [`MAX_SUBSTEP_S`], shorter where a fast mode needs it (never below
+    /// [`MIN_SUBSTEP_S`]; a model needing less is refused at load).
+    pub fn stable_step_s(&self) -> f64 {
+        (1.0 / self.fastest_rate()).clamp(MIN_SUBSTEP_S, MAX_SUBSTEP_S)
+    }
+
     /// The time derivative of the state for a drive command (already delayed) and a load.
     pub fn derivative(&self, s: &PlantState, f_cmd_hz: f64, load_nm: f64) -> PlantState {
         let df = ((f_cmd_hz - s.f_hz) / self.time_constant_s).clamp(-self.ramp_hz_per_s, self.ramp_hz_per_s);
@@ -147,6 +184,76 @@ impl Coefficients {
     }
 }
 
+/// The fastest rate of a model (1/s): the whole plant's, or the shaft's alone for a torque-driven model.
+fn model_rate(model: &PlantModel) -> f64 {
+    match Coefficients::from_model(model) {
+        Ok(c) => c.fastest_rate(),
+        Err(_) => Mechanics::from_model(model).friction_rate(),
+    }
+}
+
+/// Refuses a model whose fastest mode would need steps below [`MIN_SUBSTEP_S`] (1e300 for a bulk modulus or a
+/// friction, 1e-300 for an inertia): RK4 at any longer step diverges or rings, and a run's output would be garbage.
+/// Names the key whose value makes it so: the one that, put back to the reference plant's (or its effect off),
+/// lowers the fastest rate most.
+pub fn stiffness(model: &PlantModel) -> Result<(), KeyError> {
+    let limit = 1.0 / MIN_SUBSTEP_S;
+    let rate = model_rate(model);
+    if rate.is_finite() && rate <= limit {
+        return Ok(());
+    }
+    let r = PlantModel::reference();
+    type Undo = fn(&mut PlantModel, &PlantModel);
+    let undo: [(&str, Undo); 12] = [
+        ("motor.inertia_kg_m2", |m, r| m.motor.inertia_kg_m2 = r.motor.inertia_kg_m2),
+        ("motor.viscous_nm_s_rad", |m, r| m.motor.viscous_nm_s_rad = r.motor.viscous_nm_s_rad),
+        ("motor.displacement_cm3", |m, r| {
+            m.motor.displacement_cm3 = m.motor.displacement_cm3.and(r.motor.displacement_cm3)
+        }),
+        ("pump.displacement_cm3", |m, r| {
+            if let (Some(p), Some(rp)) = (m.pump.as_mut(), r.pump.as_ref()) {
+                p.displacement_cm3 = rp.displacement_cm3;
+            }
+        }),
+        ("hydraulics.volume_l", |m, r| set_hydraulics(m, r, |h, r| h.volume_l = r.volume_l)),
+        ("hydraulics.bulk_modulus_bar", |m, r| set_hydraulics(m, r, |h, r| h.bulk_modulus_bar = r.bulk_modulus_bar)),
+        ("hydraulics.leakage_l_min_per_bar", |m, r| {
+            set_hydraulics(m, r, |h, r| h.leakage_l_min_per_bar = r.leakage_l_min_per_bar)
+        }),
+        ("effects.coulomb_friction.torque_nm", |m, _| m.effects.coulomb_friction = None),
+        ("effects.stribeck_friction.breakaway_nm", |m, _| m.effects.stribeck_friction = None),
+        ("effects.internal_leakage.l_min_per_bar", |m, _| m.effects.internal_leakage = None),
+        ("effects.entrained_air.bulk_modulus_bar", |m, _| m.effects.entrained_air = None),
+        ("effects.motor_slip.rpm_per_nm", |m, _| m.effects.motor_slip = None),
+    ];
+    let lowered = |f: Undo| {
+        let mut m = model.clone();
+        f(&mut m, &r);
+        let v = model_rate(&m);
+        if v.is_nan() { f64::INFINITY } else { v }
+    };
+    let key = undo
+        .iter()
+        .map(|&(key, f)| (lowered(f), key))
+        .fold((f64::INFINITY, "motor.inertia_kg_m2"), |best, t| if t.0 < best.0 { t } else { best })
+        .1;
+    Err(KeyError::new(
+        key.into(),
+        format!(
+            "makes the plant too stiff to simulate: its fastest mode is {}, beyond the {limit:.0e}/s a \
+             {MIN_SUBSTEP_S:e} s step resolves; check the value and its unit",
+            if rate.is_finite() { format!("{rate:.3e}/s") } else { "not a finite rate".into() }
+        ),
+    ))
+}
+
+/// Sets a field of `[hydraulics]` to the reference plant's, where the model has the section.
+fn set_hydraulics(m: &mut PlantModel, r: &PlantModel, f: fn(&mut super::model::Hydraulics, &super::model::Hydraulics)) {
+    if let (Some(h), Some(rh)) = (m.hydraulics.as_mut(), r.hydraulics.as_ref()) {
+        f(h, rh);
+    }
+}
+
 /// The plant's state: drive frequency, inlet pressure, motor speed.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PlantState {
@@ -178,6 +285,8 @@ pub struct Plant {
     /// The last command issued (to skip queueing repeats).
     last_issued_hz: f64,
     max_substep_s: f64,
+    /// The step taken: `max_substep_s`, shorter where the plant's fastest mode needs it.
+    substep_s: f64,
     /// Plant time from which a wearing model's coefficients are due again.
     next_wear_s: f64,
 }
@@ -191,9 +300,11 @@ impl Plant {
         Plant::with_substep(coefficients, MAX_SUBSTEP_S)
     }
 
-    /// As [`Plant::new`] with a chosen largest internal step (for convergence checks).
+    /// As [`Plant::new`] with a chosen largest internal step (for convergence checks); shorter where the plant's
+    /// fastest mode needs it.
     pub fn with_substep(coefficients: Coefficients, max_substep_s: f64) -> Plant {
         Plant {
+            substep_s: max_substep_s.min(coefficients.stable_step_s()),
             state: PlantState { f_hz: 0.0, p_in_pa: coefficients.back_pressure_pa, omega_rad_s: 0.0 },
             coefficients,
             t_s: 0.0,
@@ -224,6 +335,7 @@ impl Plant {
             return;
         }
         if let Ok(c) = Coefficients::from_model(&model.at(self.t_s)) {
+            self.substep_s = self.max_substep_s.min(c.stable_step_s());
             self.coefficients = c;
         }
         self.next_wear_s = self.t_s + WEAR_STEP_S;
@@ -255,7 +367,7 @@ impl Plant {
             let seg_end = self.pending.front().map_or(t_end, |&(t_apply, _)| t_apply.min(t_end));
             let len = seg_end - self.t_s;
             if len > eps {
-                let n = (len / self.max_substep_s).ceil().max(1.0);
+                let n = (len / self.substep_s).ceil().max(1.0);
                 let h = len / n;
                 for _ in 0..n as usize {
                     self.state = self.coefficients.rk4(&self.state, self.f_cmd_hz, load_nm, h);
@@ -314,5 +426,61 @@ mod tests {
             p.advance(1e-3, 0.0, -20.0); // the load drives the motor forward: it sucks the line empty
             assert!(p.state().p_in_pa >= 0.0);
         }
+    }
+
+    #[test]
+    fn a_stiff_plant_takes_shorter_steps_and_matches_a_fine_reference() {
+        // the reference plant is far from stiff: its steps are the usual ones
+        assert!(reference().fastest_rate() < 0.1 / MAX_SUBSTEP_S, "{}", reference().fastest_rate());
+        assert_eq!(reference().stable_step_s(), MAX_SUBSTEP_S);
+        // a line of 0.1 ml: its fastest mode (5e4/s) rang RK4 at 0.2 ms steps to non-numbers
+        let mut m = PlantModel::reference();
+        m.hydraulics.as_mut().expect("hydraulics").volume_l = 1e-4;
+        let c = Coefficients::from_model(&m).expect("hydraulic");
+        assert!(c.fastest_rate() > 2.0 / MAX_SUBSTEP_S, "{}", c.fastest_rate());
+        let run = |mut p: Plant| {
+            for k in 0..1000 {
+                p.advance(1e-3, if k < 500 { 30.0 } else { 10.0 }, 4.0);
+            }
+            p.state()
+        };
+        let (adapted, fine) = (run(Plant::new(c)), run(Plant::with_substep(c, 1e-7)));
+        assert!((adapted.omega_rad_s - fine.omega_rad_s).abs() < 1e-6 * fine.omega_rad_s.abs(), "{adapted:?} {fine:?}");
+        assert!((adapted.p_in_pa - fine.p_in_pa).abs() < 1e-6 * fine.p_in_pa, "{adapted:?} {fine:?}");
+        let mut fixed = Plant::new(c);
+        fixed.substep_s = MAX_SUBSTEP_S;
+        let rung = run(fixed);
+        // at 0.2 ms steps it rings, held at 0 bar by the floor: garbage
+        assert!(rung.p_in_pa.is_nan() || (rung.p_in_pa - fine.p_in_pa).abs() > 0.1 * fine.p_in_pa, "{rung:?} {fine:?}");
+    }
+
+    #[test]
+    fn a_model_too_stiff_for_any_step_is_refused_naming_the_key_that_makes_it() {
+        let refused = |edit: &dyn Fn(&mut PlantModel)| {
+            let mut m = PlantModel::reference();
+            edit(&mut m);
+            stiffness(&m).expect_err("refused").key
+        };
+        assert_eq!(refused(&|m| m.motor.inertia_kg_m2 = 1e-300), "motor.inertia_kg_m2");
+        assert_eq!(refused(&|m| m.motor.viscous_nm_s_rad = 1e300), "motor.viscous_nm_s_rad");
+        assert_eq!(refused(&|m| m.motor.displacement_cm3 = Some(1e300)), "motor.displacement_cm3");
+        assert_eq!(
+            refused(&|m| m.hydraulics.as_mut().expect("h").bulk_modulus_bar = 1e300),
+            "hydraulics.bulk_modulus_bar"
+        );
+        assert_eq!(refused(&|m| m.hydraulics.as_mut().expect("h").volume_l = 1e-12), "hydraulics.volume_l");
+        assert_eq!(
+            refused(&|m| m.effects.coulomb_friction = Some(crate::plant::effects::CoulombFriction { torque_nm: 1e9 })),
+            "effects.coulomb_friction.torque_nm"
+        );
+        // the same mechanics alone (a torque-driven model): the shaft's rate
+        assert_eq!(
+            refused(&|m| {
+                m.hydraulics = None;
+                m.motor.inertia_kg_m2 = 1e-12;
+            }),
+            "motor.inertia_kg_m2"
+        );
+        stiffness(&PlantModel::reference()).expect("the reference plant");
     }
 }

@@ -255,7 +255,8 @@ impl PlantModel {
         }
         self.load.validate()?;
         self.effects.validate()?;
-        self.wear.validate(&self.effects)
+        self.wear.validate(&self.effects)?;
+        super::dynamics::stiffness(self)
     }
 
     /// True when some effect wears (`[wear]`).

@@ -5,7 +5,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
-use super::dynamics::{Coefficients, Plant};
+use super::dynamics::{Coefficients, Plant, PlantState};
 use super::model::PlantModel;
 use crate::error::KeyError;
 use crate::units::pa_to_bar;
@@ -45,6 +45,22 @@ pub enum RunError {
     Model(KeyError),
     /// The row sink failed (a full disk, say).
     Sink(std::io::Error),
+    /// The plant's state left any physical range (time in s, what and its value): a model of absurd magnitudes.
+    Diverged(f64, &'static str, f64),
+}
+
+impl std::fmt::Display for RunError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RunError::Model(e) => write!(f, "{e}"),
+            RunError::Sink(e) => write!(f, "{e}"),
+            RunError::Diverged(t, what, v) => write!(
+                f,
+                "the plant left any physical range at t = {t} s ({what} = {v:e}): the model's magnitudes (torques, \
+                 displacements, pressures) are beyond any plant; check their values and units"
+            ),
+        }
+    }
 }
 
 /// A test-stand run handing each row (in [`COLUMNS`] order) to `sink` instead of keeping it (`recording::simulated`
@@ -88,6 +104,9 @@ pub fn run_into(
         sink(&row.values()).map_err(RunError::Sink)?;
         plant.wear(model);
         plant.advance(dt, f_set, load);
+        if let Some((what, v)) = beyond_physics(&plant.state()) {
+            return Err(RunError::Diverged(t + dt, what, v));
+        }
         angle_rad += 0.5 * (s.omega_rad_s + plant.state().omega_rad_s) * dt;
         if k % report_every == 0 {
             progress(k as f64 / n as f64);
@@ -95,6 +114,24 @@ pub fn run_into(
     }
     progress(1.0);
     Ok(n)
+}
+
+/// The largest speed (rad/s, about 10⁷ rpm) and pressure (bar, 100 GPa) a plant's state may reach: far beyond
+/// any machine, so only a model of absurd magnitudes (a torque of 1e30 N·m, say) gets there.
+pub const PHYSICAL_LIMITS: (f64, f64) = (1e6, 1e6);
+
+/// What of a plant's state is beyond [`PHYSICAL_LIMITS`] or not a number, with its value.
+pub fn beyond_physics(s: &PlantState) -> Option<(&'static str, f64)> {
+    let p_bar = pa_to_bar(s.p_in_pa);
+    if s.omega_rad_s.is_nan() || s.omega_rad_s.abs() > PHYSICAL_LIMITS.0 {
+        Some(("speed (rad/s)", s.omega_rad_s))
+    } else if p_bar.is_nan() || p_bar.abs() > PHYSICAL_LIMITS.1 {
+        Some(("inlet pressure (bar)", p_bar))
+    } else if !s.f_hz.is_finite() {
+        Some(("drive frequency (Hz)", s.f_hz))
+    } else {
+        None
+    }
 }
 
 /// White sensor noise from a seeded, portable generator.

@@ -41,6 +41,7 @@ pub fn run(
     run_into(model, duration_s, seed, inputs, progress, &mut sink).map_err(|e| match e {
         RunError::Model(e) => e,
         RunError::Sink(e) => KeyError::new("(memory)".into(), e.to_string()),
+        e @ RunError::Diverged(..) => KeyError::new("(model)".into(), e.to_string()),
     })?;
     Ok(Recording::from_columns("simulate", COLUMNS.iter().map(|c| c.to_string()).collect(), columns))
 }

@@ -262,12 +262,38 @@ fn simulate_with_a_bad_model_leaves_the_old_output() {
     let negative = dir.path().join("negative.toml");
     std::fs::write(&negative, reference_model().replace("inertia_kg_m2 = 0.08", "inertia_kg_m2 = -1.0"))
         .expect("write");
-    for (model, key) in [(&no_pump, "[drive]"), (&negative, "motor.inertia_kg_m2")] {
+    // magnitudes no plant has: they exited 0 with a recording of empty speeds. Too stiff for any step (refused at
+    // load, naming the key), and a torque that drives the shaft beyond any speed (stopped at the moment it does)
+    let stiff = dir.path().join("stiff.toml");
+    std::fs::write(&stiff, reference_model().replace("bulk_modulus_bar = 15000.0", "bulk_modulus_bar = 1e300"))
+        .expect("write");
+    let huge = dir.path().join("huge.toml");
+    std::fs::write(&huge, reference_model() + "[effects.torque_offset]\ntorque_nm = 1e30\n").expect("write");
+    let cases = [
+        (&no_pump, "[drive]"),
+        (&negative, "motor.inertia_kg_m2"),
+        (&stiff, "hydraulics.bulk_modulus_bar"),
+        (&huge, "physical range"),
+    ];
+    for (model, key) in cases {
         let name = model.file_name().expect("name").to_string_lossy().into_owned();
         exits_2_naming(&simulate_args(model, "1", &out), &[key, &name]);
         assert_eq!(std::fs::read_to_string(&out).expect("out"), "the old recording\n", "{name}");
     }
-    assert_eq!(files_in(dir.path()), ["negative.toml", "no_pump.toml", "rec.csv"]);
+    assert_eq!(files_in(dir.path()), ["huge.toml", "negative.toml", "no_pump.toml", "rec.csv", "stiff.toml"]);
+    // a recording with pressures analysed against the torque-only model: the model's path with what it lacks
+    let sub = tempfile::tempdir().expect("tmp");
+    let rec = recording(sub.path());
+    let json = sub.path().join("a.json");
+    let analyze = [
+        "analyze".as_ref(),
+        rec.as_os_str(),
+        "--model".as_ref(),
+        no_pump.as_os_str(),
+        "--json".as_ref(),
+        json.as_os_str(),
+    ];
+    exits_2_naming(&analyze, &["model file", "no_pump.toml", "[drive]"]);
 }
 
 #[test]

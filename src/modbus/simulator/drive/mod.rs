@@ -198,6 +198,18 @@ impl DriveSim {
         self.load_nm = self.model.load.torque_at(t, omega_rad_s, self.shaft_angle_rad);
         self.plant.wear(&self.model);
         self.plant.advance(self.sample_s(), f_cmd, self.load_nm);
+        if !self.fault
+            && let Some((what, v)) = crate::plant::simulate::beyond_physics(&self.plant.state())
+        {
+            // a model of absurd magnitudes (a torque of 1e30 N·m): the drive faults, as one would on overload
+            self.fault = true;
+            tracing::error!(
+                t_s = self.plant.t_s(),
+                what,
+                value = v,
+                "simulator: the plant left any physical range; drive faulted: check the model's magnitudes"
+            );
+        }
         let omega_mean = 0.5 * (omega_rad_s + self.plant.state().omega_rad_s);
         self.shaft_angle_rad += omega_mean * self.sample_s();
         self.drive_energy_j += 0.5 * (drive_before_w + self.drive_power_w()) * self.sample_s();
