@@ -21,6 +21,10 @@ pub fn check(inputs: &[&Path], outputs: &[(&str, &Path)]) -> Result<(), BadInput
         if path.file_name().is_none() {
             return bad(flag, path, "names no file".into());
         }
+        // `out/`: Path drops the trailing separator, and the file would be `out`, which the user meant as a directory
+        if path.as_os_str().as_encoded_bytes().ends_with(b"/") {
+            return bad(flag, path, "ends in '/': name a file, not a directory".into());
+        }
         if path.is_dir() {
             return bad(flag, path, "is a directory; name a file".into());
         }
@@ -67,6 +71,23 @@ fn same_file(a: &Path, b: &Path) -> bool {
         }
     }
     false
+}
+
+/// The most this process may write to one file at `path`: the room left on its disk for an unprivileged writer, and
+/// the file-size limit (`ulimit -f`), where the system says.
+#[cfg(target_os = "linux")]
+pub fn free_bytes(path: &Path) -> Option<u64> {
+    let disk = rustix::fs::statvfs(&parent(path)).ok().and_then(|s| s.f_bavail.checked_mul(s.f_frsize));
+    let limit = rustix::process::getrlimit(rustix::process::Resource::Fsize).current;
+    match (disk, limit) {
+        (Some(d), Some(l)) => Some(d.min(l)),
+        (d, l) => d.or(l),
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+pub fn free_bytes(_path: &Path) -> Option<u64> {
+    None
 }
 
 #[cfg(target_os = "linux")]
@@ -216,6 +237,8 @@ mod tests {
         refused(&[("--json", &json), ("--report", &json)], &["--report", "--json", "out.json"]);
         refused(&[("--json", &dir.path().join("nodir/x.json"))], &["--json", "nodir", "does not exist"]);
         refused(&[("--json", dir.path())], &["--json", "directory"]);
+        let slashed = format!("{}/", dir.path().join("sub").display());
+        refused(&[("--json", Path::new(&slashed))], &["--json", "sub/", "ends in '/'"]);
         check(&[&rec], &[("--json", &json), ("--report", &dir.path().join("r.html"))]).expect("distinct");
         check(&[&rec], &[("--json", Path::new("/dev/null")), ("--report", Path::new("/dev/null"))])
             .expect("/dev/null takes everything");

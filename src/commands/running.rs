@@ -37,6 +37,12 @@ pub fn sim(model_path: &Path, listen: &str, seed: u64, transport: SimTransport, 
         }
         let line = SerialLine { baud_rate: baud, parity, stop_bits };
         return runtime()?.block_on(async move {
+            // a device that is not there, or not a serial line, at start is a wrong --serial (it retried for ever);
+            // once served, a line that goes away is waited for (an adapter unplugged comes back)
+            drop(
+                hydrolens::modbus::client::open_serial(&path, &line)
+                    .map_err(|e| BadInput(format!("--serial {path}: cannot open it as a serial line: {e}")))?,
+            );
             let shutdown = shutdown_on_signal();
             eprintln!("hydrolens sim: plant simulator on modbus rtu {path} ({baud} baud, parity {})", parity.name());
             simulator.run_serial(&path, line, shutdown).await.context("simulator")
@@ -206,6 +212,13 @@ pub fn demo(http_addr: &str, modbus_addr: &str, recordings: &Path, plant: DemoPl
     let DemoPlant { target, hold, plant: plant_path, seed } = plant;
     let http_addr = parse_addr("--http", http_addr)?;
     let modbus_addr = parse_addr("--modbus", modbus_addr)?;
+    let overlap = |a: std::net::IpAddr, b: std::net::IpAddr| a == b || a.is_unspecified() || b.is_unspecified();
+    if http_addr.port() != 0 && http_addr.port() == modbus_addr.port() && overlap(http_addr.ip(), modbus_addr.ip()) {
+        return Err(BadInput(format!(
+            "--http {http_addr} and --modbus {modbus_addr}: one port for both; give each its own"
+        ))
+        .into());
+    }
     if !(target.is_finite() && (0.0..=75.0).contains(&target)) {
         return Err(BadInput(format!("--target {target}: expected rad/s in 0 ..= 75")).into());
     }

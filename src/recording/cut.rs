@@ -75,13 +75,30 @@ pub fn open(path: &Path) -> Result<RecordingFile, RecordingError> {
         return Ok(RecordingFile(Text::Gzip(Box::new(gz::decoder(BufReader::with_capacity(1 << 16, file), &name)))));
     }
     let len = meta.len();
-    let keep = whole_lines_len(&mut file, len).map_err(io)?;
+    let mut keep = whole_lines_len(&mut file, len).map_err(io)?;
+    if keep > 0 && keep < len && len - keep <= super::MAX_LINE_BYTES as u64 {
+        let mut tail = vec![0; (len - keep) as usize];
+        file.seek(SeekFrom::Start(keep)).map_err(io)?;
+        file.read_exact(&mut tail).map_err(io)?;
+        if gz::whole_row(header_commas(&mut file).map_err(io)?, &tail) {
+            tracing::warn!(recording = %name, "{}", gz::NO_FINAL_NEWLINE);
+            keep = len;
+        }
+    }
     if keep < len {
         tracing::warn!(recording = %name, dropped_bytes = len - keep,
             "the last line was cut mid-row (writing was interrupted): dropped it");
     }
     file.seek(SeekFrom::Start(0)).map_err(io)?;
     Ok(RecordingFile(Text::Plain(file.take(keep))))
+}
+
+/// The commas of the file's first line, if it ends within [`super::MAX_LINE_BYTES`].
+fn header_commas<R: Read + Seek>(file: &mut R) -> std::io::Result<Option<usize>> {
+    file.seek(SeekFrom::Start(0))?;
+    let mut head = Vec::new();
+    file.take(super::MAX_LINE_BYTES as u64).read_to_end(&mut head)?;
+    Ok(memchr::memchr(b'\n', &head).map(|i| memchr::memchr_iter(b',', &head[..i]).count()))
 }
 
 /// The length up to and including the last newline: `len` when the file ends with one, is empty, or has none at

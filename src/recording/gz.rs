@@ -85,7 +85,21 @@ pub struct WholeLines<R> {
     done: bool,
     /// Newlines read so far, for messages.
     lines: u64,
+    /// The header line's commas, once it is whole: a last line without newline that has as many is a whole row.
+    header_commas: Option<usize>,
 }
+
+/// Whether `tail`, a last line with no newline after it, is a whole row of a file whose header has `header_commas`
+/// commas: as many cells, the last one not empty. A file written without a final newline ends so; a cut row almost
+/// never does (only a cut inside its last value, which then reads short: the warning says so).
+pub fn whole_row(header_commas: Option<usize>, tail: &[u8]) -> bool {
+    header_commas == Some(memchr::memchr_iter(b',', tail).count())
+        && tail.last().is_some_and(|&b| !matches!(b, b',' | b'\r'))
+}
+
+/// The warning for a last line kept by [`whole_row`].
+pub const NO_FINAL_NEWLINE: &str = "the last line has no newline but all its cells: read as a row (had writing been cut inside its last value, \
+     that value would read short)";
 
 impl<R: Read> WholeLines<R> {
     pub fn new(inner: R, origin: &str) -> WholeLines<R> {
@@ -98,6 +112,7 @@ impl<R: Read> WholeLines<R> {
             end: 0,
             done: false,
             lines: 0,
+            header_commas: None,
         }
     }
 
@@ -109,6 +124,9 @@ impl<R: Read> WholeLines<R> {
         if cut_stream {
             tracing::warn!(recording = %self.origin, line = self.lines + 1, dropped_bytes = tail,
                 "the compressed stream was cut short (writing was interrupted): kept the rows before it");
+        } else if tail > 0 && self.lines > 0 && whole_row(self.header_commas, &self.buf[self.ready..self.end]) {
+            tracing::warn!(recording = %self.origin, line = self.lines + 1, "{NO_FINAL_NEWLINE}");
+            self.ready = self.end;
         } else if tail > 0 && self.lines > 0 {
             tracing::warn!(recording = %self.origin, dropped_bytes = tail,
                 "the last line was cut mid-row (writing was interrupted): dropped it");
@@ -141,6 +159,13 @@ impl<R: Read> Read for WholeLines<R> {
                 Ok(0) => self.finish(false),
                 Ok(n) => {
                     let new = &self.buf[self.end..self.end + n];
+                    if self.lines == 0
+                        && let Some(first) = memchr::memchr(b'\n', new)
+                    {
+                        // nothing handed out yet: the buffer starts with the header
+                        let header = &self.buf[..self.end + first];
+                        self.header_commas = Some(memchr::memchr_iter(b',', header).count());
+                    }
                     if let Some(i) = memchr::memrchr(b'\n', new) {
                         self.lines += memchr::memchr_iter(b'\n', new).count() as u64;
                         self.ready = self.end + i + 1;
@@ -184,6 +209,9 @@ mod tests {
     fn whole_lines_pass_and_a_cut_tail_goes() {
         assert_eq!(read_all(gzip(b"t_s,a\n1,2\n")).expect("reads"), "t_s,a\n1,2\n");
         assert_eq!(read_all(gzip(b"t_s,a\n1,2\n3,")).expect("reads"), "t_s,a\n1,2\n");
+        assert_eq!(read_all(gzip(b"t_s,a\n1,2\n3")).expect("reads"), "t_s,a\n1,2\n");
+        // a whole row without the final newline is a row
+        assert_eq!(read_all(gzip(b"t_s,a\n1,2\n3,4")).expect("reads"), "t_s,a\n1,2\n3,4");
         assert_eq!(read_all(gzip(b"t_s,a")).expect("reads"), "t_s,a");
         assert_eq!(read_all(gzip(b"")).expect("reads"), "");
         // lines longer than the buffer

@@ -181,6 +181,18 @@ fn simulate_refuses_a_run_of_more_rows_than_it_may_write() {
     assert_eq!(code, Some(2), "{msg}");
     assert!(msg.contains("--duration") && msg.contains("rows"), "{msg}");
     assert!(!out.exists(), "nothing written");
+    // more than the file may hold (a file-size limit here, as a full disk would be): said before writing a byte
+    let script = "ulimit -S -f 200; exec \"$0\" \"$@\"";
+    let o = std::process::Command::new("sh")
+        .args(["-c", script])
+        .arg(bin())
+        .args(simulate_args(&root().join("config/plant.toml"), "10", &out))
+        .output()
+        .expect("runs");
+    let msg = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{msg}");
+    assert!(msg.contains("--duration 10") && msg.contains("10000 rows") && msg.contains("has room for"), "{msg}");
+    assert!(files_in(dir.path()).iter().all(|f| !f.contains("rec.csv")), "nothing written");
 }
 
 #[test]
@@ -374,6 +386,27 @@ fn demo_with_recordings_under_a_file_exits_2_and_stops_its_simulator() {
             recordings.as_os_str(),
         ];
         exits_2_naming(&args, &["not-a-dir"]);
+    }
+}
+
+#[test]
+fn contradictory_or_wrong_command_line_targets_exit_2_naming_the_flag() {
+    // one port for the service and the simulator: the second bind failed with exit 1 (checked before any bind)
+    let one_port = ["demo", "--http", "127.0.0.1:18093", "--modbus", "0.0.0.0:18093"];
+    exits_2_naming(&one_port, &["--http", "--modbus", "one port"]);
+    // an output named as a directory: it failed writing with exit 1
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = format!("{}/", dir.path().join("nodir").display());
+    let model = root().join("config/plant.toml");
+    let args = simulate_args(&model, "1", Path::new(&out));
+    exits_2_naming(&args, &["--out", "nodir/", "ends in '/'"]);
+    assert!(files_in(dir.path()).is_empty(), "nothing written");
+    // a serial device that is not there, or a file that is not a serial line: it retried for ever
+    let plain = dir.path().join("plain.txt");
+    std::fs::write(&plain, "x").expect("write");
+    for device in [dir.path().join("ttyNONE"), plain] {
+        let args = ["sim".as_ref(), "--model".as_ref(), model.as_os_str(), "--serial".as_ref(), device.as_os_str()];
+        exits_2_naming(&args, &["--serial", &*device.to_string_lossy()]);
     }
 }
 

@@ -529,6 +529,16 @@ fn a_recording_cut_mid_row_at_its_end_is_read_without_that_line_and_a_cut_inside
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(0), "{err}");
     assert!(err.contains("cut mid-row"), "a warning: {err}");
+    // a file written without a final newline: its last row is whole, and read (it was dropped as cut)
+    let unterminated = dir.path().join("unterminated.csv");
+    std::fs::write(&unterminated, &text[..text.len() - 1]).expect("write");
+    assert_eq!(recording::load(&unterminated).expect("reads").len(), rows, "every row");
+    let mut reader = StreamReader::open(&unterminated).expect("opens");
+    let mut streamed = 0;
+    while let n @ 1.. = reader.read_batch(&mut batch, 4096).expect("streams") {
+        streamed += n;
+    }
+    assert_eq!(streamed, rows, "every row, streamed");
     // a row cut in the middle of the file is still an error
     let mid_start = text[..text.len() / 2].iter().rposition(|&b| b == b'\n').expect("lines") + 1;
     let mut broken = text[..mid_start + 5].to_vec();
