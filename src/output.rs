@@ -77,7 +77,7 @@ fn same_file(a: &Path, b: &Path) -> bool {
 /// the file-size limit (`ulimit -f`), where the system says.
 #[cfg(target_os = "linux")]
 pub fn free_bytes(path: &Path) -> Option<u64> {
-    let disk = rustix::fs::statvfs(&parent(path)).ok().and_then(|s| s.f_bavail.checked_mul(s.f_frsize));
+    let disk = rustix::fs::statvfs(parent(path)).ok().and_then(|s| s.f_bavail.checked_mul(s.f_frsize));
     let limit = rustix::process::getrlimit(rustix::process::Resource::Fsize).current;
     match (disk, limit) {
         (Some(d), Some(l)) => Some(d.min(l)),
