@@ -6,6 +6,7 @@ use crate::plant::{LoadSpec, PlantModel};
 use crate::recording::Recording;
 use crate::units::cm3_per_rev_to_m3_per_rad;
 
+use super::predict::FREE_RUN_STEP_S;
 use super::signal::{derivative, fill_gaps, filtfilt_butter4, without_spikes};
 
 /// Which simulation explains the recording: the pressure-driven hydraulic plant, or mechanics driven by a
@@ -109,8 +110,9 @@ pub struct Outlier {
     pub first_t_s: f64,
 }
 
-/// The measured columns screened for spikes (a setpoint is a command and `theta_rad` a position: not screened).
-const SCREENED: [&str; 6] = ["p_in_bar", "p_out_bar", "omega_rad_s", "f_drive_hz", "torque_nm", "load_nm"];
+/// The measured columns screened for spikes (a setpoint is a command: not screened). A position is monotone between
+/// turns, where the median of five is the value itself, so only a lone corrupt value (1e300 in one cell) stands out.
+const SCREENED: [&str; 7] = ["p_in_bar", "p_out_bar", "omega_rad_s", "theta_rad", "f_drive_hz", "torque_nm", "load_nm"];
 
 /// The analysed columns of a recording as read: spikes taken out of the screened ones, gaps not yet filled.
 struct Columns<'a> {
@@ -340,8 +342,8 @@ fn warn_of_gaps(src: &str, t_s: &[f64], restarts: &[usize]) {
             "{} gap(s) in t_s, the longest {} s after row {longest} (t_s = {}): the free run restarts from the \
              measured state after each",
             restarts.len(),
-            t_s[longest] - t_s[longest - 1],
-            t_s[longest - 1]
+            short(t_s[longest] - t_s[longest - 1]),
+            short(t_s[longest - 1])
         );
     }
 }
@@ -355,7 +357,6 @@ impl Series {
             return Err(BadInput(format!("recording {src}: {n} rows; the analysis needs at least 200")));
         }
         let t_s = rec.t_s().to_vec();
-        let span = t_s[n - 1] - t_s[0];
         // the median step, not the mean: a recording with gaps (skipped stale cycles) keeps its poll rate
         let steps: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
         let sample_hz = 1.0 / percentile(&steps, 0.5);
@@ -377,11 +378,26 @@ impl Series {
         let load_f = filtfilt_butter4(&load_nm, cutoff_hz, sample_hz);
         let restarts = gaps(&t_s);
         warn_of_gaps(src, &t_s, &restarts);
+        // time the free run integrates: the span without its gaps (nothing is integrated across one)
+        let active = active_time(&t_s, &restarts);
+        let integrated = active[n - 1];
+        if integrated / FREE_RUN_STEP_S > MAX_FREE_RUN_STEPS {
+            return Err(BadInput(format!(
+                "recording {src}: t_s spans {} s without its gaps, a sample every {} s: the free run steps at \
+                 {FREE_RUN_STEP_S} s, {} steps a pass, beyond the {MAX_FREE_RUN_STEPS:e} analyze takes (about \
+                 28 hours of recording); check the unit of t_s (ms recorded as s?), or analyze a part",
+                short(integrated),
+                short(1.0 / sample_hz),
+                short(integrated / FREE_RUN_STEP_S)
+            )));
+        }
         let (measured_omega, measured_dp, measured_f_drive) = cols.measured(speed.source, n);
         let speed_noise_f = (family == Family::Flow && speed.source == "omega_rad_s")
             .then(|| synthetic_speed_noise(&speed.omega_rad_s, &speed.omega_f, cutoff_hz, sample_hz));
-        let t_val = t_s[0] + (1.0 - validation_fraction) * span;
-        let split = t_s.iter().position(|&t| t >= t_val).unwrap_or(n - 1).clamp(100, n - 50);
+        // the validation segment is the last share of the recorded time, gaps left out: a long pause would
+        // otherwise swallow it
+        let t_val = (1.0 - validation_fraction) * integrated;
+        let split = active.iter().position(|&t| t >= t_val).unwrap_or(n - 1).clamp(100, n - 50);
         Ok(Series {
             family,
             t_s,
@@ -474,6 +490,36 @@ fn synthetic_speed_noise(omega: &[f64], omega_f: &[f64], cutoff_hz: f64, sample_
     let n = NOISE_ROWS.min(omega.len());
     let white: Vec<f64> = (0..n).map(|_| normal.sample(&mut rng)).collect();
     filtfilt_butter4(&white, cutoff_hz, sample_hz)
+}
+
+/// The most RK4 steps one free run may take: 10⁸ steps of [`FREE_RUN_STEP_S`] is about 28 hours of recording.
+pub const MAX_FREE_RUN_STEPS: f64 = 1e8;
+
+/// Per row, the time recorded up to it with the gaps before `restarts` left out (each counts as nothing).
+fn active_time(t_s: &[f64], restarts: &[usize]) -> Vec<f64> {
+    let mut gap = restarts.iter().peekable();
+    let mut total = 0.0;
+    let mut out = Vec::with_capacity(t_s.len());
+    for (k, &t) in t_s.iter().enumerate() {
+        if k > 0 {
+            if gap.peek() == Some(&&k) {
+                gap.next();
+            } else {
+                total += t - t_s[k - 1];
+            }
+        }
+        out.push(total);
+    }
+    out
+}
+
+/// A time for messages: plain when it reads well, else in scientific notation (1e300 has 301 digits).
+fn short(v: f64) -> String {
+    if v != 0.0 && !(1e-3..1e6).contains(&v.abs()) {
+        format!("{v:.3e}")
+    } else {
+        format!("{}", (v * 1e6).round() / 1e6)
+    }
 }
 
 /// A step between rows longer than this many median steps (and than [`GAP_MIN_S`]) is a gap in the recording.

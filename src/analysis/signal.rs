@@ -85,31 +85,51 @@ pub const SPIKE_X_SIGMA: f64 = 30.0;
 /// Takes out spikes: values that stand [`SPIKE_X_SIGMA`] robust standard deviations off the median of the five
 /// finite values around them (a row or two corrupted). Where a signal is monotone the median is the value itself,
 /// so steps and ramps are never touched; σ is 1.4826 × the median of the non-zero deviations (the noise where the
-/// signal turns). Returns the signal with spikes as NaN (missing) and the rows taken out.
+/// signal turns; where fewer than 1 % of the rows turn, as a position does, of its steps between rows). A spike also
+/// shifts its neighbours' medians, so each pass takes only the values that stand out most within their five, and the
+/// next pass looks again without them (two spikes side by side: two passes).
+/// Returns the signal with spikes as NaN (missing) and the rows taken out, in order.
 pub fn without_spikes(x: &[f64]) -> (Vec<f64>, Vec<usize>) {
-    let finite: Vec<usize> = (0..x.len()).filter(|&k| x[k].is_finite()).collect();
-    let deviation: Vec<f64> = (0..finite.len())
-        .map(|i| {
-            let (a, b) = (i.saturating_sub(2), (i + 3).min(finite.len()));
-            let mut w: Vec<f64> = finite[a..b].iter().map(|&k| x[k]).collect();
-            w.sort_by(f64::total_cmp);
-            x[finite[i]] - w[w.len() / 2]
-        })
-        .collect();
-    let mut nonzero: Vec<f64> = deviation.iter().map(|d| d.abs()).filter(|d| *d > 0.0).collect();
     let mut out = x.to_vec();
-    if nonzero.len() < 20 {
-        return (out, Vec::new());
-    }
-    let mid = nonzero.len() / 2;
-    let sigma = 1.4826 * *nonzero.select_nth_unstable_by(mid, f64::total_cmp).1;
     let mut taken = Vec::new();
-    for (i, d) in deviation.iter().enumerate() {
-        if d.abs() > SPIKE_X_SIGMA * sigma {
-            out[finite[i]] = f64::NAN;
-            taken.push(finite[i]);
+    let mut first_sigma = None;
+    for _ in 0..4 {
+        let finite: Vec<usize> = (0..out.len()).filter(|&k| out[k].is_finite()).collect();
+        let deviation: Vec<f64> = (0..finite.len())
+            .map(|i| {
+                let (a, b) = (i.saturating_sub(2), (i + 3).min(finite.len()));
+                let mut w: Vec<f64> = finite[a..b].iter().map(|&k| out[k]).collect();
+                w.sort_by(f64::total_cmp);
+                (out[finite[i]] - w[w.len() / 2]).abs()
+            })
+            .collect();
+        let sigma = *first_sigma.get_or_insert_with(|| {
+            // at least 20, and 1 % of the rows: a spike's neighbours alone must not make the set
+            let robust = |mut nonzero: Vec<f64>| {
+                let mid = nonzero.len() / 2;
+                (nonzero.len() >= 20.max(x.len() / 100))
+                    .then(|| 1.4826 * *nonzero.select_nth_unstable_by(mid, f64::total_cmp).1)
+            };
+            // a smooth signal that seldom turns (a position) has too few: the scale of its steps stands in
+            let steps = || finite.windows(2).map(|w| (out[w[1]] - out[w[0]]).abs()).filter(|d| *d > 0.0).collect();
+            robust(deviation.iter().copied().filter(|d| *d > 0.0).collect()).or_else(|| robust(steps()))
+        });
+        let Some(sigma) = sigma else { break };
+        let before = taken.len();
+        for (i, &d) in deviation.iter().enumerate() {
+            let (a, b) = (i.saturating_sub(2), (i + 3).min(finite.len()));
+            if d > SPIKE_X_SIGMA * sigma && deviation[a..b].iter().all(|&e| e <= d) {
+                taken.push(finite[i]);
+            }
+        }
+        if taken.len() == before {
+            break;
+        }
+        for &k in &taken[before..] {
+            out[k] = f64::NAN;
         }
     }
+    taken.sort_unstable();
     (out, taken)
 }
 
@@ -280,6 +300,22 @@ mod tests {
         let (y, taken) = without_spikes(&x);
         assert_eq!(taken, [500, 1500]);
         assert!(y[500].is_nan() && y[999] == x[999] && y[1000] == x[1000]);
+        // two spikes side by side: both, in two passes
+        x[700] = 300.0;
+        x[701] = 280.0;
+        assert_eq!(without_spikes(&x).1, [500, 700, 701, 1500]);
+    }
+
+    #[test]
+    fn a_corrupt_cell_in_a_position_goes_alone() {
+        // a position turning back and forth, with a little noise, one cell 1e300: its neighbours' medians shift
+        // by a step, and were taken with it
+        let noise = |k: usize| 2e-6 * ((k * 7919 % 101) as f64 / 101.0 - 0.5);
+        let mut x: Vec<f64> = (0..3000).map(|k| 0.05 * (k as f64 * 0.004).sin() + noise(k)).collect();
+        x[1000] = 1e300;
+        let (y, taken) = without_spikes(&x);
+        assert_eq!(taken, [1000]);
+        assert!(y[999] == x[999] && y[1001] == x[1001]);
     }
 
     #[test]

@@ -128,7 +128,14 @@ fn analysis_files(paths: &[PathBuf], drive: Option<&str>) -> anyhow::Result<Vec<
 /// The files of [`analysis_files`] read and joined.
 fn analysis_recording(files: &[PathBuf], drive: Option<&str>) -> anyhow::Result<recording::Recording> {
     let columns = hydrolens::analysis::RECORDING_COLUMNS;
-    let parts = files.iter().map(|p| recording::load_columns(p, &columns)).collect::<Result<Vec<_>, _>>()?;
+    // the rows are counted as they are read, never past the analysis's cap (its memory grows with them)
+    let mut left = hydrolens::analysis::MAX_ROWS;
+    let mut parts = Vec::with_capacity(files.len());
+    for p in files {
+        let part = recording::load_columns(p, &columns, left)?;
+        left -= part.len();
+        parts.push(part);
+    }
     let parts = if drive.is_some() {
         let (run, left_out) = recording::last_run(parts);
         if left_out > 0 {

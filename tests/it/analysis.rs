@@ -511,3 +511,72 @@ fn bad_input_exits_2_naming_the_column() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("omega_rad_s") && err.contains("theta_rad"), "{err}");
 }
+
+/// `analyze` on a copy of the EMPS recording with `edit` applied to its rows (t_s, θ, τ): exit code, stderr, JSON.
+fn emps_edited(edit: impl Fn(usize, &mut [f64; 3])) -> (Option<i32>, String, Option<serde_json::Value>) {
+    let dir = support::root().join("tests/data/emps");
+    let tmp = tempfile::tempdir().expect("tmp");
+    let text = std::fs::read_to_string(dir.join("recording.csv")).expect("emps");
+    let mut lines = text.lines();
+    let mut out = format!("{}\n", lines.next().expect("header"));
+    assert_eq!(out, "t_s,theta_rad,torque_nm\n", "the columns this helper edits");
+    for (k, line) in lines.enumerate() {
+        let mut row = [0.0; 3];
+        for (v, cell) in row.iter_mut().zip(line.split(',')) {
+            *v = cell.parse().expect("a number");
+        }
+        edit(k, &mut row);
+        out.push_str(&format!("{:e},{:e},{:e}\n", row[0], row[1], row[2]));
+    }
+    let (rec, json) = (tmp.path().join("r.csv"), tmp.path().join("a.json"));
+    std::fs::write(&rec, out).expect("write");
+    let o = Command::new(support::bin())
+        .arg("analyze")
+        .arg(&rec)
+        .arg("--model")
+        .arg(dir.join("model.toml"))
+        .arg("--json")
+        .arg(&json)
+        .output()
+        .expect("runs");
+    let v = std::fs::read_to_string(&json).ok().map(|t| serde_json::from_str(&t).expect("valid"));
+    (o.status.code(), String::from_utf8_lossy(&o.stderr).into_owned(), v)
+}
+
+#[test]
+fn a_corrupt_position_a_long_pause_and_a_stretched_clock_are_handled_or_refused() {
+    let effects = |v: &serde_json::Value| -> Vec<String> {
+        v["findings"]
+            .as_array()
+            .expect("findings")
+            .iter()
+            .filter_map(|f| f["effect"].as_str().map(String::from))
+            .collect()
+    };
+    // one θ cell of 1e300: taken out as a spike, alone, and the same physics named (it was "the speed hardly
+    // changes" with no location)
+    let (code, err, v) = emps_edited(|k, r| {
+        if k == 998 {
+            r[1] = 1e300;
+        }
+    });
+    assert_eq!(code, Some(0), "{err}");
+    assert!(err.contains("theta_rad") && err.contains("rows=1 "), "one spike named: {err}");
+    let named = effects(&v.expect("json"));
+    assert!(named.contains(&"coulomb_friction".into()) && named.contains(&"torque_offset".into()), "{named:?}");
+    // a pause of 10⁹ s near the end: the validation segment is still the last 30 % of the recorded time (it was
+    // the 840 rows after the pause), and the message gives the gap in few digits
+    let (code, err, v) = emps_edited(|k, r| {
+        if k >= 24_000 {
+            r[0] += 1e9;
+        }
+    });
+    assert_eq!(code, Some(0), "{err}");
+    let from = v.expect("json")["validation_from_s"].as_f64().expect("validation_from_s");
+    assert!((from - 17.39).abs() < 0.05, "validation from {from} s");
+    assert!(err.contains("1.000e9 s after row 24000"), "{err}");
+    // t_s ×10⁶ (1000 s a sample): 2.5·10¹⁰ integration steps a pass, refused at once naming the unit
+    let (code, err, _) = emps_edited(|_, r| r[0] *= 1e6);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("r.csv") && err.contains("t_s") && err.contains("unit"), "{err}");
+}

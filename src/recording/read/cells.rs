@@ -101,8 +101,27 @@ pub(super) fn cell_value(cell: &[u8], origin: &str, line: u64, column: &str) -> 
         path: origin.into(),
         line,
         column: column.to_string(),
-        message: format!("expected a number, got {:?}", String::from_utf8_lossy(cell)),
+        message: format!("expected a number, got {}", shown(cell)),
     })
+}
+
+/// A cell for a message: quoted, control characters as `\u{…}` (a NUL then a digit read as `"\01"`), at most 40
+/// characters.
+fn shown(cell: &[u8]) -> String {
+    let text = String::from_utf8_lossy(cell);
+    let mut out: String = text
+        .chars()
+        .take(40)
+        .map(|c| match c {
+            '"' | '\\' => format!("\\{c}"),
+            c if c.is_control() => format!("\\u{{{:x}}}", u32::from(c)),
+            c => c.to_string(),
+        })
+        .collect();
+    if text.chars().nth(40).is_some() {
+        out.push('…');
+    }
+    format!("\"{out}\"")
 }
 
 /// A row's time must be finite and later than the row before's.

@@ -52,6 +52,12 @@ pub enum RecordingError {
     Line { path: String, line: u64, message: String },
     #[error("recording {path}, line {line}, column `{column}`: {message}")]
     Cell { path: String, line: u64, column: String, message: String },
+    /// More rows than the command may hold in memory (with the files before it, for several).
+    #[error(
+        "recording {path}: more than {max_rows} rows (with the files before it), the most this command holds in \
+         memory; give it a part of the recording"
+    )]
+    TooLong { path: String, max_rows: usize },
 }
 
 impl RecordingError {
@@ -115,18 +121,23 @@ fn no_rows_in<R: Read>(mut text: R) -> std::io::Result<bool> {
 
 /// Reads of a recording file only `t_s` and those of `columns` it has (the other cells are checked, not kept): what
 /// `analyze` holds in memory.
-pub fn load_columns(path: &Path, columns: &[&str]) -> Result<Recording, RecordingError> {
+pub fn load_columns(path: &Path, columns: &[&str], max_rows: usize) -> Result<Recording, RecordingError> {
     let name = path.display().to_string();
-    read_whole(super::cut::open(path)?, &name, |n| columns.contains(&n))
+    read_whole(super::cut::open(path)?, &name, |n| columns.contains(&n), max_rows)
 }
 
 /// Parses recording CSV text whole, `t_s` first and the other columns in file order; `origin` names it in errors.
 pub fn parse<R: Read>(reader: R, origin: &str) -> Result<Recording, RecordingError> {
-    read_whole(reader, origin, |_| true)
+    read_whole(reader, origin, |_| true, usize::MAX)
 }
 
 /// The columns `keep` says yes to, whole.
-fn read_whole<R: Read>(reader: R, origin: &str, keep: impl Fn(&str) -> bool) -> Result<Recording, RecordingError> {
+fn read_whole<R: Read>(
+    reader: R,
+    origin: &str,
+    keep: impl Fn(&str) -> bool,
+    max_rows: usize,
+) -> Result<Recording, RecordingError> {
     let mut r = StreamReader::new(reader, origin)?;
     let others: Vec<usize> = (0..r.names.len()).filter(|&i| i != r.t_index && keep(&r.names[i])).collect();
     r.select(&others);
@@ -136,6 +147,9 @@ fn read_whole<R: Read>(reader: R, origin: &str, keep: impl Fn(&str) -> bool) -> 
         columns[0].extend_from_slice(&batch.t_s);
         for (c, values) in columns[1..].iter_mut().zip(&batch.columns) {
             c.extend_from_slice(values);
+        }
+        if columns[0].len() > max_rows {
+            return Err(RecordingError::TooLong { path: origin.to_string(), max_rows });
         }
     }
     // what the doubling growth left spare goes back (a long recording: up to half the columns' memory)

@@ -146,6 +146,11 @@ fn bad_input_names_line_and_column() {
     let err = |text: &str| parse_str(text).expect_err("bad input").to_string();
     let e = err("t_s,omega_rad_s,f_set_hz\n0,1,2\n0.001,abc,2\n");
     assert!(e.contains("r.csv, line 3, column `omega_rad_s`") && e.contains("\"abc\""), "{e}");
+    // a NUL before a digit read as the octal-looking "\01"; a long cell shown in part
+    let e = err("t_s,omega_rad_s\n0,1\n0.001,\u{0}1\n");
+    assert!(e.contains(r#"got "\u{0}1""#), "{e}");
+    let e = err(&format!("t_s,omega_rad_s\n0,1\n0.001,{}\n", "x".repeat(5000)));
+    assert!(e.contains(&format!("\"{}…\"", "x".repeat(40))) && e.len() < 200, "{e}");
     // CRLF and blank lines: the row's own line
     assert!(err("t_s,omega_rad_s\r\n0,1\r\n0.001,abc\r\n").contains("line 3"));
     assert!(err("t_s,omega_rad_s\n0,1\n\n\n0.001,abc\n").contains("line 5"));
@@ -339,4 +344,15 @@ proptest! {
         }
         assert_plain_path_agrees(&text, max_rows, piece);
     }
+}
+
+#[test]
+fn a_reader_with_a_row_cap_stops_past_it_naming_the_file() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let path = dir.path().join("long.csv");
+    let text: String = (0..5000).map(|k| format!("{k},{}\n", k * 2)).collect();
+    std::fs::write(&path, format!("t_s,omega_rad_s\n{text}")).expect("write");
+    assert_eq!(load_columns(&path, &["omega_rad_s"], 5000).expect("at the cap").len(), 5000);
+    let e = load_columns(&path, &["omega_rad_s"], 4999).expect_err("past the cap").to_string();
+    assert!(e.contains("long.csv") && e.contains("more than 4999 rows"), "{e}");
 }
