@@ -119,10 +119,10 @@ impl Coefficients {
         })
     }
 
-    /// The fastest rate (1/s) of the plant linearised about standstill: the line's pressure (leakage and slip against its stiffness β/V), the shaft (friction over inertia), and the
-    /// oscillation between them (β·D_m²/(V·J)). RK4 is accurate and stable while step × rate ≤ 1. The drive's
-    /// frequency is left out: its rate is clamped to the ramp, so a short time constant bounds its error by
-    /// ramp × step instead of growing.
+    /// The fastest rate (1/s) of the plant linearised about standstill: the line's pressure (leakage and slip
+    /// against its stiffness β/V), the shaft (friction over inertia), and the oscillation between them
+    /// (β·D_m²/(V·J)). RK4 is accurate and stable while step × rate ≤ 1. The drive's frequency is left out: its rate
+    /// is clamped to the ramp, so a short time constant bounds its error by ramp × step instead of growing.
     pub fn fastest_rate(&self) -> f64 {
         let stiffness = self.bulk_modulus_pa / self.volume_m3;
         let slip = self.pump_m3_rad.powi(2) * self.slip_rad_s_per_nm;

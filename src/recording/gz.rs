@@ -98,8 +98,8 @@ pub fn whole_row(header_commas: Option<usize>, tail: &[u8]) -> bool {
 }
 
 /// The warning for a last line kept by [`whole_row`].
-pub const NO_FINAL_NEWLINE: &str = "the last line has no newline but all its cells: read as a row (had writing been cut inside its last value, \
-     that value would read short)";
+pub const NO_FINAL_NEWLINE: &str = "the last line has no newline but all its cells: read as a row (had writing \
+                                     been cut inside its last value, that value would read short)";
 
 impl<R: Read> WholeLines<R> {
     pub fn new(inner: R, origin: &str) -> WholeLines<R> {
