@@ -145,6 +145,20 @@ impl RegisterSpec {
         })
     }
 
+    /// As [`RegisterSpec::encode`], but where the nearest step lies outside `lo ..= hi` (a limit that is not a whole
+    /// number of steps: 50 Hz at 0.3 Hz a step rounds to 50.1), the next step inside it.
+    pub fn encode_within(&self, value: f64, lo: f64, hi: f64) -> Result<Vec<u16>, MapError> {
+        let words = self.encode(value)?;
+        let got = self.decode(&words)?;
+        if self.kind == ValueType::F32 || (lo..=hi).contains(&got) {
+            return Ok(words);
+        }
+        // one step back towards the value; kept only if it is inside and still the same request
+        let back = if got > hi { value - self.scale.abs() * 0.5 } else { value + self.scale.abs() * 0.5 };
+        let inner = self.encode(back)?;
+        Ok(if (lo..=hi).contains(&self.decode(&inner)?) { inner } else { words })
+    }
+
     /// As [`RegisterSpec::encode`] but saturating at the type's range (for a simulator's sensors).
     pub fn encode_saturating(&self, value: f64) -> Vec<u16> {
         let (lo, hi) = match self.kind {
@@ -354,16 +368,17 @@ fn merge_adjacent<T>(mut parts: Vec<(u16, T)>, len: impl Fn(&T) -> usize, join: 
     out
 }
 
-/// The writes for a setpoint, control word and watchdog value: encoded, sorted, adjacent registers merged so that
-/// the default map takes one request. Pure.
+/// The writes for a setpoint (with its limits: the register step nearest to it inside them), control word and
+/// watchdog value: encoded, sorted, adjacent registers merged so that the default map takes one request. Pure.
 pub fn plan_writes(
     map: &RegisterMap,
-    setpoint_hz: f64,
+    (setpoint_hz, (min_hz, max_hz)): (f64, (f64, f64)),
     control_word: u16,
     watchdog: u16,
 ) -> Result<Vec<(u16, Vec<u16>)>, MapError> {
+    let setpoint = map.frequency_setpoint_hz.encode_within(setpoint_hz, min_hz, max_hz)?;
     let parts = vec![
-        (map.frequency_setpoint_hz.address, map.frequency_setpoint_hz.encode(setpoint_hz)?),
+        (map.frequency_setpoint_hz.address, setpoint),
         (map.control_word.address, map.control_word.encode(f64::from(control_word))?),
         (map.watchdog.address, map.watchdog.encode(f64::from(watchdog))?),
     ];
@@ -413,10 +428,22 @@ mod tests {
     }
 
     #[test]
+    fn a_setpoint_never_rounds_past_its_limits() {
+        // 0.3 Hz a step: 50 Hz rounds to 50.1 and 10 Hz to 9.9; the next steps inside are written
+        let coarse = RegisterSpec::new(Table::Holding, 0, ValueType::U16, 0.3);
+        assert_eq!(coarse.encode(50.0).expect("fits"), vec![167]);
+        assert_eq!(coarse.encode_within(50.0, 10.0, 50.0).expect("fits"), vec![166]);
+        assert_eq!(coarse.encode_within(10.0, 10.0, 50.0).expect("fits"), vec![34]);
+        assert_eq!(coarse.encode_within(30.0, 10.0, 50.0).expect("fits"), vec![100]);
+        // limits closer than a step: the nearest
+        assert_eq!(coarse.encode_within(20.0, 20.0, 20.1).expect("fits"), vec![67]);
+    }
+
+    #[test]
     fn default_map_is_one_read_and_one_write() {
         let map = RegisterMap::default();
         assert_eq!(read_plan(&map), vec![(Table::Input, 0, 6)]);
-        let w = plan_writes(&map, 25.0, control::RUN, 7).expect("fits");
+        let w = plan_writes(&map, (25.0, (0.0, 50.0)), control::RUN, 7).expect("fits");
         assert_eq!(w, vec![(0, vec![2500, control::RUN, 7])]);
         assert_eq!(write_layout(&map), vec![(0, 3)]);
     }
@@ -426,7 +453,7 @@ mod tests {
         let mut map = RegisterMap::default();
         map.watchdog.address = 10;
         map.frequency_setpoint_hz = RegisterSpec::new(Table::Holding, 20, ValueType::F32, 1.0);
-        let w = plan_writes(&map, 25.5, 1, 2).expect("fits");
+        let w = plan_writes(&map, (25.5, (0.0, 50.0)), 1, 2).expect("fits");
         assert_eq!(w.len(), 3);
         assert_eq!(w[0], (1, vec![1]));
         assert_eq!(w[2].0, 20);

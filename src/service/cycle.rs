@@ -103,6 +103,12 @@ pub struct DriveCycle {
     watchdog: u16,
     /// 0: none; 1: write the fault-reset bit next; 2: written, drop it next.
     reset_phase: u8,
+    /// A trip this service saw (fault or comm-loss bit, or a sample counter that restarted: the drive lost power),
+    /// held until `POST …/reset`: a drive whose trip clears on its own side, or that comes back from a power cycle,
+    /// is not sent RUN again by the service itself (no unexpected restart, EN 60204-1 §7.5). Writing modes only.
+    trip_latched: bool,
+    /// The control's (min_hz, max_hz): a setpoint register's step never takes a write past them.
+    hz_range: (f64, f64),
     pending: Option<Pending>,
     status: DriveStatus,
     /// The drive does not follow its setpoints (the law's verdict), for the alarm.
@@ -135,6 +141,8 @@ impl DriveCycle {
             last_written: Vec::new(),
             watchdog: 0,
             reset_phase: 0,
+            trip_latched: false,
+            hz_range: (settings.limits.min_hz, settings.limits.max_hz),
             pending: None,
             status: DriveStatus::default(),
             not_following: false,
@@ -148,6 +156,8 @@ impl DriveCycle {
         self.law.target_omega_rad_s = c.target_omega_rad_s;
         if c.reset_requested && self.mode.writes() {
             self.reset_phase = 1;
+            // what the drive still reports latches again at its next sample
+            self.trip_latched = false;
         }
     }
 
@@ -157,10 +167,16 @@ impl DriveCycle {
         let nothing = |verdict| Step { verdict, writes: Vec::new(), point: None, encode_error: None };
         self.pending = None;
         self.status = drive_status(sample.status_word);
+        let writing = self.mode.writes();
+        // while a requested reset goes out, the fault it is meant to clear is not latched again
+        self.trip_latched |= writing && self.reset_phase == 0 && (self.status.fault || self.status.comm_loss_trip);
         match self.counter.observe(sample.counter) {
             CounterVerdict::Moved => {}
             CounterVerdict::Unchanged | CounterVerdict::Settling => return nothing(Verdict::Stale),
-            CounterVerdict::Backwards => return nothing(Verdict::CounterBackwards(sample.counter)),
+            CounterVerdict::Backwards => {
+                self.trip_latched |= writing;
+                return nothing(Verdict::CounterBackwards(sample.counter));
+            }
         }
         let now = sent_at;
         let previous = self.last_valid;
@@ -230,7 +246,7 @@ impl DriveCycle {
         }
         let due = self.last_watchdog_at.is_none_or(|t| now.saturating_duration_since(t) >= self.watchdog_every);
         let watchdog = if due { self.watchdog.wrapping_add(1) } else { self.watchdog };
-        let writes = plan_writes(&self.registers, hz, control_word, watchdog)?;
+        let writes = plan_writes(&self.registers, (hz, self.hz_range), control_word, watchdog)?;
         if !due && writes == self.last_written {
             return Ok(Vec::new());
         }
@@ -284,9 +300,9 @@ impl DriveCycle {
         self.status
     }
 
-    /// The drive reports a fault or a comm-loss trip.
+    /// The drive reports a fault or a comm-loss trip, or (writing modes) one was seen and not yet reset.
     pub fn tripped(&self) -> bool {
-        self.status.fault || self.status.comm_loss_trip
+        self.status.fault || self.status.comm_loss_trip || self.trip_latched
     }
 
     pub fn estimate(&self) -> Option<Estimate> {
@@ -496,6 +512,16 @@ mod tests {
         let at = t0 + MS * 150;
         let ready = c.step(&sample(15, 30.0, 20.0, status::READY), at, at + MS);
         assert_eq!(written(&ready).map(|w| w.1), Some(control::RUN));
+        // a trip that clears on the drive's side stays latched: no RUN until a reset
+        run(&mut c, t0, 16, 2, 30.0, status::FAULT | status::READY);
+        let cleared = run(&mut c, t0, 18, 3, 30.0, status::READY | status::RUNNING);
+        assert!(c.tripped(), "latched");
+        assert!(cleared.iter().filter_map(written).all(|w| w.1 == 0), "no RUN from the service itself");
+        c.command(Commands { target_omega_rad_s: 0.0, reset_requested: true });
+        let at = t0 + MS * 210;
+        let reset = c.step(&sample(21, 30.0, 20.0, status::READY), at, at + MS);
+        assert_eq!(written(&reset).map(|w| w.1), Some(control::RUN | control::FAULT_RESET));
+        assert!(!c.tripped());
         // monitor mode ignores a reset
         let (mut m, _) = cycle("mode = \"monitor\"");
         m.command(Commands { target_omega_rad_s: 1.0, reset_requested: true });

@@ -314,8 +314,8 @@ impl DriveLoop {
         if tripped {
             self.link.trips += 1;
             tracing::warn!(drive = %self.settings.name, status_word = word,
-                "the drive tripped (fault or comm-loss): no RUN is sent and the setpoint ramps to 0 Hz; \
-                 POST /api/drives/<name>/reset re-arms it");
+                "the drive tripped (fault, comm-loss or a restart): no RUN is sent and the setpoint ramps to 0 Hz, \
+                 also once the drive's own trip clears; POST /api/drives/<name>/reset re-arms it");
         } else {
             tracing::info!(drive = %self.settings.name, status_word = word, "the drive's trip has cleared");
         }

@@ -117,6 +117,15 @@ async fn a_tripped_drive_is_sent_no_run_until_it_is_reset_and_ready() {
             tokio::time::sleep(Duration::from_millis(5)).await;
         }
         assert_eq!(control_word() & control::RUN, 0, "no RUN to a faulted drive");
+        // the fault clears on the drive's side (an auto-resetting drive, a local reset): the trip stays latched,
+        // no RUN from the service itself (it was re-armed 0.4 s later)
+        sim.lock().set_fault(false);
+        let from = polls().await;
+        while polls().await < from + 30 {
+            assert_eq!(control_word() & control::RUN, 0, "no RUN until POST reset");
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+        assert_eq!(s.drive_status().await["tripped"], true, "{}", s.drive_status().await);
         let m = s.metrics().await;
         assert_eq!(metric(&m, "hydrolens_trips_total{drive=\"pump1\"}"), Some(1.0), "{m}");
         assert!(s.log().lines().any(|l| l.contains("WARN") && l.contains("the drive tripped")), "{}", s.log());
