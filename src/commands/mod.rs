@@ -56,16 +56,19 @@ fn shutdown_on_signal() -> CancellationToken {
     #[cfg(unix)]
     let handlers = {
         use tokio::signal::unix::{SignalKind, signal};
-        signal(SignalKind::terminate()).and_then(|term| Ok((term, signal(SignalKind::interrupt())?)))
+        // SIGHUP (a closed terminal or session) and SIGQUIT end the process too: cleanly, as SIGTERM does, rather
+        // than by their default action, which left the recording unclosed
+        [SignalKind::terminate(), SignalKind::interrupt(), SignalKind::hangup(), SignalKind::quit()]
+            .map(signal)
+            .into_iter()
+            .collect::<std::io::Result<Vec<_>>>()
     };
     tokio::spawn(async move {
         #[cfg(unix)]
         match handlers {
-            Ok((mut term, mut int)) => {
-                tokio::select! {
-                    _ = term.recv() => {}
-                    _ = int.recv() => {}
-                }
+            Ok(mut signals) => {
+                let any = signals.iter_mut().map(|s| Box::pin(s.recv()));
+                let _ = futures::future::select_all(any).await;
             }
             Err(e) => {
                 tracing::warn!(error = %e, "cannot listen for SIGTERM");

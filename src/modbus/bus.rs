@@ -19,6 +19,10 @@ use tokio_util::sync::CancellationToken;
 use super::client::{BACKOFF_CAP, BACKOFF_START, ClientError, DriveClient, Endpoint};
 use super::map::Table;
 
+/// How long a line still carries its drives' last requests after shutdown (their stop): a drive waits at most
+/// [`crate::service::STOP_TIMEOUT`] for its own.
+pub const SHUTDOWN_DRAIN: Duration = Duration::from_secs(2);
+
 /// A drive's way to its device: a connection of its own (Modbus TCP), or its turn on a shared RTU line.
 pub enum Connection {
     Own(DriveClient),
@@ -174,13 +178,25 @@ impl Bus {
         // only the handles keep the channel open from here
         let (closed, _) = mpsc::channel(1);
         drop(std::mem::replace(&mut self.tx, closed));
+        // after shutdown the line still carries what its drives send on their way out (the stop of a writing
+        // drive), for a short while or until every handle is gone
+        let mut drain_until = None;
         loop {
-            let call = tokio::select! {
-                biased;
-                () = shutdown.cancelled() => break,
-                call = self.rx.recv() => match call {
-                    Some(c) => c,
-                    None => break,
+            let call = match drain_until {
+                Some(until) => match tokio::time::timeout_at(until, self.rx.recv()).await {
+                    Ok(Some(c)) => c,
+                    _ => break,
+                },
+                None => tokio::select! {
+                    biased;
+                    () = shutdown.cancelled() => {
+                        drain_until = Some(Instant::now() + SHUTDOWN_DRAIN);
+                        continue;
+                    }
+                    call = self.rx.recv() => match call {
+                        Some(c) => c,
+                        None => break,
+                    },
                 },
             };
             self.serve(call).await;

@@ -109,6 +109,8 @@ pub struct DriveCycle {
     trip_latched: bool,
     /// The control's (min_hz, max_hz): a setpoint register's step never takes a write past them.
     hz_range: (f64, f64),
+    /// Some write reached the drive: on a clean stop it is sent control word 0.
+    commanded: bool,
     pending: Option<Pending>,
     status: DriveStatus,
     /// The drive does not follow its setpoints (the law's verdict), for the alarm.
@@ -143,6 +145,7 @@ impl DriveCycle {
             reset_phase: 0,
             trip_latched: false,
             hz_range: (settings.limits.min_hz, settings.limits.max_hz),
+            commanded: false,
             pending: None,
             status: DriveStatus::default(),
             not_following: false,
@@ -268,6 +271,7 @@ impl DriveCycle {
         }
         self.watchdog = p.watchdog;
         self.last_written = p.writes;
+        self.commanded = true;
         let reset_sent = self.reset_phase == 1;
         self.reset_phase = if reset_sent { 2 } else { 0 };
         Some(Confirmed { setpoint_hz: p.setpoint_hz, reset_sent })
@@ -298,6 +302,11 @@ impl DriveCycle {
     /// The status word's bits, as of the last decoded sample.
     pub fn status(&self) -> DriveStatus {
         self.status
+    }
+
+    /// Some write of this service reached the drive.
+    pub fn commanded(&self) -> bool {
+        self.commanded
     }
 
     /// The drive reports a fault or a comm-loss trip, or (writing modes) one was seen and not yet reset.

@@ -152,11 +152,32 @@ impl DriveLoop {
                 break;
             }
         }
+        if self.settings.mode.writes() && self.cycle.commanded() {
+            rt.block_on(self.stop_drive());
+        }
         rt.block_on(self.client.close());
         if let Some(rec) = self.recorder.take() {
             rec.finish();
         }
         tracing::info!(drive = %self.settings.name, "poll loop stopped");
+    }
+
+    /// On a clean stop, a drive this service commanded is sent control word 0 (no RUN): it decelerates on its own
+    /// ramp now, rather than run unsupervised until its watchdog trips (`comm_timeout_ms`, up to an hour).
+    async fn stop_drive(&mut self) {
+        let spec = self.settings.registers.control_word;
+        let name = &self.settings.name;
+        let write = async {
+            let words = spec.encode(0.0).map_err(|e| e.to_string())?;
+            self.client.write(spec.address, &words).await.map_err(|e| e.to_string())
+        };
+        match tokio::time::timeout(super::STOP_TIMEOUT, write).await {
+            Ok(Ok(())) => tracing::info!(drive = %name, "stopping: the drive was sent control word 0 (no RUN)"),
+            Ok(Err(e)) => tracing::warn!(drive = %name, error = %e,
+                "stopping: control word 0 could not be sent; the drive's own watchdog stops it"),
+            Err(_) => tracing::warn!(drive = %name, timeout_ms = super::STOP_TIMEOUT.as_millis() as u64,
+                "stopping: control word 0 not confirmed in time; the drive's own watchdog stops it"),
+        }
     }
 
     fn error(&mut self, e: &ClientError) {

@@ -255,9 +255,32 @@ pub const LOCK_FILE: &str = ".hydrolens.lock";
 /// The pid is a courtesy: a full disk that refuses it is logged, and the lock holds without it.
 pub fn lock_dir(dir: &Path) -> std::io::Result<std::fs::File> {
     use std::io::{Read, Seek, Write};
-    std::fs::create_dir_all(dir)?;
+    // a directory the service may not make or write in (permissions, a read-only or virtual file system) is the
+    // config's to fix: said naming the key and the path
+    let named = |what: &str, path: &Path, e: std::io::Error| {
+        use std::io::ErrorKind as K;
+        let fixable = matches!(
+            e.kind(),
+            K::PermissionDenied | K::NotFound | K::NotADirectory | K::ReadOnlyFilesystem | K::AlreadyExists
+        );
+        if !fixable {
+            return e;
+        }
+        std::io::Error::other(crate::error::BadInput(format!(
+            "recording.dir {}: cannot {what} {}: {e}",
+            dir.display(),
+            path.display()
+        )))
+    };
+    std::fs::create_dir_all(dir).map_err(|e| named("make the directory", dir, e))?;
     let path = dir.join(LOCK_FILE);
-    let mut f = std::fs::OpenOptions::new().read(true).write(true).create(true).truncate(false).open(&path)?;
+    let mut f = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .map_err(|e| named("write its lock file", &path, e))?;
     match f.try_lock() {
         Ok(()) => {
             let pid = f.set_len(0).and_then(|()| f.rewind()).and_then(|()| writeln!(f, "{}", std::process::id()));

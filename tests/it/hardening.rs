@@ -3,7 +3,7 @@
 
 use hydrolens::recording::simulated;
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -461,12 +461,19 @@ fn configs_that_must_be_refused_name_their_key() {
 }
 
 #[test]
-fn serve_with_a_recording_dir_that_is_a_file_exits_2_naming_the_key() {
+fn serve_with_a_recording_dir_that_is_a_file_or_cannot_be_made_exits_2_naming_the_key() {
     let dir = tempfile::tempdir().expect("tmp");
     let file = dir.path().join("not-a-dir");
     std::fs::write(&file, "x").expect("write");
-    let config = dir.path().join("c.toml");
-    let text = format!("[recording]\ndir = {:?}\n{DRIVE}", file.display().to_string());
+    // a directory no one may make (root included): it exited 1 with "Permission denied" or "No such file", no path
+    for target in [file, PathBuf::from("/proc/self/hydrolens-rec")] {
+        refused_naming_recording_dir(dir.path(), &target);
+    }
+}
+
+fn refused_naming_recording_dir(dir: &Path, target: &Path) {
+    let config = dir.join("c.toml");
+    let text = format!("[recording]\ndir = {:?}\n{DRIVE}", target.display().to_string());
     std::fs::write(&config, text).expect("write");
     let mut child = std::process::Command::new(crate::support::bin())
         .args(["serve", "--config"])
@@ -485,7 +492,7 @@ fn serve_with_a_recording_dir_that_is_a_file_exits_2_naming_the_key() {
     std::io::Read::read_to_string(&mut child.stderr.take().expect("stderr"), &mut err).expect("utf-8");
     let status = status.expect("refused at once");
     assert_eq!(status.code(), Some(2), "{err}");
-    assert!(err.contains("recording.dir"), "{err}");
+    assert!(err.contains("recording.dir") && err.contains(&*target.to_string_lossy()), "{err}");
 }
 
 // ---- item 9: a recording cut mid-row ----

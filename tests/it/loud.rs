@@ -144,3 +144,30 @@ async fn a_tripped_drive_is_sent_no_run_until_it_is_reset_and_ready() {
     };
     tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
+
+/// A clean stop (SIGHUP here: a closed session; it killed the process outright) sends a drive the service ran
+/// control word 0, instead of leaving RUN and the setpoint for the drive's watchdog (up to an hour).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_clean_stop_withdraws_run_and_a_hangup_is_a_clean_stop() {
+    let run = async {
+        let (sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
+        let dir = tempfile::tempdir().expect("tmp");
+        let mut s = ServeProcess::start(dir.path(), &config(sim_addr, dir.path(), 10));
+        let control_word = || sim.lock().read(Table::Holding, 1, 1).expect("control word")[0];
+        wait_for(Duration::from_secs(10), || async { control_word() & control::RUN == control::RUN })
+            .await
+            .expect("RUN sent");
+        let _ = std::process::Command::new("kill").args(["-HUP", &s.pid().to_string()]).status();
+        let status = s.stop();
+        assert_eq!(status.and_then(|c| c.code()), Some(0), "{}", s.log());
+        assert_eq!(control_word() & control::RUN, 0, "RUN withdrawn on the way out: {}", s.log());
+        assert!(s.log().contains("control word 0"), "{}", s.log());
+        let names: Vec<String> = std::fs::read_dir(dir.path().join("rec"))
+            .expect("recordings")
+            .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+            .collect();
+        assert!(names.iter().any(|n| n.ends_with(".csv.gz")), "the recording closed and compressed: {names:?}");
+        sim_stop.cancel();
+    };
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
+}
