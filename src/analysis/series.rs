@@ -143,6 +143,25 @@ impl<'a> Columns<'a> {
         (Columns { src, raw }, outliers)
     }
 
+    /// A speed (or position), or an inlet pressure, that holds one value in every row is a stuck sensor or a
+    /// constant written in its place: fitted to, it gave an inertia of 10⁸ with "nothing named". Refused, naming
+    /// the column. (An outlet pressure may be a steady back pressure, and a torque a steady command: not checked.)
+    fn refuse_stuck(&self) -> Result<(), BadInput> {
+        for name in ["omega_rad_s", "theta_rad", "p_in_bar"] {
+            let Some(c) = self.raw_of(name) else { continue };
+            let mut finite = c.iter().filter(|v| v.is_finite());
+            let Some(&first) = finite.next() else { continue };
+            if c.len() >= 200 && finite.all(|&v| v == first) {
+                return Err(BadInput(format!(
+                    "recording {}: column `{name}` holds {first} in every row: a stuck sensor, or a constant \
+                     written in its place; the analysis needs it measured",
+                    self.src
+                )));
+            }
+        }
+        Ok(())
+    }
+
     /// A column as read, if the recording has it.
     fn raw_of(&self, name: &str) -> Option<&[f64]> {
         self.raw.iter().find(|r| r.0 == name).map(|r| r.1.as_slice())
@@ -372,6 +391,7 @@ impl Series {
         let drive = Drive::read(&cols, model, load_unknown, f_drive.as_ref(), n)?;
         let family = drive.family;
         let speed = Speed::read(&cols, &t_s, sample_hz)?;
+        cols.refuse_stuck()?;
         let (load_nm, load) = load_torque(&cols, model, family, recorded_load, &speed.omega_f, &t_s)?;
         let cutoff_hz = speed.cutoff_hz;
         let drive_torque_f = filtfilt_butter4(&drive.torque_nm, cutoff_hz, sample_hz);
@@ -551,11 +571,12 @@ mod tests {
 
     #[test]
     fn a_model_load_is_taken_at_the_recordings_speed_and_shaft_angle() {
-        // a torque-driven recording at a steady 50 rad/s
+        // a torque-driven recording at a steady 50 rad/s (a ripple of 10⁻⁹: one value in every row is a stuck sensor)
         let n = 2000;
         let t: Vec<f64> = (0..n).map(|k| k as f64 * 1e-3).collect();
         let names = ["t_s", "omega_rad_s", "torque_nm"].map(String::from).to_vec();
-        let rec = Recording::from_columns("steady", names, vec![t.clone(), vec![50.0; n], vec![10.0; n]]);
+        let omega = (0..n).map(|k| 50.0 + 1e-9 * (k % 2) as f64).collect();
+        let rec = Recording::from_columns("steady", names, vec![t.clone(), omega, vec![10.0; n]]);
         let mut model = PlantModel::reference();
         model.load = LoadSpec::Centrifugal { torque_nm: 12.0, at_rad_s: 60.0 };
         let s = Series::extract(&rec, &model, 0.3).expect("extracts");

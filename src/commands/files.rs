@@ -101,9 +101,43 @@ pub fn estimate(rec_path: &Path, model_path: &Path, out: &Path, flags: &Estimate
     let est = estimator::try_build(&settings, &model).map_err(|hydrolens::error::KeyError { key, message: msg }| {
         BadInput(format!("{key} (command line or model file {origin}) {msg}"))
     })?;
+    let max_gap_s = settings.resolve(&model).map(|r| r.max_gap_s).unwrap_or(f64::INFINITY);
+    check_time_steps(rec_path, max_gap_s, &origin)?;
     let rows = replay_file::estimate_file(rec_path, &model, &origin, est.as_ref(), out)?;
     eprintln!("estimate ({}): {rows} rows written to {}", settings.method, out.display());
     Ok(())
+}
+
+/// The recording's typical time step (the median of its first 2000) against what the estimator can use: longer than
+/// `estimator.max_gap_s`, every row is a gap the estimator restarts at, and it estimates nothing (a clock in ms read
+/// as s, or a 1 Hz recording); shorter than 10 µs, no drive is polled so fast (a clock in the wrong unit), and the
+/// load's estimate swings to its clamp. Either is refused before anything is written; a recording the reader
+/// refuses is left to the replay's own error.
+fn check_time_steps(rec_path: &Path, max_gap_s: f64, model_origin: &str) -> anyhow::Result<()> {
+    let Ok(mut reader) = recording::StreamReader::open(rec_path) else { return Ok(()) };
+    reader.select(&[]);
+    let mut batch = recording::Batch::default();
+    if reader.read_batch(&mut batch, 2001).is_err() || batch.t_s.len() < 3 {
+        return Ok(());
+    }
+    let mut steps: Vec<f64> = batch.t_s.windows(2).map(|w| w[1] - w[0]).collect();
+    let mid = steps.len() / 2;
+    let median = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let why = if median > max_gap_s {
+        format!(
+            "longer than estimator.max_gap_s = {max_gap_s} s (model file {model_origin}): every row would be a gap \
+             the estimator restarts at, and nothing would be estimated; check the unit of t_s, or raise max_gap_s"
+        )
+    } else if median < 1e-5 {
+        "shorter than 10 µs, faster than any drive is polled: check the unit of t_s".to_string()
+    } else {
+        return Ok(());
+    };
+    Err(BadInput(format!(
+        "recording {}: its time step is {median:.3e} s (the median of its first rows), {why}",
+        rec_path.display()
+    ))
+    .into())
 }
 
 /// The recording files `analyze` reads: one file, several files of one drive joined in time order, or a directory's
@@ -128,16 +162,9 @@ fn analysis_files(paths: &[PathBuf], drive: Option<&str>) -> anyhow::Result<Vec<
 /// The files of [`analysis_files`] read and joined.
 fn analysis_recording(files: &[PathBuf], drive: Option<&str>) -> anyhow::Result<recording::Recording> {
     let columns = hydrolens::analysis::RECORDING_COLUMNS;
-    // the rows are counted as they are read, never past the analysis's cap (its memory grows with them)
-    let mut left = hydrolens::analysis::MAX_ROWS;
-    let mut parts = Vec::with_capacity(files.len());
-    for p in files {
-        let part = recording::load_columns(p, &columns, left)?;
-        left -= part.len();
-        parts.push(part);
-    }
-    let parts = if drive.is_some() {
-        let (run, left_out) = recording::last_run(parts);
+    // the last run is found from the files' time spans before any is read whole: older runs cost no memory
+    let files = if drive.is_some() {
+        let (run, left_out) = recording::last_run(files);
         if left_out > 0 {
             eprintln!(
                 "analyze: {left_out} older file(s) of earlier service runs left out (t_s restarts with each run); \
@@ -146,8 +173,16 @@ fn analysis_recording(files: &[PathBuf], drive: Option<&str>) -> anyhow::Result<
         }
         run
     } else {
-        parts
+        files.to_vec()
     };
+    // the rows are counted as they are read, never past the analysis's cap (its memory grows with them)
+    let mut left = hydrolens::analysis::MAX_ROWS;
+    let mut parts = Vec::with_capacity(files.len());
+    for p in &files {
+        let part = recording::load_columns(p, &columns, left)?;
+        left -= part.len();
+        parts.push(part);
+    }
     if parts.len() > 1 {
         eprintln!("analyze: {} files joined in time order", parts.len());
     }

@@ -193,6 +193,7 @@ fn check(key: &str, v: f64, ok: bool, expected: &str) -> Result<f64, KeyError> {
     if v.is_finite() && ok {
         Ok(v)
     } else {
+        let v = if v != 0.0 && !(1e-4..1e6).contains(&v.abs()) { format!("{v:e}") } else { format!("{v}") };
         Err(KeyError::new(format!("estimator.{key}"), format!("must be {expected}, got {v}")))
     }
 }
@@ -230,8 +231,14 @@ impl EstimatorSettings {
         check("viscous_bounds_nm_s_rad", blo, blo >= 0.0, "[low, high] with 0 ≤ low < high")?;
         check("viscous_bounds_nm_s_rad", bhi, bhi > blo, "[low, high] with 0 ≤ low < high")?;
         let inertia_bounds = [j0 * jlo, j0 * jhi];
+        // a start outside the bounds was clamped into them without a word: refused, naming the bounds
+        let within = |key: &str, v: f64, [lo, hi]: [f64; 2], bounds: &str| {
+            check(key, v, (lo..=hi).contains(&v), &format!("within {bounds} [{lo}, {hi}]"))
+        };
         let initial_inertia = pos("initial_inertia_kg_m2", s.initial_inertia_kg_m2.unwrap_or(j0))?;
+        within("initial_inertia_kg_m2", initial_inertia, inertia_bounds, "inertia_bounds_factor × the model's J:")?;
         let initial_viscous = nonneg("initial_viscous_nm_s_rad", s.initial_viscous_nm_s_rad.unwrap_or(b0))?;
+        within("initial_viscous_nm_s_rad", initial_viscous, [blo, bhi], "viscous_bounds_nm_s_rad")?;
         let displacement = model.motor.displacement_cm3.map(cm3_per_rev_to_m3_per_rad);
         let speed_noise = s.speed_noise_rad_s.unwrap_or(if model.sensors.speed_noise_rad_s > 0.0 {
             model.sensors.speed_noise_rad_s
@@ -269,8 +276,8 @@ impl EstimatorSettings {
             inertia_bounds_kg_m2: inertia_bounds,
             viscous_bounds_nm_s_rad: [blo, bhi],
             max_load_nm: max_load,
-            initial_inertia_kg_m2: initial_inertia.clamp(inertia_bounds[0], inertia_bounds[1]),
-            initial_viscous_nm_s_rad: initial_viscous.clamp(blo, bhi),
+            initial_inertia_kg_m2: initial_inertia,
+            initial_viscous_nm_s_rad: initial_viscous,
             initial_load_nm: initial_load,
             speed_noise_rad_s: pos("speed_noise_rad_s", speed_noise)?,
             torque_noise_nm: pos("torque_noise_nm", torque_noise)?,
@@ -325,5 +332,12 @@ mod tests {
         let m = PlantModel::parse(&bad, "p.toml").expect("model");
         let e = EstimatorSettings::from_model(&m, "p.toml").expect_err("out of range").to_string();
         assert!(e.contains("estimator.lambda") && e.contains("1.5"), "{e}");
+        // a start beyond the bounds was clamped into them in silence
+        for (key, v) in [("initial_inertia_kg_m2", "1e300"), ("initial_viscous_nm_s_rad", "50.0")] {
+            let bad = text.replace("lambda = 0.98", &format!("{key} = {v}"));
+            let m = PlantModel::parse(&bad, "p.toml").expect("model");
+            let e = EstimatorSettings::from_model(&m, "p.toml").expect_err("beyond the bounds").to_string();
+            assert!(e.contains(&format!("estimator.{key}")) && e.contains("within") && e.len() < 300, "{e}");
+        }
     }
 }

@@ -377,8 +377,9 @@ fn authorize(s: &AppState, headers: &HeaderMap, client: &ClientAddr) -> Result<(
     let given = headers
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
-        .map(str::trim);
+        // the scheme is case-insensitive (RFC 9110 §11.1): `bearer` and `BEARER` are the same
+        .and_then(|v| v.split_once(' ').filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer")))
+        .map(|(_, t)| t.trim());
     if given.is_some_and(|g| bool::from(g.as_bytes().ct_eq(token.as_bytes()))) {
         return Ok(());
     }
@@ -419,8 +420,14 @@ async fn set_target(
     authorize(&s, &headers, &client)?;
     let drive = s.service.drive(&name).ok_or_else(|| ApiError::not_found(format!("no drive {name:?}")))?;
     let body = body?;
-    let t: TargetBody = serde_json::from_slice(&body)
-        .map_err(|e| ApiError::bad_request(format!("expected {{\"target_omega_rad_s\": number}}: {e}")))?;
+    let expected =
+        |e: &dyn std::fmt::Display| ApiError::bad_request(format!("expected {{\"target_omega_rad_s\": number}}: {e}"));
+    // an object only: serde would take `[40]` as the struct's fields in order
+    let value: serde_json::Value = serde_json::from_slice(&body).map_err(|e| expected(&e))?;
+    if !value.is_object() {
+        return Err(expected(&"the body is not a JSON object"));
+    }
+    let t: TargetBody = serde_json::from_value(value).map_err(|e| expected(&e))?;
     match drive.mode {
         Mode::Speed => {}
         m => {
@@ -434,7 +441,10 @@ async fn set_target(
     if !(t.target_omega_rad_s.is_finite() && (0.0..=max).contains(&t.target_omega_rad_s)) {
         return Err(ApiError::new(
             StatusCode::UNPROCESSABLE_ENTITY,
-            format!("target_omega_rad_s must be 0 ..= {max:.1} (max_hz with no load), got {}", t.target_omega_rad_s),
+            format!(
+                "target_omega_rad_s must be 0 ..= {max:.1} (max_hz with no load), got {:.6e}",
+                t.target_omega_rad_s
+            ),
         ));
     }
     drive.set_target(t.target_omega_rad_s);

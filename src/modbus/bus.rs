@@ -20,7 +20,7 @@ use super::client::{BACKOFF_CAP, BACKOFF_START, ClientError, DriveClient, Endpoi
 use super::map::Table;
 
 /// How long a line still carries its drives' last requests after shutdown (their stop): a drive waits at most
-/// [`crate::service::STOP_TIMEOUT`] for its own.
+/// `service::drive::STOP_TIMEOUT` (1 s) for its own.
 pub const SHUTDOWN_DRAIN: Duration = Duration::from_secs(2);
 
 /// A drive's way to its device: a connection of its own (Modbus TCP), or its turn on a shared RTU line.

@@ -151,6 +151,17 @@ impl LoadSpec {
                 }
                 positive("width_s", *width_s)?;
                 positive("mean_interval_s", *mean_interval_s)?;
+                // each evaluation looks at every interval a pulse may reach into: their number is the cost
+                if width_s / mean_interval_s > MAX_TERMS as f64 {
+                    return bad(
+                        "width_s",
+                        format!(
+                            "{width_s} s pulses one each {mean_interval_s} s overlap {:.3e} at a time, more than \
+                             {MAX_TERMS}: the load would cost that much each sample",
+                            width_s / mean_interval_s
+                        ),
+                    );
+                }
             }
             LoadSpec::Sines { mean_nm, amplitudes_nm, periods_s } => {
                 finite("mean_nm", *mean_nm)?;
@@ -160,12 +171,19 @@ impl LoadSpec {
                 if periods_s.len() != amplitudes_nm.len() || !periods_s.iter().all(|p| *p > 0.0 && p.is_finite()) {
                     return bad("periods_s", "must be one period > 0 for each of amplitudes_nm".into());
                 }
+                if amplitudes_nm.len() > MAX_TERMS {
+                    return bad("amplitudes_nm", format!("{} sines, more than {MAX_TERMS}", amplitudes_nm.len()));
+                }
             }
             _ => {}
         }
         Ok(())
     }
 }
+
+/// The most terms a load program sums each sample (sines, or impacts overlapping): the real-time simulator
+/// evaluates it every sample.
+pub const MAX_TERMS: usize = 1000;
 
 /// The error of a bad `load.<key>`.
 fn bad(key: &str, msg: String) -> Result<(), KeyError> {
@@ -353,6 +371,16 @@ mod tests {
         assert_eq!(
             key(LoadSpec::Sines { mean_nm: 1.0, amplitudes_nm: vec![1.0, 2.0], periods_s: vec![3.0] }),
             "load.periods_s"
+        );
+        // a cost per sample without bound (a sample took 0.1 s): pulses overlapping 10⁷ at a time, 10⁵ sines
+        assert_eq!(
+            key(LoadSpec::Impacts { base_nm: 1.0, peak_nm: 1e-9, width_s: 10.0, mean_interval_s: 1e-6, seed: 1 }),
+            "load.width_s"
+        );
+        let many = vec![1.0; 100_000];
+        assert_eq!(
+            key(LoadSpec::Sines { mean_nm: 1.0, amplitudes_nm: many.clone(), periods_s: many }),
+            "load.amplitudes_nm"
         );
         assert_eq!(
             key(LoadSpec::Sines { mean_nm: 1.0, amplitudes_nm: vec![], periods_s: vec![] }),

@@ -151,19 +151,34 @@ pub fn drive_files(dir: &Path, drive: &str) -> Result<Vec<PathBuf>, RecordingErr
     Ok(found.into_iter().map(|f| f.1).collect())
 }
 
-/// The last run among recordings of one drive given oldest first: the files after the last restart of `t_s`.
+/// The last run among a drive's recording files given oldest first: the files after the last restart of `t_s`
+/// (from each file's first and last `t_s`, streamed, so that older runs are never held in memory).
 /// Returns that run and how many files were left out.
-pub fn last_run(parts: Vec<Recording>) -> (Vec<Recording>, usize) {
+pub fn last_run(files: &[PathBuf]) -> (Vec<PathBuf>, usize) {
+    let spans: Vec<Option<(f64, f64)>> = files.iter().map(|p| time_span(p)).collect();
     let mut start = 0;
-    for i in 1..parts.len() {
-        let (a, b) = (&parts[i - 1], &parts[i]);
-        if b.t_s().first() <= a.t_s().last() {
+    for i in 1..files.len() {
+        if let (Some((_, a_last)), Some((b_first, _))) = (spans[i - 1], spans[i])
+            && b_first <= a_last
+        {
             start = i;
         }
     }
-    let mut parts = parts;
-    let run = parts.split_off(start);
-    (run, start)
+    (files[start..].to_vec(), start)
+}
+
+/// A recording's first and last `t_s`, read as a stream without its other columns (memory stays flat); None when
+/// it cannot be read (reading it whole then says why).
+fn time_span(path: &Path) -> Option<(f64, f64)> {
+    let mut reader = super::StreamReader::open(path).ok()?;
+    reader.select(&[]);
+    let mut batch = super::Batch::default();
+    let mut span: Option<(f64, f64)> = None;
+    while reader.read_batch(&mut batch, 1 << 16).ok()? > 0 {
+        let (first, last) = (batch.t_s[0], batch.t_s[batch.t_s.len() - 1]);
+        span = Some(span.map_or((first, last), |(f, _)| (f, last)));
+    }
+    span
 }
 
 #[cfg(test)]
@@ -224,11 +239,18 @@ mod tests {
 
     #[test]
     fn the_last_run_starts_where_time_restarts() {
-        let parts =
-            vec![rec("1.csv", &[0.0, 1.0], &[]), rec("2.csv", &[0.0, 1.0], &[]), rec("3.csv", &[2.0, 3.0], &[])];
-        let (run, left) = last_run(parts);
+        let dir = tempfile::tempdir().expect("tmp");
+        let files: Vec<PathBuf> = [("1.csv", "0\n1\n"), ("2.csv", "0\n1\n"), ("3.csv", "2\n3\n")]
+            .iter()
+            .map(|(name, rows)| {
+                let p = dir.path().join(name);
+                std::fs::write(&p, format!("t_s\n{rows}")).expect("write");
+                p
+            })
+            .collect();
+        let (run, left) = last_run(&files);
         assert_eq!(left, 1);
-        assert_eq!(run.iter().map(|r| r.source.as_str()).collect::<Vec<_>>(), vec!["2.csv", "3.csv"]);
+        assert_eq!(run, files[1..]);
     }
 
     #[test]

@@ -16,7 +16,7 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 use super::config::DriveSettings;
-use super::freshness::{CounterCheck, CounterVerdict, Rejected, ValidRanges, implausible_jump};
+use super::freshness::{CounterCheck, CounterVerdict, FrozenSpeed, Rejected, ValidRanges, implausible_jump};
 use super::state::{Commands, DriveStatus, Measured, Point};
 use crate::control::{Inputs, Mode, SpeedLaw};
 use crate::estimator::{Estimate, Estimator, Measurement};
@@ -111,6 +111,8 @@ pub struct DriveCycle {
     hz_range: (f64, f64),
     /// Some write reached the drive: on a clean stop it is sent control word 0.
     commanded: bool,
+    /// The speed frozen while the drive's frequency moves: rejected.
+    frozen: FrozenSpeed,
     pending: Option<Pending>,
     status: DriveStatus,
     /// The drive does not follow its setpoints (the law's verdict), for the alarm.
@@ -146,6 +148,7 @@ impl DriveCycle {
             trip_latched: false,
             hz_range: (settings.limits.min_hz, settings.limits.max_hz),
             commanded: false,
+            frozen: FrozenSpeed::default(),
             pending: None,
             status: DriveStatus::default(),
             not_following: false,
@@ -188,6 +191,9 @@ impl DriveCycle {
             if let Some(r) = implausible_jump(&prev, &sample.measured, dt.as_secs_f64(), &self.ranges) {
                 return nothing(Verdict::Rejected(r));
             }
+        }
+        if let Some(r) = self.frozen.observe(sample.measured.omega_rad_s, sample.measured.f_drive_hz) {
+            return nothing(Verdict::Rejected(r));
         }
         self.last_valid = Some((now, sample.measured));
         // timely: the reply came within stale_ms, and so did this sample after the one before; else readiness
@@ -408,7 +414,8 @@ mod tests {
         let mut hz = Vec::new();
         for k in 0..40u64 {
             let at = t0 + MS * (10 * k as u32);
-            let step = c.step(&sample(k, 30.0, drive_hz, 3), at, at + MS);
+            // the shaft's speed moves a little (one value held while the drive ramps 2 Hz is a frozen sensor)
+            let step = c.step(&sample(k, 30.0 + 1e-3 * k as f64, drive_hz, 3), at, at + MS);
             c.confirm(true);
             if let Some(p) = step.point {
                 hz.push(p.sample.f_set_hz);

@@ -56,6 +56,9 @@ const WARN_EVERY: std::time::Duration = std::time::Duration::from_secs(10);
 /// Failed setpoint writes in a row after which the drive is not ready: every write is refused.
 const WRITES_FAILING_AFTER: u32 = 3;
 
+/// How long a writing drive's loop waits, on a clean stop, for its control word 0 to be confirmed.
+pub const STOP_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(1);
+
 /// Rate-limited warnings: per kind, when it was last said and how many were held back since.
 #[derive(Debug, Default)]
 struct Loud(Vec<(&'static str, Instant, u64)>);
@@ -171,11 +174,11 @@ impl DriveLoop {
             let words = spec.encode(0.0).map_err(|e| e.to_string())?;
             self.client.write(spec.address, &words).await.map_err(|e| e.to_string())
         };
-        match tokio::time::timeout(super::STOP_TIMEOUT, write).await {
+        match tokio::time::timeout(STOP_TIMEOUT, write).await {
             Ok(Ok(())) => tracing::info!(drive = %name, "stopping: the drive was sent control word 0 (no RUN)"),
             Ok(Err(e)) => tracing::warn!(drive = %name, error = %e,
                 "stopping: control word 0 could not be sent; the drive's own watchdog stops it"),
-            Err(_) => tracing::warn!(drive = %name, timeout_ms = super::STOP_TIMEOUT.as_millis() as u64,
+            Err(_) => tracing::warn!(drive = %name, timeout_ms = STOP_TIMEOUT.as_millis() as u64,
                 "stopping: control word 0 not confirmed in time; the drive's own watchdog stops it"),
         }
     }

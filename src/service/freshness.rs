@@ -25,6 +25,42 @@ pub enum Rejected {
     Range { entry: &'static str, value: f64 },
     #[error("{entry} jumped from {from} to {to} ({rate:.0}/s, limit {max_rate}/s)")]
     Jump { entry: &'static str, from: f64, to: f64, rate: f64, max_rate: f64 },
+    #[error("{entry} stuck at {value} while the drive's frequency moved {moved_hz:.1} Hz: a frozen sensor")]
+    Frozen { entry: &'static str, value: f64, moved_hz: f64 },
+}
+
+/// How far the drive's frequency may move (Hz) while the speed reads the very same non-zero value: 2 Hz is
+/// hundreds of the speed register's steps, which no turning shaft holds still.
+pub const FROZEN_SPEED_HZ: f64 = 2.0;
+
+/// A tachometer frozen at a value while the drive's frequency moves (a stuck sensor or PLC value): a speed
+/// regulator on it runs the drive to `max_hz`. Zero is left out: a stalled motor reads exactly 0 while its drive
+/// ramps.
+#[derive(Debug, Default)]
+pub struct FrozenSpeed {
+    /// The speed held, and the lowest and highest drive frequency seen while it held.
+    held: Option<(f64, f64, f64)>,
+}
+
+impl FrozenSpeed {
+    /// The verdict on one sample (before its other checks pass, so that the history holds only fresh ones).
+    pub fn observe(&mut self, omega_rad_s: f64, f_drive_hz: f64) -> Option<Rejected> {
+        match &mut self.held {
+            Some((w, lo, hi)) if *w == omega_rad_s && omega_rad_s != 0.0 => {
+                (*lo, *hi) = (lo.min(f_drive_hz), hi.max(f_drive_hz));
+                let moved_hz = *hi - *lo;
+                (moved_hz > FROZEN_SPEED_HZ).then_some(Rejected::Frozen {
+                    entry: "shaft_speed_rpm",
+                    value: omega_rad_s,
+                    moved_hz,
+                })
+            }
+            _ => {
+                self.held = Some((omega_rad_s, f_drive_hz, f_drive_hz));
+                None
+            }
+        }
+    }
 }
 
 impl From<crate::modbus::map::DecodeError> for Rejected {
@@ -139,6 +175,22 @@ pub fn implausible_jump(prev: &Measured, next: &Measured, dt_s: f64, ranges: &Va
 mod tests {
     use super::*;
     use CounterVerdict::*;
+
+    #[test]
+    fn a_speed_frozen_while_the_drive_moves_is_rejected_and_a_stalled_one_is_not() {
+        let mut f = FrozenSpeed::default();
+        // the drive ramps 0.5 Hz a sample while the speed reads 20.0: rejected once it moved past 2 Hz
+        let verdicts: Vec<bool> = (0..8).map(|k| f.observe(20.0, 10.0 + 0.5 * k as f64).is_some()).collect();
+        assert_eq!(verdicts, [false, false, false, false, false, true, true, true]);
+        // the speed moves again: accepted
+        assert!(f.observe(20.1, 14.0).is_none());
+        // a stalled motor reads exactly 0 while its drive ramps: not a frozen sensor
+        let mut g = FrozenSpeed::default();
+        assert!((0..20).all(|k| g.observe(0.0, k as f64).is_none()));
+        // a steady drive with a steady speed: nothing
+        let mut h = FrozenSpeed::default();
+        assert!((0..20).all(|_| h.observe(30.0, 25.0).is_none()));
+    }
 
     #[test]
     fn a_counter_that_wraps_moves_on() {

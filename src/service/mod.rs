@@ -45,9 +45,6 @@ use drive::DriveLoop;
 use recorder::Recorder;
 use timing::use_realtime_priority;
 
-/// How long a writing drive's loop waits, on a clean stop, for its control word 0 to be confirmed.
-pub const STOP_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(1);
-
 /// The running poll loops.
 pub struct Service {
     pub state: Arc<ServiceState>,

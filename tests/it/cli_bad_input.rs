@@ -495,3 +495,68 @@ fn serve_beyond_loopback_without_a_token_says_writes_are_disabled() {
     assert!(out.contains("write routes are disabled"), "{out}");
     assert!(!out.contains("chmod 600"), "no token, nothing to hide: {out}");
 }
+
+#[test]
+fn stuck_sensors_wrong_clocks_and_costly_loads_exit_2_naming_what() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec = recording(dir.path());
+    let text = std::fs::read_to_string(&rec).expect("recording");
+    let header: Vec<&str> = text.lines().next().expect("header").split(',').collect();
+    // every row's `column` replaced by `value`, or t_s scaled
+    let edited = |name: &str, edit: &dyn Fn(&str, &mut Vec<String>)| {
+        let mut out = String::new();
+        for (k, line) in text.lines().enumerate() {
+            let mut cells: Vec<String> = line.split(',').map(String::from).collect();
+            if k > 0 {
+                edit(header[0], &mut cells);
+            }
+            out.push_str(&cells.join(","));
+            out.push('\n');
+        }
+        let p = dir.path().join(name);
+        std::fs::write(&p, out).expect("write");
+        p
+    };
+    let set = |column: &'static str, value: &'static str| {
+        let i = header.iter().position(|h| *h == column).expect("column");
+        move |_: &str, cells: &mut Vec<String>| cells[i] = value.to_string()
+    };
+    let model = root().join("config/plant.toml");
+    let json = dir.path().join("a.json");
+    fn analyze<'a>(p: &'a Path, model: &'a Path, json: &'a Path) -> [&'a OsStr; 6] {
+        ["analyze".as_ref(), p.as_os_str(), "--model".as_ref(), model.as_os_str(), "--json".as_ref(), json.as_os_str()]
+    }
+    // a stuck tachometer: J came out 10⁸ with "named: nothing"
+    let stuck = edited("stuck.csv", &set("omega_rad_s", "30"));
+    exits_2_naming(&analyze(&stuck, &model, &json), &["stuck.csv", "`omega_rad_s` holds 30 in every row"]);
+    // a clock in ms read as s: every row a gap, the load estimate 0 throughout
+    let ms = edited("ms.csv", &|_, cells| cells[0] = format!("{}", cells[0].parse::<f64>().expect("t") * 1000.0));
+    let out = dir.path().join("e.csv");
+    let estimate = [
+        OsStr::new("estimate"),
+        ms.as_os_str(),
+        "--model".as_ref(),
+        model.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ];
+    exits_2_naming(&estimate, &["ms.csv", "max_gap_s"]);
+    assert!(!out.exists(), "nothing written");
+    // a start beyond the estimator's bounds (clamped in silence)
+    let ij = dir.path().join("ij.toml");
+    std::fs::write(&ij, reference_model() + "[estimator]\ninitial_inertia_kg_m2 = 1e300\n").expect("write");
+    let estimate = [
+        OsStr::new("estimate"),
+        rec.as_os_str(),
+        "--model".as_ref(),
+        ij.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ];
+    exits_2_naming(&estimate, &["ij.toml", "estimator.initial_inertia_kg_m2", "within"]);
+    // a load that costs without bound each sample (0.1 s a sample)
+    let imp = dir.path().join("imp.toml");
+    let impacts = "kind = \"impacts\"\nbase_nm = 1.0\npeak_nm = 1.0\nwidth_s = 10.0\nmean_interval_s = 1e-6\nseed = 1";
+    std::fs::write(&imp, reference_model().replace("kind = \"recorded\"", impacts)).expect("write");
+    exits_2_naming(&simulate_args(&imp, "1", &dir.path().join("s.csv")), &["imp.toml", "load.width_s"]);
+}

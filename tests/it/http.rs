@@ -64,6 +64,7 @@ async fn bad_input_gets_4xx_with_a_json_error() {
         (post(target, Some(TOKEN), r#"{"target_omega_rad_s": "fast"}"#), StatusCode::BAD_REQUEST),
         (post(target, Some(TOKEN), r#"{"target_omega_rad_s": 30, "extra": 1}"#), StatusCode::BAD_REQUEST),
         (post(target, Some(TOKEN), r#"{"target_omega_rad_s": -1}"#), StatusCode::UNPROCESSABLE_ENTITY),
+        (post(target, Some(TOKEN), "[40]"), StatusCode::BAD_REQUEST),
         (post(target, Some(TOKEN), vec![b' '; 1 << 20]), StatusCode::PAYLOAD_TOO_LARGE),
         (post("/api/drives/nope/target", Some(TOKEN), ok_body), StatusCode::NOT_FOUND),
         (post("/api/drives/nope/reset", Some(TOKEN), ""), StatusCode::NOT_FOUND),
@@ -86,6 +87,13 @@ async fn bad_input_gets_4xx_with_a_json_error() {
     }
     let (status, json) = call(&app, post(target, Some(TOKEN), ok_body)).await;
     assert_eq!(status, StatusCode::OK, "{json}");
+    // the scheme in any case (RFC 9110): it was 401 for `bearer`
+    let lower = Request::post(target)
+        .header(header::CONTENT_TYPE, "application/json")
+        .header(header::AUTHORIZATION, format!("bearer {TOKEN}"))
+        .body(Body::from(ok_body))
+        .expect("request");
+    assert_eq!(call(&app, lower).await.0, StatusCode::OK);
     let (status, _) = call(&app, post("/api/drives/pump1/reset", Some(TOKEN), "")).await;
     assert_eq!(status, StatusCode::ACCEPTED);
     let (status, json) = call(&app, get("/api/status")).await;

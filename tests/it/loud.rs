@@ -171,3 +171,35 @@ async fn a_clean_stop_withdraws_run_and_a_hangup_is_a_clean_stop() {
     };
     tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
 }
+
+/// A tachometer frozen at 20 rad/s while the speed regulator wants 30: the setpoint climbed to max_hz in 5 s, the
+/// drive ready throughout. Now its samples are rejected as a frozen sensor: stale, nothing written, not ready.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_frozen_tachometer_is_rejected_and_the_setpoint_does_not_climb() {
+    let run = async {
+        let (sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
+        let dir = tempfile::tempdir().expect("tmp");
+        let s = ServeProcess::start(dir.path(), &config(sim_addr, dir.path(), 10));
+        wait_for(Duration::from_secs(10), || async { (sim.lock().truth().omega_rad_s - 30.0).abs() < 2.0 })
+            .await
+            .expect("runs at the target");
+        let hz_before = sim.lock().truth().f_set_hz;
+        sim.lock().faults.speed_override_rad_s = Some(20.0);
+        let rejected = wait_for(Duration::from_secs(10), || async {
+            s.drive_status().await["link"]["last_error"].as_str().is_some_and(|e| e.contains("frozen"))
+        })
+        .await;
+        assert!(rejected.is_some(), "{}", s.drive_status().await);
+        // 2 s on: the setpoint did not run away (it reached max_hz, 60 Hz, within 5 s before)
+        let polls = || async { s.drive_status().await["link"]["polls"].as_u64().expect("polls") };
+        let from = polls().await;
+        while polls().await < from + 200 {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        let hz_after = sim.lock().truth().f_set_hz;
+        assert!(hz_after <= hz_before + 3.0, "setpoint {hz_before} → {hz_after} Hz");
+        assert_eq!(s.readyz().await.0, 503, "not ready on a frozen sensor");
+        sim_stop.cancel();
+    };
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
+}

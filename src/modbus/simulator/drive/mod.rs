@@ -28,6 +28,8 @@ pub struct Faults {
     pub inlet_pressure_override_bar: Option<f64>,
     /// The drive in local mode: it answers setpoint writes OK but runs at this frequency (Hz), ready and running.
     pub local_hz: Option<f64>,
+    /// Report this shaft speed (rad/s) instead of the measured one: a frozen tachometer.
+    pub speed_override_rad_s: Option<f64>,
 }
 
 /// Efficiency of the simulated induction motor, copper and iron (its slip is the plant's `motor_slip`): the drive
@@ -237,7 +239,10 @@ impl DriveSim {
         let values = [
             (self.map.inlet_pressure_bar, p_in),
             (self.map.outlet_pressure_bar, self.noise.pressure_reading(back_bar)),
-            (self.map.shaft_speed_rpm, rad_s_to_rpm(s.omega_rad_s + self.noise.speed())),
+            (
+                self.map.shaft_speed_rpm,
+                rad_s_to_rpm(self.faults.speed_override_rad_s.unwrap_or(s.omega_rad_s + self.noise.speed())),
+            ),
             (self.map.drive_frequency_hz, s.f_hz),
             (self.map.status_word, f64::from(self.status_word())),
             (self.map.sample_counter, f64::from(self.counter)),
