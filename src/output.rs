@@ -32,6 +32,15 @@ pub fn check(inputs: &[&Path], outputs: &[(&str, &Path)]) -> Result<(), BadInput
         if !dir.is_dir() {
             return bad(flag, path, format!("its directory {} does not exist", dir.display()));
         }
+        // a link to nowhere: the file is written where it points
+        if let Ok(target) = std::fs::read_link(path)
+            && !path.exists()
+        {
+            let target = dir.join(target);
+            if !parent(&target).is_dir() {
+                return bad(flag, path, format!("links to {}, whose directory does not exist", target.display()));
+            }
+        }
         if let Some(input) = inputs.iter().find(|input| same_file(path, input)) {
             return bad(flag, path, format!("is an input of this run ({}); name another file", input.display()));
         }
@@ -237,6 +246,9 @@ mod tests {
         refused(&[("--json", &json), ("--report", &json)], &["--report", "--json", "out.json"]);
         refused(&[("--json", &dir.path().join("nodir/x.json"))], &["--json", "nodir", "does not exist"]);
         refused(&[("--json", dir.path())], &["--json", "directory"]);
+        let dangling = dir.path().join("dangling.csv");
+        std::os::unix::fs::symlink(dir.path().join("nodir/x.csv"), &dangling).expect("link");
+        refused(&[("--out", &dangling)], &["--out", "dangling.csv", "links to", "does not exist"]);
         let slashed = format!("{}/", dir.path().join("sub").display());
         refused(&[("--json", Path::new(&slashed))], &["--json", "sub/", "ends in '/'"]);
         check(&[&rec], &[("--json", &json), ("--report", &dir.path().join("r.html"))]).expect("distinct");

@@ -391,13 +391,26 @@ impl Series {
         let drive = Drive::read(&cols, model, load_unknown, f_drive.as_ref(), n)?;
         let family = drive.family;
         let speed = Speed::read(&cols, &t_s, sample_hz)?;
-        cols.refuse_stuck()?;
         let (load_nm, load) = load_torque(&cols, model, family, recorded_load, &speed.omega_f, &t_s)?;
+        // what the recording and the model lack is said first; then a signal that does not move
+        cols.refuse_stuck()?;
         let cutoff_hz = speed.cutoff_hz;
         let drive_torque_f = filtfilt_butter4(&drive.torque_nm, cutoff_hz, sample_hz);
         let load_f = filtfilt_butter4(&load_nm, cutoff_hz, sample_hz);
         let restarts = gaps(&t_s);
         warn_of_gaps(src, &t_s, &restarts);
+        // a recording far slower than the model's fastest mode (a 1 s clock on a hydraulic drive, or ms read as s);
+        // the nominal plant's, without the effects (dry friction's smoothed sign is not a mode of the plant)
+        let plain = PlantModel { effects: Default::default(), ..model.clone() };
+        let rate = match crate::plant::dynamics::Coefficients::from_model(&plain) {
+            Ok(c) => c.fastest_rate(),
+            Err(_) => crate::plant::dynamics::Mechanics::from_model(&plain).friction_rate(),
+        };
+        if rate / sample_hz > 10.0 {
+            tracing::warn!(recording = %src, sample_s = 1.0 / sample_hz, fastest_mode_s = 1.0 / rate,
+                "the recording samples far slower than the model's fastest dynamics: inertia, dead time and the \
+                 line's dynamics cannot show in it, and what is fitted rests on slow changes (check the unit of t_s)");
+        }
         // time the free run integrates: the span without its gaps (nothing is integrated across one)
         let active = active_time(&t_s, &restarts);
         let integrated = active[n - 1];

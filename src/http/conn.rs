@@ -1,8 +1,11 @@
 //! The HTTP accept loop, with bounds a hostile client cannot stretch:
 //! - at most `max_connections` connections at once (the rest wait in the kernel's backlog, holding none of our file
 //!   descriptors), and at most `max_connections_per_client` of them from one address;
+//! - an address beyond its share has its oldest connection that never carried a request (held open half-sent, as a
+//!   flood does) closed for the new one: the operator, who may share the flooder's address (a proxy, a NAT), gets in;
 //! - [`RESERVED_CONNECTIONS`] more, kept for the operator: taken when the others are all held (or one address holds
-//!   its share), and serving only the control routes, `/healthz` and `/readyz`, one request each;
+//!   its share of connections that all carried requests), and serving only the control routes, `/healthz` and
+//!   `/readyz`, one request each;
 //! - request headers within `header_timeout` (hyper's timer also runs while a kept-alive connection waits for its
 //!   next request, so an idle connection is closed as soon), and a whole request answered within `request_timeout`;
 //! - a connection whose writes make no progress for `header_timeout` (a client that stopped reading an event stream
@@ -101,32 +104,62 @@ async fn reserve_gate(State(metrics): State<HttpMetrics>, req: Request, next: Ne
     next.run(req).await
 }
 
-/// Open connections per client address (IPv6 by its /64, as the token throttle keys them).
+/// Open connections per client address (IPv6 by its /64, as the token throttle keys them), oldest first.
 #[derive(Debug, Default)]
-struct PerClient(Mutex<HashMap<IpAddr, usize>>);
+struct PerClient(Mutex<HashMap<IpAddr, Vec<Arc<Mark>>>>);
+
+/// One open connection, as its address's list holds it.
+#[derive(Debug, Default)]
+struct Mark {
+    /// A request came on it: it is a client's, not a connection held open half-sent.
+    served: std::sync::atomic::AtomicBool,
+    /// Cancelled to close it (evicted for a newer connection of its address).
+    close: tokio_util::sync::CancellationToken,
+}
 
 impl PerClient {
-    /// Counts one more connection from `ip`; the count, this one included, and a guard that takes it back.
+    /// Counts one more connection from `ip`; the count, this one included, its mark, and a guard that takes it
+    /// back.
     fn enter(self: &Arc<Self>, ip: IpAddr) -> (usize, ClientGuard) {
         let ip = super::throttle::key(ip);
+        let mark = Arc::new(Mark::default());
         let mut m = self.0.lock().unwrap_or_else(|e| e.into_inner());
-        let n = m.entry(ip).or_insert(0);
-        *n += 1;
-        (*n, ClientGuard { clients: self.clone(), ip })
+        let list = m.entry(ip).or_default();
+        list.push(mark.clone());
+        (list.len(), ClientGuard { clients: self.clone(), ip, mark })
+    }
+
+    /// Closes the oldest connection of `ip` that never carried a request (one held open half-sent, as a flood
+    /// does), so that a newer one (the operator's, who shares the address) is served instead of refused. False
+    /// when every connection of `ip` carried one.
+    fn evict_idle(&self, newcomer: &ClientGuard) -> bool {
+        let m = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let victim = m.get(&newcomer.ip).and_then(|list| {
+            list.iter()
+                .find(|c| {
+                    !Arc::ptr_eq(c, &newcomer.mark) && !c.served.load(Ordering::Relaxed) && !c.close.is_cancelled()
+                })
+                .cloned()
+        });
+        victim.is_some_and(|c| {
+            c.close.cancel();
+            true
+        })
     }
 }
 
 struct ClientGuard {
     clients: Arc<PerClient>,
     ip: IpAddr,
+    mark: Arc<Mark>,
 }
 
 impl Drop for ClientGuard {
     fn drop(&mut self) {
         let mut m = self.clients.0.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(n) = m.get_mut(&self.ip) {
-            *n -= 1;
-            if *n == 0 {
+        if let Some(list) = m.get_mut(&self.ip) {
+            list.retain(|c| !Arc::ptr_eq(c, &self.mark));
+            if list.is_empty() {
                 m.remove(&self.ip);
             }
         }
@@ -308,7 +341,8 @@ fn connection_budget(configured: usize) -> usize {
     max
 }
 
-/// An address's share counts its ordinary connections; beyond it, the reserve or nothing (None: refused).
+/// An address's share counts its ordinary connections; beyond it, its oldest connection that never carried a
+/// request is closed for the new one, else the reserve or nothing (None: refused).
 fn admit(
     slot: Slot,
     clients: &Arc<PerClient>,
@@ -320,7 +354,7 @@ fn admit(
         return Some((slot, None));
     }
     match clients.enter(ip) {
-        (count, client) if count <= per_client => Some((slot, Some(client))),
+        (count, client) if count <= per_client || clients.evict_idle(&client) => Some((slot, Some(client))),
         _ => {
             drop(slot);
             reserve.clone().try_acquire_owned().ok().map(|p| (Slot { _permit: p, reserved: true }, None))
@@ -347,7 +381,12 @@ impl Connection {
         metrics.connections.inc();
         let waiting_since = Arc::new(AtomicU64::new(0));
         let io = Watched { inner: stream, epoch, waiting_since: waiting_since.clone() };
+        let mark = client.as_ref().map(|c| c.mark.clone());
+        let served = mark.clone();
         let service = hyper::service::service_fn(move |mut req: hyper::Request<hyper::body::Incoming>| {
+            if let Some(m) = &served {
+                m.served.store(true, Ordering::Relaxed);
+            }
             req.extensions_mut().insert(ConnectInfo::<SocketAddr>(peer));
             if reserved {
                 req.extensions_mut().insert(Reserved);
@@ -362,6 +401,15 @@ impl Connection {
         tokio::pin!(conn);
         tokio::select! {
             _ = conn.as_mut() => {}
+            () = async {
+                match &mark {
+                    Some(m) => m.close.cancelled().await,
+                    None => std::future::pending().await,
+                }
+            } => {
+                metrics.refused.get_or_create(&ReasonLabel { reason: "evicted" }).inc();
+                tracing::debug!(client = %peer, "closed a connection that never sent a request, for a newer one");
+            }
             () = stalled(waiting_since, epoch, limits.header_timeout) => {
                 metrics.refused.get_or_create(&ReasonLabel { reason: "stalled" }).inc();
                 tracing::debug!(client = %peer, "closed a connection whose client stopped reading");

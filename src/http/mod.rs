@@ -564,7 +564,10 @@ async fn metrics(State(s): State<AppState>, headers: HeaderMap) -> Response {
 }
 
 async fn readyz(State(s): State<AppState>) -> Response {
-    let not_ready: Vec<String> = s.service.drives.iter().filter(|d| !d.ready()).map(|d| d.name.clone()).collect();
+    let names = |which: &dyn Fn(&crate::service::DriveState) -> bool| {
+        s.service.drives.iter().filter(|d| which(d)).map(|d| d.name.clone()).collect::<Vec<_>>()
+    };
+    let not_ready = names(&|d| !d.ready());
     if not_ready.is_empty() {
         Json(serde_json::json!({ "status": "ready" })).into_response()
     } else {
@@ -572,9 +575,11 @@ async fn readyz(State(s): State<AppState>) -> Response {
             StatusCode::SERVICE_UNAVAILABLE,
             Json(serde_json::json!({
                 "status": "not ready",
-                "stale_or_down": not_ready,
-                "not_following": s.service.drives.iter().filter(|d| d.not_following()).map(|d| d.name.clone()).collect::<Vec<_>>(),
-                "writes_refused": s.service.drives.iter().filter(|d| d.writes_failing()).map(|d| d.name.clone()).collect::<Vec<_>>(),
+                "not_ready": not_ready,
+                "stale_or_down": names(&|d| d.stale_or_down()),
+                "not_following": names(&|d| d.not_following()),
+                "writes_refused": names(&|d| d.writes_failing()),
+                "recording_failing": names(&|d| d.recording_failing()),
             })),
         )
             .into_response()

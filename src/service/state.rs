@@ -303,6 +303,16 @@ impl DriveState {
         connected && recording_ok && writes_ok && !self.freshness().0 && !self.not_following()
     }
 
+    /// The link is down or the data stale: the part of [`DriveState::ready`] that is the device's.
+    pub fn stale_or_down(&self) -> bool {
+        !lock(&self.snapshot).link.connected || self.freshness().0
+    }
+
+    /// The recording of the drive fails (a full disk, say).
+    pub fn recording_failing(&self) -> bool {
+        lock(&self.snapshot).recording.as_ref().is_some_and(|r| !r.ok)
+    }
+
     /// Every recent setpoint write failed (the snapshot's `link.writes_failing`).
     pub fn writes_failing(&self) -> bool {
         lock(&self.snapshot).link.writes_failing

@@ -226,9 +226,12 @@ async fn a_client_that_stops_reading_is_closed() {
 async fn one_address_holds_at_most_its_share_and_then_reaches_only_the_reserve() {
     let dir = tempfile::tempdir().expect("tmp");
     let s = Serve::start(dir.path(), "max_connections_per_client = 4\n");
+    // four kept-alive connections that each carried a request: a client's, not to be closed for a newer one
     let mut held = Vec::new();
     for _ in 0..4 {
-        held.push(TcpStream::connect(s.addr).await.expect("connect"));
+        let (code, stream) = open(s.addr, "GET /healthz HTTP/1.1\r\nHost: t\r\n\r\n").await.expect("served");
+        assert_eq!(code, 200);
+        held.push(stream);
     }
     // all four taken by the server: its open-connection gauge, read from another address (127.0.0.2, whose share
     // is its own) counts them and the connection that asks
@@ -256,4 +259,38 @@ async fn one_address_holds_at_most_its_share_and_then_reaches_only_the_reserve()
     assert_eq!(fine, Some(200), "its share comes back as its connections close");
     let m = s.metrics().await;
     assert!(metric(&m, "hydrolens_http_refused_total{reason=\"reserved\"}").unwrap_or(0.0) >= 1.0, "{m}");
+}
+
+/// One address holding its share half-sent (a flood from the operator's own address, a proxy or a NAT): the
+/// operator's new connections close the oldest of them and are served (300 such connections reset 60 of 64
+/// operator requests before).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connections_held_half_sent_give_way_to_the_operator_on_the_same_address() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let s = Serve::start(dir.path(), "max_connections_per_client = 8\n");
+    // its share and the operator's reserve: 8 + 32, each holding half a request
+    let mut held = Vec::new();
+    for _ in 0..40 {
+        let mut c = TcpStream::connect(s.addr).await.expect("connect");
+        c.write_all(b"GET /api/status HTTP/1.1\r\nHost: t\r\n").await.expect("half a request");
+        held.push(c);
+    }
+    let other =
+        reqwest::Client::builder().local_address(std::net::IpAddr::from([127, 0, 0, 2])).build().expect("client");
+    let taken = wait_for(Duration::from_secs(15), || async {
+        let Ok(r) = other.get(format!("{}/metrics", s.url)).send().await else { return false };
+        metric(&r.text().await.unwrap_or_default(), "hydrolens_http_connections ").unwrap_or(0.0) >= 9.0
+    })
+    .await;
+    assert!(taken.is_some(), "half-sent connections are taken by the server");
+    for _ in 0..3 {
+        let [(health, _), (target, _)] = operator(&s.url).await;
+        assert_eq!((health, target), (200, 200), "the operator on the flooded address");
+    }
+    // a full request on a new connection too (not only the reserve's routes)
+    let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: t\r\n\r\n").await.map(|(c, _)| c);
+    assert_eq!(status, Some(200));
+    let m = s.metrics().await;
+    assert!(metric(&m, "hydrolens_http_refused_total{reason=\"evicted\"}").unwrap_or(0.0) >= 1.0, "{m}");
+    drop(held);
 }

@@ -167,6 +167,12 @@ async fn a_drive_in_local_mode_raises_an_alarm_and_no_overspeed_follows() {
             .await
             .expect("the alarm is raised");
         assert_eq!(stack.readyz().await, 503, "not ready while the drive does not follow");
+        // and the body says why: not following, the link fresh (it was listed as stale_or_down too)
+        let body: serde_json::Value =
+            reqwest::get(format!("{}/readyz", stack.url)).await.expect("readyz").json().await.expect("json");
+        assert_eq!(body["not_following"], serde_json::json!(["pump1"]), "{body}");
+        assert_eq!(body["stale_or_down"], serde_json::json!([]), "{body}");
+        assert_eq!(body["not_ready"], serde_json::json!(["pump1"]), "{body}");
         let m = stack.metrics().await;
         assert_eq!(metric(&m, "hydrolens_drive_not_following{drive=\"pump1\"}"), Some(1.0), "{m}");
         stack.wait_polls(500, "in local mode").await; // 5 s of the loop's own 10 ms cycles
