@@ -19,6 +19,27 @@ fn config(modbus: std::net::SocketAddr, dir: &std::path::Path, poll_ms: u64) -> 
     )
 }
 
+/// The simulator, and `serve` regulating it at 30 rad/s (speed mode, 10 ms polls), recording into `dir`.
+struct Regulating {
+    sim: hydrolens::modbus::simulator::SimHandle,
+    sim_stop: tokio_util::sync::CancellationToken,
+    _dir: tempfile::TempDir,
+    s: ServeProcess,
+    _task: tokio::task::JoinHandle<()>,
+}
+
+impl Regulating {
+    async fn start() -> Regulating {
+        let (sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
+        let dir = tempfile::tempdir().expect("tmp");
+        let s = ServeProcess::start(dir.path(), &config(sim_addr, dir.path(), 10));
+        wait_for(Duration::from_secs(10), || async { (sim.lock().truth().omega_rad_s - 30.0).abs() < 2.0 })
+            .await
+            .expect("runs at the target");
+        Regulating { sim, sim_stop, _dir: dir, s, _task }
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_drive_that_refuses_every_write_is_not_ready_counted_and_logged_at_warn() {
     let run = async {
@@ -97,12 +118,7 @@ async fn slow_write_echoes_that_make_the_loop_overrun_are_counted_and_logged() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_tripped_drive_is_sent_no_run_until_it_is_reset_and_ready() {
     let run = async {
-        let (sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
-        let dir = tempfile::tempdir().expect("tmp");
-        let s = ServeProcess::start(dir.path(), &config(sim_addr, dir.path(), 10));
-        wait_for(Duration::from_secs(10), || async { (sim.lock().truth().omega_rad_s - 30.0).abs() < 2.0 })
-            .await
-            .expect("runs at the target");
+        let Regulating { sim, sim_stop, s, _dir, _task } = Regulating::start().await;
         let control_word = || sim.lock().read(Table::Holding, 1, 1).expect("control word")[0];
         assert_eq!(control_word() & control::RUN, control::RUN);
         sim.lock().set_fault(true);
@@ -150,13 +166,9 @@ async fn a_tripped_drive_is_sent_no_run_until_it_is_reset_and_ready() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_clean_stop_withdraws_run_and_a_hangup_is_a_clean_stop() {
     let run = async {
-        let (sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
-        let dir = tempfile::tempdir().expect("tmp");
-        let mut s = ServeProcess::start(dir.path(), &config(sim_addr, dir.path(), 10));
+        let Regulating { sim, sim_stop, _dir: dir, mut s, _task } = Regulating::start().await;
         let control_word = || sim.lock().read(Table::Holding, 1, 1).expect("control word")[0];
-        wait_for(Duration::from_secs(10), || async { control_word() & control::RUN == control::RUN })
-            .await
-            .expect("RUN sent");
+        assert_eq!(control_word() & control::RUN, control::RUN, "RUN sent");
         let _ = std::process::Command::new("kill").args(["-HUP", &s.pid().to_string()]).status();
         let status = s.stop();
         assert_eq!(status.and_then(|c| c.code()), Some(0), "{}", s.log());
@@ -177,12 +189,7 @@ async fn a_clean_stop_withdraws_run_and_a_hangup_is_a_clean_stop() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_frozen_tachometer_is_rejected_and_the_setpoint_does_not_climb() {
     let run = async {
-        let (sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
-        let dir = tempfile::tempdir().expect("tmp");
-        let s = ServeProcess::start(dir.path(), &config(sim_addr, dir.path(), 10));
-        wait_for(Duration::from_secs(10), || async { (sim.lock().truth().omega_rad_s - 30.0).abs() < 2.0 })
-            .await
-            .expect("runs at the target");
+        let Regulating { sim, sim_stop, s, _dir, _task } = Regulating::start().await;
         let hz_before = sim.lock().truth().f_set_hz;
         sim.lock().faults.speed_override_rad_s = Some(20.0);
         let rejected = wait_for(Duration::from_secs(10), || async {
