@@ -235,8 +235,10 @@ pub fn demo(http_addr: &str, modbus_addr: &str, recordings: &Path, plant: DemoPl
     let modbus_addr = modbus_listener.local_addr()?;
     modbus_listener.set_nonblocking(true)?;
     let shutdown = CancellationToken::new();
-    // the plant on a thread and runtime of its own, as a PLC would be: the dashboard's load cannot slow it
-    let plant_stop = shutdown.clone();
+    // the plant on a thread and runtime of its own, as a PLC would be: the dashboard's load cannot slow it. It
+    // stops after the service, which tells the drive to stop on its way out
+    let plant_token = CancellationToken::new();
+    let plant_stop = plant_token.clone();
     let plant = std::thread::Builder::new().name("plant-sim".into()).spawn(move || -> anyhow::Result<()> {
         // as the poll thread: a PLC answers in its own time, whatever the dashboard does
         service::timing::use_realtime_priority(DEMO_REALTIME_PRIORITY, "plant-sim");
@@ -249,7 +251,7 @@ pub fn demo(http_addr: &str, modbus_addr: &str, recordings: &Path, plant: DemoPl
     })?;
     // the plant stops however the service ends: a bad config returns from the block below before its own cancel,
     // and the join would then wait for ever
-    let stop_plant = shutdown.clone();
+    let stop_plant = plant_token;
     let result = http_runtime()?.block_on(async move {
         file_size_limit_is_an_error();
         let signalled = shutdown_on_signal();

@@ -170,6 +170,8 @@ impl DriveLoop {
     async fn stop_drive(&mut self) {
         let spec = self.settings.registers.control_word;
         let name = &self.settings.name;
+        // a cycle cut short by the shutdown may have left a reply in flight on the connection: a fresh one
+        self.client.close().await;
         let write = async {
             let words = spec.encode(0.0).map_err(|e| e.to_string())?;
             self.client.write(spec.address, &words).await.map_err(|e| e.to_string())

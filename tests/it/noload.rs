@@ -632,6 +632,11 @@ fn demo_on_a_leaking_plant_then_analyze_names_the_leak() {
     assert!(recorded.is_some(), "the demo recorded 35 s within 120 s: {} s", recorded_up_to_s(&recordings));
     let _ = Command::new("kill").args(["-TERM", &child.id().to_string()]).status();
     assert!(support::wait_exit(&mut child, Duration::from_secs(10)).is_some(), "demo did not stop on SIGTERM");
+    // the service told the drive to stop before the plant simulator went (the simulator stopped first, the write
+    // then failed with a WARN)
+    let mut log = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().expect("stderr"), &mut log).expect("utf-8");
+    assert!(log.contains("the drive was sent control word 0"), "{log}");
     let out = Command::new(support::bin())
         .arg("analyze")
         .arg(&recordings)

@@ -209,15 +209,13 @@ pub(super) fn check_setpoint_fits(
     let (min_hz, max_hz, fixed_hz) = (c.limits.min_hz, c.limits.max_hz, c.fixed_hz);
     for (k, hz) in [("control.max_hz", max_hz), ("control.fixed_hz", fixed_hz), ("control.min_hz", min_hz)] {
         if setpoint.encode(hz).is_err() {
-            return Err(KeyError::new(
-                key(k),
+            return Err(KeyError::new(key(k), {
+                let (lo, hi) = register_range(setpoint);
                 format!(
-                    "{hz} Hz does not fit the setpoint register ({:?}, {} Hz per step: at most {} Hz)",
-                    setpoint.kind,
-                    setpoint.scale,
-                    register_capacity(setpoint)
-                ),
-            ));
+                    "{hz} Hz does not fit the setpoint register ({:?}, {} Hz per step: it holds {lo} ..= {hi} Hz)",
+                    setpoint.kind, setpoint.scale
+                )
+            }));
         }
     }
     Ok(())

@@ -359,16 +359,18 @@ fn positive(key: &str, v: f64) -> Result<f64, Invalid> {
 pub const MAX_KP_HZ_PER_RAD_S: f64 = 10.0;
 pub const MAX_KI_HZ_PER_RAD: f64 = 100.0;
 
-/// The largest value a register can hold, in engineering units (for error messages).
-fn register_capacity(spec: &RegisterSpec) -> f64 {
-    let raw_max = match spec.kind {
-        ValueType::U16 => 65535.0,
-        ValueType::I16 => 32767.0,
-        ValueType::U32 => 4_294_967_295.0,
-        ValueType::I32 => 2_147_483_647.0,
-        ValueType::F32 => f64::from(f32::MAX),
+/// The values a register can hold, lowest and highest, in engineering units (for error messages).
+fn register_range(spec: &RegisterSpec) -> (f64, f64) {
+    let (raw_lo, raw_hi) = match spec.kind {
+        ValueType::U16 => (0.0, 65535.0),
+        ValueType::I16 => (-32768.0, 32767.0),
+        ValueType::U32 => (0.0, 4_294_967_295.0),
+        ValueType::I32 => (-2_147_483_648.0, 2_147_483_647.0),
+        ValueType::F32 => (-f64::from(f32::MAX), f64::from(f32::MAX)),
     };
-    (raw_max * spec.scale.abs() * 1e6).round() / 1e6 + spec.offset
+    // a negative scale turns the range around
+    let ends = [raw_lo * spec.scale, raw_hi * spec.scale].map(|v| (v * 1e6).round() / 1e6 + spec.offset);
+    (ends[0].min(ends[1]), ends[0].max(ends[1]))
 }
 
 fn validate(raw: RawConfig, base: Option<&Path>) -> Result<Settings, Invalid> {

@@ -47,6 +47,9 @@ fn errors_name_the_key() {
     assert!(e.contains("watchdog.table"), "{e}");
     let e = err(&format!("{MINIMAL}[drives.control]\nmode = \"turbo\"\n"));
     assert!(e.contains("turbo"), "{e}");
+    // a negative scale holds negative frequencies: the range said as it is (it said "at most 655.35 Hz")
+    let e = err(&format!("{MINIMAL}[drives.registers.frequency_setpoint_hz]\nscale = -0.01\n"));
+    assert!(e.contains("control.max_hz") && e.contains("-655.35 ..= 0 Hz"), "{e}");
     // port 0 is "any port" to bind, and no drive listens on it
     let e = err(&MINIMAL.replace(":5020", ":0"));
     assert!(e.contains("drives[0].address") && e.contains("port 1 ..= 65535"), "{e}");
