@@ -401,11 +401,7 @@ impl Series {
         warn_of_gaps(src, &t_s, &restarts);
         // a recording far slower than the model's fastest mode (a 1 s clock on a hydraulic drive, or ms read as s);
         // the nominal plant's, without the effects (dry friction's smoothed sign is not a mode of the plant)
-        let plain = PlantModel { effects: Default::default(), ..model.clone() };
-        let rate = match crate::plant::dynamics::Coefficients::from_model(&plain) {
-            Ok(c) => c.fastest_rate(),
-            Err(_) => crate::plant::dynamics::Mechanics::from_model(&plain).friction_rate(),
-        };
+        let rate = crate::plant::dynamics::model_rate(&PlantModel { effects: Default::default(), ..model.clone() });
         if rate / sample_hz > 10.0 {
             tracing::warn!(recording = %src, sample_s = 1.0 / sample_hz, fastest_mode_s = 1.0 / rate,
                 "the recording samples far slower than the model's fastest dynamics: inertia, dead time and the \

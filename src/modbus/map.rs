@@ -33,6 +33,17 @@ impl ValueType {
             _ => 2,
         }
     }
+
+    /// The raw values the type holds, lowest and highest.
+    pub fn raw_range(self) -> (f64, f64) {
+        match self {
+            ValueType::U16 => (0.0, 65535.0),
+            ValueType::I16 => (-32768.0, 32767.0),
+            ValueType::U32 => (0.0, 4_294_967_295.0),
+            ValueType::I32 => (-2_147_483_648.0, 2_147_483_647.0),
+            ValueType::F32 => (-f64::from(f32::MAX), f64::from(f32::MAX)),
+        }
+    }
 }
 
 /// Byte order of a 32-bit value across two registers: `abcd` is big-endian with the high word first.
@@ -133,15 +144,18 @@ impl RegisterSpec {
         if !raw.is_finite() {
             return Err(range);
         }
-        let r = raw.round();
-        let fits = |lo: f64, hi: f64| (lo..=hi).contains(&r);
+        // integers to the nearest step; an f32 as it is
+        let r = if self.kind == ValueType::F32 { raw } else { raw.round() };
+        let (lo, hi) = self.kind.raw_range();
+        if !(lo..=hi).contains(&r) {
+            return Err(range);
+        }
         Ok(match self.kind {
-            ValueType::U16 if fits(0.0, 65535.0) => vec![r as u16],
-            ValueType::I16 if fits(-32768.0, 32767.0) => vec![(r as i16) as u16],
-            ValueType::U32 if fits(0.0, 4_294_967_295.0) => self.split(r as u32).to_vec(),
-            ValueType::I32 if fits(-2_147_483_648.0, 2_147_483_647.0) => self.split((r as i32) as u32).to_vec(),
-            ValueType::F32 if raw.abs() <= f64::from(f32::MAX) => self.split((raw as f32).to_bits()).to_vec(),
-            _ => return Err(range),
+            ValueType::U16 => vec![r as u16],
+            ValueType::I16 => vec![(r as i16) as u16],
+            ValueType::U32 => self.split(r as u32).to_vec(),
+            ValueType::I32 => self.split((r as i32) as u32).to_vec(),
+            ValueType::F32 => self.split((r as f32).to_bits()).to_vec(),
         })
     }
 
@@ -161,13 +175,7 @@ impl RegisterSpec {
 
     /// As [`RegisterSpec::encode`] but saturating at the type's range (for a simulator's sensors).
     pub fn encode_saturating(&self, value: f64) -> Vec<u16> {
-        let (lo, hi) = match self.kind {
-            ValueType::U16 => (0.0, 65535.0),
-            ValueType::I16 => (-32768.0, 32767.0),
-            ValueType::U32 => (0.0, 4_294_967_295.0),
-            ValueType::I32 => (-2_147_483_648.0, 2_147_483_647.0),
-            ValueType::F32 => (-f64::from(f32::MAX), f64::from(f32::MAX)),
-        };
+        let (lo, hi) = self.kind.raw_range();
         let raw = ((value - self.offset) / self.scale).clamp(lo, hi);
         let raw = if raw.is_nan() { 0.0 } else { raw };
         self.encode(raw * self.scale + self.offset).unwrap_or_else(|_| vec![0; usize::from(self.kind.words())])

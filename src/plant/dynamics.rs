@@ -185,7 +185,7 @@ impl Coefficients {
 }
 
 /// The fastest rate of a model (1/s): the whole plant's, or the shaft's alone for a torque-driven model.
-fn model_rate(model: &PlantModel) -> f64 {
+pub fn model_rate(model: &PlantModel) -> f64 {
     match Coefficients::from_model(model) {
         Ok(c) => c.fastest_rate(),
         Err(_) => Mechanics::from_model(model).friction_rate(),

@@ -127,6 +127,30 @@ fn simulate_args<'a>(model: &'a Path, duration: &'a str, out: &'a Path) -> [&'a 
     ]
 }
 
+/// `estimate <recording> --model <model> --out <out>`.
+fn estimate_args<'a>(recording: &'a Path, model: &'a Path, out: &'a Path) -> [&'a OsStr; 6] {
+    [
+        "estimate".as_ref(),
+        recording.as_os_str(),
+        "--model".as_ref(),
+        model.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]
+}
+
+/// `analyze <recording> --model <model> --json <json>`.
+fn analyze_args<'a>(recording: &'a Path, model: &'a Path, json: &'a Path) -> [&'a OsStr; 6] {
+    [
+        "analyze".as_ref(),
+        recording.as_os_str(),
+        "--model".as_ref(),
+        model.as_os_str(),
+        "--json".as_ref(),
+        json.as_os_str(),
+    ]
+}
+
 fn reference_model() -> String {
     std::fs::read_to_string(root().join("config/plant.toml")).expect("model")
 }
@@ -297,15 +321,7 @@ fn simulate_with_a_bad_model_leaves_the_old_output() {
     let sub = tempfile::tempdir().expect("tmp");
     let rec = recording(sub.path());
     let json = sub.path().join("a.json");
-    let analyze = [
-        "analyze".as_ref(),
-        rec.as_os_str(),
-        "--model".as_ref(),
-        no_pump.as_os_str(),
-        "--json".as_ref(),
-        json.as_os_str(),
-    ];
-    exits_2_naming(&analyze, &["model file", "no_pump.toml", "[drive]"]);
+    exits_2_naming(&analyze_args(&rec, &no_pump, &json), &["model file", "no_pump.toml", "[drive]"]);
 }
 
 #[test]
@@ -317,14 +333,7 @@ fn a_killed_runs_temporary_file_is_removed_by_the_next_run() {
     std::fs::write(&stale, "half an estimate").expect("write");
     let out = dir.path().join("est.csv");
     let model = root().join("config/plant.toml");
-    let (code, msg) = run(&[
-        "estimate".as_ref(),
-        rec.as_os_str(),
-        "--model".as_ref(),
-        model.as_os_str(),
-        "--out".as_ref(),
-        out.as_os_str(),
-    ]);
+    let (code, msg) = run(&estimate_args(&rec, &model, &out));
     assert_eq!(code, Some(0), "{msg}");
     assert_eq!(files_in(dir.path()), ["est.csv", "rec.csv"]);
 }
@@ -358,15 +367,7 @@ fn missing_or_directory_configs_recordings_and_a_non_utf8_model_exit_2_naming_th
     let missing_csv = dir.path().join("missing.csv");
     let est_out = dir.path().join("est.csv");
     for (recording, reason) in [(missing_csv.as_path(), "No such file"), (dir.path(), "a directory")] {
-        let estimate = [
-            "estimate".as_ref(),
-            "--model".as_ref(),
-            model.as_os_str(),
-            "--out".as_ref(),
-            est_out.as_os_str(),
-            recording.as_os_str(),
-        ];
-        let out = exits_2_naming(&estimate, &[&*recording.to_string_lossy(), reason]);
+        let out = exits_2_naming(&estimate_args(recording, &model, &est_out), &[&*recording.to_string_lossy(), reason]);
         assert_eq!(out.matches(reason).count(), 1, "the reason once: {out}");
     }
 }
@@ -502,13 +503,13 @@ fn stuck_sensors_wrong_clocks_and_costly_loads_exit_2_naming_what() {
     let rec = recording(dir.path());
     let text = std::fs::read_to_string(&rec).expect("recording");
     let header: Vec<&str> = text.lines().next().expect("header").split(',').collect();
-    // every row's `column` replaced by `value`, or t_s scaled
-    let edited = |name: &str, edit: &dyn Fn(&str, &mut Vec<String>)| {
+    // the recording with `edit` applied to the cells of every row
+    let edited = |name: &str, edit: &dyn Fn(&mut Vec<String>)| {
         let mut out = String::new();
         for (k, line) in text.lines().enumerate() {
             let mut cells: Vec<String> = line.split(',').map(String::from).collect();
             if k > 0 {
-                edit(header[0], &mut cells);
+                edit(&mut cells);
             }
             out.push_str(&cells.join(","));
             out.push('\n');
@@ -519,41 +520,22 @@ fn stuck_sensors_wrong_clocks_and_costly_loads_exit_2_naming_what() {
     };
     let set = |column: &'static str, value: &'static str| {
         let i = header.iter().position(|h| *h == column).expect("column");
-        move |_: &str, cells: &mut Vec<String>| cells[i] = value.to_string()
+        move |cells: &mut Vec<String>| cells[i] = value.to_string()
     };
     let model = root().join("config/plant.toml");
     let json = dir.path().join("a.json");
-    fn analyze<'a>(p: &'a Path, model: &'a Path, json: &'a Path) -> [&'a OsStr; 6] {
-        ["analyze".as_ref(), p.as_os_str(), "--model".as_ref(), model.as_os_str(), "--json".as_ref(), json.as_os_str()]
-    }
     // a stuck tachometer: J came out 10⁸ with "named: nothing"
     let stuck = edited("stuck.csv", &set("omega_rad_s", "30"));
-    exits_2_naming(&analyze(&stuck, &model, &json), &["stuck.csv", "`omega_rad_s` holds 30 in every row"]);
+    exits_2_naming(&analyze_args(&stuck, &model, &json), &["stuck.csv", "`omega_rad_s` holds 30 in every row"]);
     // a clock in ms read as s: every row a gap, the load estimate 0 throughout
-    let ms = edited("ms.csv", &|_, cells| cells[0] = format!("{}", cells[0].parse::<f64>().expect("t") * 1000.0));
+    let ms = edited("ms.csv", &|cells| cells[0] = format!("{}", cells[0].parse::<f64>().expect("t") * 1000.0));
     let out = dir.path().join("e.csv");
-    let estimate = [
-        OsStr::new("estimate"),
-        ms.as_os_str(),
-        "--model".as_ref(),
-        model.as_os_str(),
-        "--out".as_ref(),
-        out.as_os_str(),
-    ];
-    exits_2_naming(&estimate, &["ms.csv", "max_gap_s"]);
+    exits_2_naming(&estimate_args(&ms, &model, &out), &["ms.csv", "max_gap_s"]);
     assert!(!out.exists(), "nothing written");
     // a start beyond the estimator's bounds (clamped in silence)
     let ij = dir.path().join("ij.toml");
     std::fs::write(&ij, reference_model() + "[estimator]\ninitial_inertia_kg_m2 = 1e300\n").expect("write");
-    let estimate = [
-        OsStr::new("estimate"),
-        rec.as_os_str(),
-        "--model".as_ref(),
-        ij.as_os_str(),
-        "--out".as_ref(),
-        out.as_os_str(),
-    ];
-    exits_2_naming(&estimate, &["ij.toml", "estimator.initial_inertia_kg_m2", "within"]);
+    exits_2_naming(&estimate_args(&rec, &ij, &out), &["ij.toml", "estimator.initial_inertia_kg_m2", "within"]);
     // a load that costs without bound each sample (0.1 s a sample)
     let imp = dir.path().join("imp.toml");
     let impacts = "kind = \"impacts\"\nbase_nm = 1.0\npeak_nm = 1.0\nwidth_s = 10.0\nmean_interval_s = 1e-6\nseed = 1";

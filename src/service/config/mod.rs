@@ -361,13 +361,7 @@ pub const MAX_KI_HZ_PER_RAD: f64 = 100.0;
 
 /// The values a register can hold, lowest and highest, in engineering units (for error messages).
 fn register_range(spec: &RegisterSpec) -> (f64, f64) {
-    let (raw_lo, raw_hi) = match spec.kind {
-        ValueType::U16 => (0.0, 65535.0),
-        ValueType::I16 => (-32768.0, 32767.0),
-        ValueType::U32 => (0.0, 4_294_967_295.0),
-        ValueType::I32 => (-2_147_483_648.0, 2_147_483_647.0),
-        ValueType::F32 => (-f64::from(f32::MAX), f64::from(f32::MAX)),
-    };
+    let (raw_lo, raw_hi) = spec.kind.raw_range();
     // a negative scale turns the range around
     let ends = [raw_lo * spec.scale, raw_hi * spec.scale].map(|v| (v * 1e6).round() / 1e6 + spec.offset);
     (ends[0].min(ends[1]), ends[0].max(ends[1]))
