@@ -3,8 +3,9 @@
 //! `speed` mode is a PI on the estimated speed ω̂ around a steady-state feed-forward that inverts the plant: the
 //! motor needs `D_m·ω` of flow plus the leakage `C_L·Δp`, where `Δp = (B·ω + T̂_L)/D_m` holds the estimated load;
 //! the pump gives `D_p·2π·f/pole_pairs`. So `f_ff = pole_pairs/(2π·D_p)·(D_m·ω* + C_L·(B·ω* + T̂_L)/D_m)`, and the
-//! PI only removes what the model misses. The output is clamped to `[min_hz, max_hz]` and ramp limited; the integral
-//! stops growing while the output is held by a limit (anti-windup). On stale data there is no output at all: the
+//! PI only removes what the model misses. The output is clamped to `[min_hz, max_hz]`, ramp limited, and leads a
+//! running drive's read-back by at most [`LEAD_HZ`] (a drive with a slower ramp of its own is waited for); the
+//! integral stops growing while the output is held by a limit (anti-windup). On stale data there is no output at all: the
 //! caller writes nothing and the drive's own watchdog takes over.
 
 use std::f64::consts::PI;
@@ -99,6 +100,15 @@ pub struct Inputs {
 pub const FOLLOW_TOLERANCE_HZ: f64 = 1.5;
 /// How long the drive may lag (its own ramp, a write in flight) before it counts as not following (s).
 pub const FOLLOW_GRACE_S: f64 = 0.3;
+/// A drive away from the setpoint whose read-back moves towards it by this much (Hz) within [`STALL_S`] is still
+/// ramping (its own ramp slower than the service's), not failing to follow.
+pub const MIN_PROGRESS_HZ: f64 = 0.2;
+/// How long (s) a drive away from the setpoint may go without [`MIN_PROGRESS_HZ`] of progress before its grace starts.
+pub const STALL_S: f64 = 0.5;
+/// The setpoint leads the read-back of a running drive by at most this much (Hz) plus one poll's ramp step: a drive
+/// that ramps slower than `ramp_hz_per_s` is waited for, not run away from (twice [`FOLLOW_TOLERANCE_HZ`], so that
+/// a drive that stands still at its read-back is still found not following).
+pub const LEAD_HZ: f64 = 2.0 * FOLLOW_TOLERANCE_HZ;
 /// A drive found not following: the setpoint holds its read-back this long before the regulator tries again (s).
 pub const HOLD_S: f64 = 2.0;
 /// A drive that follows again for this long (s) ends the alarm.
@@ -116,8 +126,11 @@ pub struct SpeedLaw {
     integral_hz: f64,
     /// The last setpoint sent; None before the first.
     last_hz: Option<f64>,
-    /// How long the drive has been away from the setpoint, or not ready and running (s).
+    /// How long the drive has been away from the setpoint, or not ready and running, and not ramping towards it (s).
     away_s: f64,
+    /// While away: the read-back when the drive last made [`MIN_PROGRESS_HZ`] of progress towards the setpoint, and
+    /// the time since (s).
+    progress_from: Option<(f64, f64)>,
     /// Since when (s) the setpoint holds the read-back of a drive found not following; None while regulating.
     held_s: Option<f64>,
     /// How long the drive has followed since it was last found not following (s).
@@ -138,6 +151,7 @@ impl SpeedLaw {
             integral_hz: 0.0,
             last_hz: None,
             away_s: 0.0,
+            progress_from: None,
             held_s: None,
             followed_s: 0.0,
             alarm: false,
@@ -157,8 +171,9 @@ impl SpeedLaw {
     }
 
     /// True while the drive does not follow the setpoints: its read-back away from the last setpoint by more than
-    /// [`FOLLOW_TOLERANCE_HZ`], or it not ready and running, for longer than [`FOLLOW_GRACE_S`] (local mode, a
-    /// drive that answers writes but ignores them), until it has followed again for [`FOLLOWED_AGAIN_S`].
+    /// [`FOLLOW_TOLERANCE_HZ`] and not ramping towards it, or it not ready and running, for longer than
+    /// [`FOLLOW_GRACE_S`] (local mode, a drive that answers writes but ignores them), until it has followed again for
+    /// [`FOLLOWED_AGAIN_S`].
     pub fn not_following(&self) -> bool {
         self.alarm
     }
@@ -176,7 +191,11 @@ impl SpeedLaw {
             self.away_s = 0.0;
             return held;
         }
-        self.away_s = if within { 0.0 } else { self.away_s + dt };
+        let ramping = !within && known && x.drive_running && self.ramping(x.drive_hz, last, dt);
+        if within {
+            self.progress_from = None;
+        }
+        self.away_s = if within || ramping { 0.0 } else { self.away_s + dt };
         self.followed_s = if within { self.followed_s + dt } else { 0.0 };
         if self.followed_s >= FOLLOWED_AGAIN_S {
             self.alarm = false;
@@ -187,6 +206,24 @@ impl SpeedLaw {
             return held;
         }
         None
+    }
+
+    /// A running drive away from the setpoint `last` that still moves towards it: [`MIN_PROGRESS_HZ`] of progress
+    /// within every [`STALL_S`].
+    fn ramping(&mut self, drive_hz: f64, last: f64, dt: f64) -> bool {
+        let (from, since_s) = self.progress_from.get_or_insert((drive_hz, 0.0));
+        *since_s += dt;
+        if (drive_hz - *from) * (last - drive_hz).signum() >= MIN_PROGRESS_HZ {
+            self.progress_from = Some((drive_hz, 0.0));
+            return true;
+        }
+        *since_s < STALL_S
+    }
+
+    /// The highest setpoint a running drive's read-back allows this cycle (None: no read-back, or a tripped drive).
+    fn lead_ceiling(&self, x: &Inputs, dt: f64) -> Option<f64> {
+        let known = x.drive_hz.is_finite() && x.drive_running && !x.tripped;
+        known.then_some(x.drive_hz + LEAD_HZ + self.limits.ramp_hz_per_s * dt)
     }
 
     /// Sets the integral so that the speed law's output is `hz` now (back-calculation anti-windup).
@@ -240,6 +277,11 @@ impl SpeedLaw {
             None => min_hz + (wanted - min_hz).clamp(0.0, ramp_hz_per_s * dt),
             Some(last) => last + (wanted - last).clamp(-ramp_hz_per_s * dt, ramp_hz_per_s * dt),
         };
+        // a setpoint that rises leads a running drive's read-back by at most the lead: the drive's own ramp rules
+        let out = match (self.lead_ceiling(x, dt), self.last_hz) {
+            (Some(ceiling), Some(last)) if out > last => out.min(ceiling.max(last)),
+            _ => out,
+        };
         let out = out.clamp(min_hz, max_hz);
         self.last_hz = Some(out);
         Some(out)
@@ -258,8 +300,9 @@ impl SpeedLaw {
         // anti-windup: integrate only while the output is not held by a limit in the direction of the error
         let (lo, hi) = (self.limits.min_hz, self.limits.max_hz);
         let ramp_held = self.last_hz.is_some_and(|last| (unclamped - last).abs() > self.limits.ramp_hz_per_s * dt);
+        let lead_held = self.lead_ceiling(x, dt).is_some_and(|ceiling| unclamped > ceiling && error > 0.0);
         let pushing_past = (unclamped >= hi && error > 0.0) || (unclamped <= lo && error < 0.0);
-        if !pushing_past && !ramp_held {
+        if !pushing_past && !ramp_held && !lead_held {
             self.integral_hz += self.gains.ki_hz_per_rad * error * dt;
             // the integral never needs to exceed the whole range
             let span = hi - lo;
@@ -337,6 +380,45 @@ mod tests {
             prev = hz;
         }
         assert!(!s.not_following());
+    }
+
+    /// A healthy drive whose own ramp (4 Hz/s) is five times slower than the service's (20 Hz/s): it follows, slowly.
+    /// The setpoint waits for it (at most the lead above its read-back), no alarm is raised, the integral does not
+    /// wind up on the long speed error, and the speed settles at the target without overshoot. Before, the drive was
+    /// found not following 0.3 s into every climb and held for 2 s: a staircase, and an alarm that never ended.
+    #[test]
+    fn a_drive_with_a_slower_ramp_of_its_own_is_waited_for() {
+        let ff = reference_ff();
+        let mut s = law(Mode::Speed);
+        s.target_omega_rad_s = 40.0;
+        let (mut drive_hz, mut omega, mut peak, mut widest): (f64, f64, f64, f64) = (0.0, 0.0, 0.0, 0.0);
+        for k in 0..1500 {
+            let hz = s.step(&Inputs { drive_hz, ..fresh(omega, 5.0) }).expect("writes");
+            assert!(
+                !s.not_following(),
+                "found not following at {:.2} s: drive {drive_hz:.2}, setpoint {hz:.2}",
+                k as f64 * 0.01
+            );
+            widest = widest.max(hz - drive_hz);
+            drive_hz += (hz - drive_hz).clamp(-4.0 * 0.01, 4.0 * 0.01);
+            omega += (ff.omega_rad_s(drive_hz) - 0.1 * 5.0 - omega) * 0.01 / 0.15;
+            peak = peak.max(omega);
+        }
+        assert!(widest <= LEAD_HZ + 20.0 * 0.01 + 1e-9, "the setpoint ran {widest:.2} Hz ahead of the drive");
+        assert!((omega - 40.0).abs() < 0.1, "settles at the target: {omega}");
+        // the drive's own ramp carries it about 0.6 Hz past the frequency it needs while the plant's 0.15 s lag catches up
+        assert!(peak <= 41.5, "no overshoot from a wound-up integral: {peak}");
+        // the same drive with its ramp stuck (it stands at 12 Hz while running): found not following within 1 s
+        let mut stuck = law(Mode::Speed);
+        stuck.target_omega_rad_s = 40.0;
+        stuck.start_from(12.0);
+        let found = (1..=200).find(|_| {
+            stuck.step(&Inputs { drive_hz: 12.0, ..fresh(19.0, 5.0) });
+            stuck.not_following()
+        });
+        let found = found.expect("a drive standing still is found not following");
+        // the setpoint climbs 1.5 Hz from the read-back first (8 polls), then STALL_S and FOLLOW_GRACE_S pass
+        assert!(found as f64 * 0.01 <= 0.08 + STALL_S + FOLLOW_GRACE_S + 0.02, "found after {found} polls");
     }
 
     /// After a gap the first setpoint is a ramp step from what the drive runs at, not from the last wish.

@@ -196,6 +196,46 @@ async fn a_drive_in_local_mode_raises_an_alarm_and_no_overspeed_follows() {
     tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
 
+/// A healthy drive whose own ramp (4 Hz/s) is five times slower than the service's (`ramp_hz_per_s` 20): it climbs to
+/// the target with no alarm on the way, the setpoint never runs more than the lead ahead of it, and the speed does not
+/// overshoot. Before, the drive was found not following 0.3 s into the climb and held at its read-back for 2 s, again
+/// and again: the setpoint climbed in a staircase and `/readyz` answered 503 for good.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_drive_with_a_slower_ramp_of_its_own_is_followed_without_an_alarm() {
+    let run = async {
+        let speed =
+            "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 40.0\nmax_hz = 50.0\nramp_hz_per_s = 20.0\n";
+        let mut plant = support::test_plant(5.0);
+        if let Some(d) = plant.drive.as_mut() {
+            d.ramp_hz_per_s = 4.0;
+        }
+        let stack = Stack::start_on(plant, 10, speed).await;
+        let drive = &stack.state.drives[0];
+        let (mut alarms, mut peak, mut lead, mut settled_at): (u64, f64, f64, Option<u64>) = (0, 0.0, 0.0, None);
+        // 1500 of the loop's own cycles: 15 s, the climb to about 26 Hz takes 6.5 s at the drive's 4 Hz/s
+        for cycle in 0..1500u64 {
+            stack.wait_polls(1, "climbing").await;
+            alarms += u64::from(drive.snapshot().status.not_following);
+            let truth = stack.sim.lock().truth();
+            peak = peak.max(truth.omega_rad_s);
+            lead = lead.max(truth.f_set_hz - truth.f_drive_hz);
+            if settled_at.is_none() && (truth.omega_rad_s - 40.0).abs() < 1.0 {
+                settled_at = Some(cycle);
+            }
+        }
+        eprintln!(
+            "a drive ramping at 4 Hz/s under a 20 Hz/s regulator: {alarms} cycles not following, setpoint at most {lead:.2} Hz ahead, within 1 rad/s of the target after {settled_at:?} cycles, peak {peak:.1} rad/s (target 40)"
+        );
+        assert_eq!(alarms, 0, "a drive that follows at its own ramp was found not following");
+        assert!(lead <= hydrolens::control::LEAD_HZ + 0.5, "the setpoint ran {lead:.2} Hz ahead of the drive");
+        assert!(settled_at.is_some_and(|c| c < 1000), "the speed reached the target within 10 s: {settled_at:?}");
+        assert!(peak <= 42.0, "overshoot: {peak} rad/s");
+        assert_eq!(stack.readyz().await, 200);
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
+}
+
 /// A 0.8 s link gap with a higher target posted meanwhile: when the link comes back, the setpoints climb from what
 /// the drive runs at, one ramp step a poll (20 Hz/s · 10 ms), instead of spending the gap's ramp allowance in one
 /// write (before this, one write went from 26.7 to 42.2 Hz).
