@@ -464,6 +464,13 @@ async fn reset(
     if drive.mode == Mode::Monitor {
         return Err(ApiError::new(StatusCode::CONFLICT, format!("drive {name:?} is in monitor mode: it never writes")));
     }
+    if drive.stale_or_down() {
+        // kept, it would be carried out unseen whenever the link came back
+        return Err(ApiError::new(
+            StatusCode::CONFLICT,
+            format!("drive {name:?} is not seen (link down or data stale): a reset is taken only while it is"),
+        ));
+    }
     drive.request_reset();
     s.status_cache.clear();
     tracing::info!(drive = %name, "fault reset requested");

@@ -69,6 +69,8 @@ struct Pending {
     /// When the watchdog changed, if it did.
     watchdog_at: Option<Instant>,
     setpoint_hz: f64,
+    /// The control word carries RUN.
+    run: bool,
 }
 
 /// What a confirmed write did.
@@ -103,10 +105,12 @@ pub struct DriveCycle {
     watchdog: u16,
     /// 0: none; 1: write the fault-reset bit next; 2: written, drop it next.
     reset_phase: u8,
-    /// A trip this service saw (fault or comm-loss bit, or a sample counter that restarted: the drive lost power),
-    /// held until `POST …/reset`: a drive whose trip clears on its own side, or that comes back from a power cycle,
+    /// A trip this service saw (fault or comm-loss bit, a sample counter that restarted: the drive lost power, or a
+    /// drive running under RUN that stopped on its own), held until `POST …/reset`: a drive whose trip clears on its own side, or that comes back from a power cycle,
     /// is not sent RUN again by the service itself (no unexpected restart, EN 60204-1 §7.5). Writing modes only.
     trip_latched: bool,
+    /// The last control word the drive confirmed carries RUN: a drive that then stops on its own is latched.
+    run_sent: bool,
     /// The control's (min_hz, max_hz): a setpoint register's step never takes a write past them.
     hz_range: (f64, f64),
     /// Some write reached the drive: on a clean stop it is sent control word 0.
@@ -146,6 +150,7 @@ impl DriveCycle {
             watchdog: 0,
             reset_phase: 0,
             trip_latched: false,
+            run_sent: false,
             hz_range: (settings.limits.min_hz, settings.limits.max_hz),
             commanded: false,
             frozen: FrozenSpeed::default(),
@@ -172,10 +177,15 @@ impl DriveCycle {
     pub fn step(&mut self, sample: &Sample, sent_at: Instant, replied_at: Instant) -> Step {
         let nothing = |verdict| Step { verdict, writes: Vec::new(), point: None, encode_error: None };
         self.pending = None;
+        let before = self.status;
         self.status = drive_status(sample.status_word);
         let writing = self.mode.writes();
         // while a requested reset goes out, the fault it is meant to clear is not latched again
         self.trip_latched |= writing && self.reset_phase == 0 && (self.status.fault || self.status.comm_loss_trip);
+        // a drive that ran under this service's RUN and stopped on its own (it lost ready or running: a safe torque
+        // off, an enable or an emergency stop, a power cycle) is latched too: it is not started again unasked
+        let stopped = before.ready && before.running && !(self.status.ready && self.status.running);
+        self.trip_latched |= writing && self.reset_phase == 0 && self.run_sent && stopped;
         match self.counter.observe(sample.counter) {
             CounterVerdict::Moved => {}
             CounterVerdict::Unchanged | CounterVerdict::Settling => return nothing(Verdict::Stale),
@@ -192,10 +202,15 @@ impl DriveCycle {
                 return nothing(Verdict::Rejected(r));
             }
         }
-        if let Some(r) = self.frozen.observe(sample.measured.omega_rad_s, sample.measured.f_drive_hz) {
+        if let Some(r) = self.frozen.observe(sample.measured.omega_rad_s, sample.measured.f_drive_hz, now.into_std()) {
             return nothing(Verdict::Rejected(r));
         }
         self.last_valid = Some((now, sample.measured));
+        if self.frozen.showing_no_turn() {
+            // a speed of 0 (or against the drive) while the drive runs: held back, not written from, until the
+            // motor turns or, after a second, the samples are rejected
+            return nothing(Verdict::Stale);
+        }
         // timely: the reply came within stale_ms, and so did this sample after the one before; else readiness
         // would call the drive stale while the loop wrote from it
         let limit = self.stale_after;
@@ -260,7 +275,8 @@ impl DriveCycle {
             return Ok(Vec::new());
         }
         let watchdog_at = due.then_some(now);
-        self.pending = Some(Pending { writes: writes.clone(), watchdog, watchdog_at, setpoint_hz: hz });
+        let run = control_word & control::RUN != 0;
+        self.pending = Some(Pending { writes: writes.clone(), watchdog, watchdog_at, setpoint_hz: hz, run });
         Ok(writes)
     }
 
@@ -277,6 +293,7 @@ impl DriveCycle {
         }
         self.watchdog = p.watchdog;
         self.last_written = p.writes;
+        self.run_sent = p.run;
         self.commanded = true;
         let reset_sent = self.reset_phase == 1;
         self.reset_phase = if reset_sent { 2 } else { 0 };
@@ -542,5 +559,31 @@ mod tests {
         let (mut m, _) = cycle("mode = \"monitor\"");
         m.command(Commands { target_omega_rad_s: 1.0, reset_requested: true });
         assert_eq!(m.reset_phase, 0);
+    }
+
+    /// A drive running under RUN that stops on its own, with no fault bit: it drops ready (a safe torque off, an
+    /// enable removed, an emergency stop) or comes back from a power cycle ready but not running, its sample counter
+    /// moving on (half of all restarts: a counter past 32768 before). Before, RUN went out as soon as it reported
+    /// ready and the drive ran again unasked; now the stop is latched until a reset. A drive that never ran under
+    /// RUN (starting up, not ready yet) is not latched.
+    #[test]
+    fn a_drive_that_stops_on_its_own_is_not_started_again_unasked() {
+        let ready = status::READY;
+        let running = status::READY | status::RUNNING;
+        for (what, off) in [("lost ready", 0), ("came back not running", ready)] {
+            let (mut c, t0) = cycle("mode = \"manual\"\nfixed_hz = 20.0\nramp_hz_per_s = 100.0");
+            let starting = run(&mut c, t0, 40_000, 3, 30.0, ready);
+            assert!(starting.iter().filter_map(written).all(|w| w.1 == control::RUN), "{what}: RUN to a ready drive");
+            run(&mut c, t0, 40_003, 5, 30.0, running);
+            assert!(!c.tripped(), "{what}: running under RUN");
+            run(&mut c, t0, 40_008, 3, 30.0, off);
+            let back = run(&mut c, t0, 40_011, 5, 30.0, ready);
+            assert!(c.tripped(), "{what}: latched");
+            assert!(back.iter().filter_map(written).all(|w| w.1 == 0), "{what}: no RUN from the service itself");
+            c.command(Commands { target_omega_rad_s: 0.0, reset_requested: true });
+            let again = run(&mut c, t0, 40_016, 2, 30.0, ready);
+            assert!(!c.tripped(), "{what}: a reset re-arms it");
+            assert_eq!(again.iter().filter_map(written).next_back().map(|w| w.1), Some(control::RUN), "{what}");
+        }
     }
 }

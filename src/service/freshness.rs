@@ -27,24 +27,54 @@ pub enum Rejected {
     Jump { entry: &'static str, from: f64, to: f64, rate: f64, max_rate: f64 },
     #[error("{entry} stuck at {value} while the drive's frequency moved {moved_hz:.1} Hz: a frozen sensor")]
     Frozen { entry: &'static str, value: f64, moved_hz: f64 },
+    #[error(
+        "{entry} reads {value} (no turn, or against the drive) while the drive runs at {f_drive_hz:.1} Hz for \
+         {held_s:.1} s: a broken tachometer (wire, coupling, sign) or a stalled motor"
+    )]
+    NoTurn { entry: &'static str, value: f64, f_drive_hz: f64, held_s: f64 },
 }
 
 /// How far the drive's frequency may move (Hz) while the speed reads the very same non-zero value: 2 Hz is
 /// hundreds of the speed register's steps, which no turning shaft holds still.
 pub const FROZEN_SPEED_HZ: f64 = 2.0;
 
-/// A tachometer frozen at a value while the drive's frequency moves (a stuck sensor or PLC value): a speed
-/// regulator on it runs the drive to `max_hz`. Zero is left out: a stalled motor reads exactly 0 while its drive
-/// ramps.
+/// A drive running at least this fast (Hz) turns its motor: the pump's flow has nowhere else to go.
+pub const NO_TURN_HZ: f64 = 5.0;
+/// How long (s) a speed of 0, or one against the drive's direction, may last while the drive runs at
+/// [`NO_TURN_HZ`] or more: a motor breaking away, a drive starting.
+pub const NO_TURN_S: f64 = 1.0;
+
+/// A tachometer frozen at a value while the drive's frequency moves (a stuck sensor or PLC value), or reading no
+/// turn (0, or against the drive's direction) while the drive runs at [`NO_TURN_HZ`] or more for [`NO_TURN_S`] (a
+/// broken wire, a slipped coupling, a reversed sign, or a stalled motor): a speed regulator on it runs the drive to
+/// `max_hz`. Exactly 0 is not a frozen value (a stalled motor reads 0 while its drive ramps), only no turn for long.
 #[derive(Debug, Default)]
 pub struct FrozenSpeed {
     /// The speed held, and the lowest and highest drive frequency seen while it held.
     held: Option<(f64, f64, f64)>,
+    /// Since when the speed has read no turn while the drive runs.
+    no_turn_since: Option<std::time::Instant>,
 }
 
 impl FrozenSpeed {
-    /// The verdict on one sample (before its other checks pass, so that the history holds only fresh ones).
-    pub fn observe(&mut self, omega_rad_s: f64, f_drive_hz: f64) -> Option<Rejected> {
+    /// The last sample showed no turn while the drive runs, not yet for [`NO_TURN_S`]: a motor breaking away, or
+    /// a tachometer failing. Nothing may be written from it (the setpoint would climb on a speed of 0).
+    pub fn showing_no_turn(&self) -> bool {
+        self.no_turn_since.is_some()
+    }
+
+    /// The verdict on one sample taken at `at` (before its other checks pass, so that the history holds only fresh
+    /// ones).
+    pub fn observe(&mut self, omega_rad_s: f64, f_drive_hz: f64, at: std::time::Instant) -> Option<Rejected> {
+        let no_turn = f_drive_hz.abs() >= NO_TURN_HZ && omega_rad_s * f_drive_hz.signum() <= 0.0;
+        let since = if no_turn { *self.no_turn_since.get_or_insert(at) } else { at };
+        if !no_turn {
+            self.no_turn_since = None;
+        }
+        let held_s = at.saturating_duration_since(since).as_secs_f64();
+        if held_s > NO_TURN_S {
+            return Some(Rejected::NoTurn { entry: "shaft_speed_rpm", value: omega_rad_s, f_drive_hz, held_s });
+        }
         match &mut self.held {
             Some((w, lo, hi)) if *w == omega_rad_s && omega_rad_s != 0.0 => {
                 (*lo, *hi) = (lo.min(f_drive_hz), hi.max(f_drive_hz));
@@ -178,18 +208,39 @@ mod tests {
 
     #[test]
     fn a_speed_frozen_while_the_drive_moves_is_rejected_and_a_stalled_one_is_not() {
+        let t0 = std::time::Instant::now();
+        let at = |k: usize| t0 + std::time::Duration::from_millis(10 * k as u64);
         let mut f = FrozenSpeed::default();
         // the drive ramps 0.5 Hz a sample while the speed reads 20.0: rejected once it moved past 2 Hz
-        let verdicts: Vec<bool> = (0..8).map(|k| f.observe(20.0, 10.0 + 0.5 * k as f64).is_some()).collect();
+        let verdicts: Vec<bool> = (0..8).map(|k| f.observe(20.0, 10.0 + 0.5 * k as f64, at(k)).is_some()).collect();
         assert_eq!(verdicts, [false, false, false, false, false, true, true, true]);
         // the speed moves again: accepted
-        assert!(f.observe(20.1, 14.0).is_none());
-        // a stalled motor reads exactly 0 while its drive ramps: not a frozen sensor
+        assert!(f.observe(20.1, 14.0, at(8)).is_none());
+        // a motor breaking away reads exactly 0 while its drive ramps: not a frozen sensor
         let mut g = FrozenSpeed::default();
-        assert!((0..20).all(|k| g.observe(0.0, k as f64).is_none()));
+        assert!((0..20).all(|k| g.observe(0.0, k as f64, at(k)).is_none()));
         // a steady drive with a steady speed: nothing
         let mut h = FrozenSpeed::default();
-        assert!((0..20).all(|_| h.observe(30.0, 25.0).is_none()));
+        assert!((0..200).all(|k| h.observe(30.0, 25.0, at(k)).is_none()));
+    }
+
+    /// A speed that reads 0 (a broken wire) or against the drive (a reversed sign) while the drive runs at 20 Hz:
+    /// accepted for [`NO_TURN_S`], then rejected until the speed turns with the drive again. A drive below
+    /// [`NO_TURN_HZ`] (starting, stopping) with the motor still: accepted for good.
+    #[test]
+    fn a_speed_that_shows_no_turn_while_the_drive_runs_is_rejected_after_a_second() {
+        let t0 = std::time::Instant::now();
+        let at = |k: usize| t0 + std::time::Duration::from_millis(10 * k as u64);
+        for reading in [0.0, -31.4] {
+            let mut f = FrozenSpeed::default();
+            let rejected: Vec<usize> = (0..150).filter(|&k| f.observe(reading, 20.0, at(k)).is_some()).collect();
+            assert_eq!(rejected.first(), Some(&101), "{reading}: rejected from 1 s on");
+            assert_eq!(rejected.len(), 49, "{reading}: and on");
+            assert!(f.observe(31.4, 20.0, at(150)).is_none(), "turning with the drive again");
+            assert!(f.observe(31.5, 20.0, at(300)).is_none());
+        }
+        let mut slow = FrozenSpeed::default();
+        assert!((0..500).all(|k| slow.observe(0.0, 4.5, at(k)).is_none()));
     }
 
     #[test]

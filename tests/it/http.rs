@@ -94,8 +94,10 @@ async fn bad_input_gets_4xx_with_a_json_error() {
         .body(Body::from(ok_body))
         .expect("request");
     assert_eq!(call(&app, lower).await.0, StatusCode::OK);
-    let (status, _) = call(&app, post("/api/drives/pump1/reset", Some(TOKEN), "")).await;
-    assert_eq!(status, StatusCode::ACCEPTED);
+    // a drive this router has never seen (no poll loop): a reset is refused, not kept for when the link comes
+    let (status, json) = call(&app, post("/api/drives/pump1/reset", Some(TOKEN), "")).await;
+    assert_eq!(status, StatusCode::CONFLICT, "{json}");
+    assert!(json["error"].as_str().is_some_and(|e| e.contains("not seen")), "{json}");
     let (status, json) = call(&app, get("/api/status")).await;
     assert_eq!(status, StatusCode::OK);
     assert_eq!(json["drives"][0]["target_omega_rad_s"], 30.0);

@@ -188,12 +188,25 @@ async fn a_clean_stop_withdraws_run_and_a_hangup_is_a_clean_stop() {
 /// drive ready throughout. Now its samples are rejected as a frozen sensor: stale, nothing written, not ready.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_frozen_tachometer_is_rejected_and_the_setpoint_does_not_climb() {
+    tachometer_reading_is_rejected(20.0, "frozen").await;
+}
+
+/// A tachometer that reads 0 (a broken wire, a PLC substituting 0) or against the drive (a reversed sign) while the
+/// drive runs at 20 Hz: the setpoint went to max_hz within 1.5 s, `/readyz` 200 throughout. Now its samples are
+/// rejected after a second of no turn: stale, nothing written, not ready.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tachometer_that_shows_no_turn_is_rejected_and_the_setpoint_does_not_climb() {
+    tachometer_reading_is_rejected(0.0, "stalled motor").await;
+    tachometer_reading_is_rejected(-30.0, "stalled motor").await;
+}
+
+async fn tachometer_reading_is_rejected(reading_rad_s: f64, said: &str) {
     let run = async {
         let Regulating { sim, sim_stop, s, _dir, _task } = Regulating::start().await;
         let hz_before = sim.lock().truth().f_set_hz;
-        sim.lock().faults.speed_override_rad_s = Some(20.0);
+        sim.lock().faults.speed_override_rad_s = Some(reading_rad_s);
         let rejected = wait_for(Duration::from_secs(10), || async {
-            s.drive_status().await["link"]["last_error"].as_str().is_some_and(|e| e.contains("frozen"))
+            s.drive_status().await["link"]["last_error"].as_str().is_some_and(|e| e.contains(said))
         })
         .await;
         assert!(rejected.is_some(), "{}", s.drive_status().await);

@@ -16,6 +16,7 @@ pub(super) fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Resu
     let condition = validate_condition(d.condition, &key("condition"), &model, |p| resolve(p, base))?;
     check_setpoint_fits(&registers.frequency_setpoint_hz, &c, &key)?;
     check_watchdog(d.comm_timeout_ms, d.watchdog_ms, &model, &key)?;
+    check_poll_within_watchdog(c.mode, d.poll_ms, d.comm_timeout_ms, &model, &key)?;
     let settings = DriveSettings {
         name: d.name,
         address,
@@ -242,6 +243,30 @@ pub(super) fn check_watchdog(
             format!(
                 "{watchdog_ms} ms is more than a third of the drive's comm timeout ({comm_timeout_ms} ms, \
                  comm_timeout_ms or the model's drive.comm_timeout_ms): the drive would trip"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// In a writing mode the watchdog is written at most once a poll: a poll period beyond a third of the drive's comm
+/// timeout lets the drive trip on comm loss between two healthy polls (`poll_ms = 2000` against 1000 ms tripped it a
+/// second after the start).
+pub(super) fn check_poll_within_watchdog(
+    mode: Mode,
+    poll_ms: u64,
+    comm_timeout_ms: Option<u64>,
+    model: &PlantModel,
+    key: &dyn Fn(&str) -> String,
+) -> Result<(), Invalid> {
+    let comm_timeout_ms =
+        comm_timeout_ms.unwrap_or_else(|| model.drive.as_ref().map_or(1000, |drive| drive.comm_timeout_ms));
+    if mode.writes() && poll_ms.saturating_mul(3) > comm_timeout_ms {
+        return Err(KeyError::new(
+            key("poll_ms"),
+            format!(
+                "{poll_ms} ms is more than a third of the drive's comm timeout ({comm_timeout_ms} ms) in a writing \
+                 mode: the watchdog is written once a poll, and the drive would trip between two polls"
             ),
         ));
     }

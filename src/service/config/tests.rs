@@ -37,6 +37,10 @@ fn errors_name_the_key() {
     assert!(e.contains("drives[0].realtime_priority") && e.contains("1 ..= 99"), "{e}");
     let e = err(&format!("{MINIMAL}stale_ms = 600001\n"));
     assert!(e.contains("drives[0].stale_ms") && e.contains("600000"), "{e}");
+    // a writing drive polled less often than a third of its comm timeout would trip between polls; monitor may
+    let e = err(&format!("{MINIMAL}poll_ms = 2000\n[drives.control]\nmode = \"manual\"\n"));
+    assert!(e.contains("drives[0].poll_ms") && e.contains("comm timeout (1000 ms)"), "{e}");
+    assert!(parse(&format!("{MINIMAL}poll_ms = 2000\n"), "t.toml", None).is_ok());
     let e = err(&format!("{MINIMAL}comm_timeout_ms = 3600001\n"));
     assert!(e.contains("drives[0].comm_timeout_ms") && e.contains("one hour"), "{e}");
     let e = err(&format!("{MINIMAL}poll_ms = \"fast\"\n"));
@@ -161,8 +165,8 @@ fn a_line_has_one_setting_and_a_capacity() {
     let e = err(&format!("{}{}", rtu("a", 1, "poll_ms = 50"), rtu("b", 2, "poll_ms = 50\nbaud_rate = 9600")));
     assert!(e.contains("drives[1].serial_port") && e.contains("one setting") && e.contains("9600"), "{e}");
     // two writing loops on one device of a line
-    let speed2 = speed.replace("name = \"a\"", "name = \"b\"").replace("poll_ms = 50", "poll_ms = 500");
-    let e = err(&format!("{}{speed2}", speed.replace("poll_ms = 50", "poll_ms = 500")));
+    let speed2 = speed.replace("name = \"a\"", "name = \"b\"").replace("poll_ms = 50", "poll_ms = 300");
+    let e = err(&format!("{}{speed2}", speed.replace("poll_ms = 50", "poll_ms = 300")));
     assert!(e.contains("drives[1].serial_port") && e.contains("already written"), "{e}");
     // other ports are other lines
     let other = rtu("c", 3, "poll_ms = 50").replace("ttyUSB0", "ttyUSB1");
