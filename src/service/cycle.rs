@@ -221,9 +221,9 @@ impl DriveCycle {
         }
         let first = self.last_fresh_at.is_none();
         let dt = self.last_fresh_at.map_or(self.poll, |t| now.saturating_duration_since(t));
-        // the first fresh cycle, or the first after a gap: the setpoint ramps from what the drive runs at, one
-        // poll's step
-        let resumed = first || dt > 2 * self.poll;
+        // the first fresh cycle, or the first after a gap (longer than the data may age: a PLC that refreshes its
+        // registers every few polls is no gap): the setpoint ramps from what the drive runs at, one poll's step
+        let resumed = first || dt > self.stale_after.max(2 * self.poll);
         self.last_fresh_at = Some(now);
         let m = &sample.measured;
         let torque = self.motor_m3_rad * (m.p_in_bar - m.p_out_bar) * crate::units::PA_PER_BAR;
@@ -559,6 +559,25 @@ mod tests {
         let (mut m, _) = cycle("mode = \"monitor\"");
         m.command(Commands { target_omega_rad_s: 1.0, reset_requested: true });
         assert_eq!(m.reset_phase, 0);
+    }
+
+    /// A PLC that refreshes its registers every third poll (30 ms at a 10 ms poll): each fresh sample is a ramp step
+    /// of its own 30 ms, not a new start from the read-back with one poll's step (the setpoint crawled at a sixth of
+    /// `ramp_hz_per_s`, 3.1 Hz/s against 20, with a 20 ms PLC at a 5 ms poll). A gap past `stale_ms` is a new start.
+    #[test]
+    fn a_plc_that_refreshes_every_few_polls_gets_the_whole_ramp() {
+        let (mut c, t0) = cycle("mode = \"manual\"\nfixed_hz = 40.0\nramp_hz_per_s = 100.0");
+        let mut hz = vec![20.0];
+        for k in 0..30u64 {
+            let at = t0 + MS * (10 * k as u32);
+            // the drive runs at the last setpoint it was sent
+            let step = c.step(&sample(k / 3, 30.0, hz[hz.len() - 1], 3), at, at + MS);
+            c.confirm(true);
+            hz.extend(written(&step).map(|w| w.0));
+        }
+        let hz = &hz[2..];
+        let steps: Vec<f64> = hz.windows(2).map(|w| w[1] - w[0]).collect();
+        assert!(steps.iter().all(|d| (d - 3.0).abs() < 0.02), "100 Hz/s over 30 ms a step: {steps:?}");
     }
 
     /// A drive running under RUN that stops on its own, with no fault bit: it drops ready (a safe torque off, an
