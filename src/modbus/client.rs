@@ -104,7 +104,13 @@ pub struct DriveClient {
     /// Connections opened after the first, for the `reconnects_total` metric.
     pub reconnects: u64,
     ever_connected: bool,
+    /// When a dropped connection was last said at WARN, and how many drops were held back since: a link that
+    /// connects and drops every back-off said it twice a second (7 000 lines an hour).
+    drop_said: Option<(Instant, u64)>,
 }
+
+/// A dropped connection is said at WARN at most this often; the lines between are counted into the next.
+const DROP_WARN_EVERY: Duration = Duration::from_secs(10);
 
 impl DriveClient {
     /// A Modbus TCP client that connects on first use. `address` is `host:port`; the host is resolved at each
@@ -130,6 +136,7 @@ impl DriveClient {
             next_attempt: None,
             reconnects: 0,
             ever_connected: false,
+            drop_said: None,
         }
     }
 
@@ -219,7 +226,16 @@ impl DriveClient {
     /// Drops the connection and schedules the next attempt.
     fn failed(&mut self, err: ClientError) -> ClientError {
         if self.ctx.take().is_some() {
-            tracing::warn!(address = %self.endpoint.name(), error = %err, "modbus connection dropped");
+            let now = Instant::now();
+            match &mut self.drop_said {
+                Some((at, held)) if now.saturating_duration_since(*at) < DROP_WARN_EVERY => *held += 1,
+                _ => {
+                    let more_since_last = self.drop_said.map_or(0, |(_, held)| held);
+                    tracing::warn!(address = %self.endpoint.name(), error = %err, more_since_last,
+                        "modbus connection dropped");
+                    self.drop_said = Some((now, 0));
+                }
+            }
         }
         self.next_attempt = Some(Instant::now() + self.backoff);
         self.backoff = (self.backoff * 2).min(BACKOFF_CAP);

@@ -223,3 +223,33 @@ async fn tachometer_reading_is_rejected(reading_rad_s: f64, said: &str) {
     };
     tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
 }
+
+/// A link that connects and drops again at every back-off (a flapping switch port, a gateway that takes the
+/// connection and closes it): each drop was a WARN line, twice a second (7 000 lines an hour). Now one line says it,
+/// and the next, ten seconds on, says how many were held back; the reconnects are still counted one by one.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_link_that_keeps_dropping_is_said_once_in_ten_seconds() {
+    let run = async {
+        let (_sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
+        let proxy = FaultProxy::start(sim_addr).await;
+        let dir = tempfile::tempdir().expect("tmp");
+        let s = ServeProcess::start(dir.path(), &config(proxy.addr, dir.path(), 10));
+        wait_for(Duration::from_secs(10), || async { s.readyz().await.0 == 200 }).await.expect("ready");
+        proxy.set(Fault::Drop);
+        let reconnects =
+            || async { metric(&s.metrics().await, "hydrolens_reconnects_total{drive=\"pump1\"}").unwrap_or(0.0) };
+        let dropped =
+            || s.log().lines().filter(|l| l.contains("WARN") && l.contains("modbus connection dropped")).count();
+        let many = wait_for(Duration::from_secs(8), || async { reconnects().await >= 5.0 }).await;
+        assert!(many.is_some(), "the link kept dropping: {}", s.metrics().await);
+        eprintln!(
+            "a link dropping at every back-off: {} WARN line(s) for {} reconnects",
+            dropped(),
+            reconnects().await
+        );
+        assert_eq!(dropped(), 1, "{}", s.log());
+        proxy.set(Fault::Pass);
+        sim_stop.cancel();
+    };
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
+}
