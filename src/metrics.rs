@@ -176,7 +176,7 @@ fn signal_families() -> Vec<(Desc, MetricType, Read)> {
         (
             desc(
                 "inertia_identified",
-                "J: 1 identified, 0 too little excitation, -1 nominal predicts as well, -2 not separable from the load, -3 the model's",
+                "J: 1 identified, 0 too little excitation, -1 nominal predicts as well, -2 not separable from the load, -3 the model's, -5 a load that moves with the acceleration",
             ),
             Gauge,
             |s| estimate(s).map(|e| Float(e.inertia_identified)),
@@ -184,7 +184,7 @@ fn signal_families() -> Vec<(Desc, MetricType, Read)> {
         (
             desc(
                 "viscous_identified",
-                "B: 1 identified, 0 too little excitation, -1 nominal predicts as well, -2 not separable from the load, -3 the model's",
+                "B: 1 identified, 0 too little excitation, -1 nominal predicts as well, -2 not separable from the load, -3 the model's, -4 friction or a load proportional to the speed, -5 a load that moves with the acceleration",
             ),
             Gauge,
             |s| estimate(s).map(|e| Float(e.viscous_identified)),

@@ -64,11 +64,15 @@ pub enum Identification {
     FrictionOrLoad,
     /// Not estimated: the model's value (kalman, paper-literal).
     FromModel,
+    /// J's windows differ between speed-ups and slow-downs: a load that moves with the acceleration, which cannot be
+    /// told from inertia; B comes from the same windows. The adapted value may stand; it is not called the inertia.
+    LoadMovesWithAcceleration,
 }
 
 impl Identification {
     /// The code in recordings and metrics: 1 identified, 0 too little excitation, −1 the nominal predicts as well,
-    /// −2 not separable from the load, −3 the model's value, −4 friction or a load proportional to the speed.
+    /// −2 not separable from the load, −3 the model's value, −4 friction or a load proportional to the speed, −5 a
+    /// load that moves with the acceleration.
     pub fn code(self) -> f64 {
         match self {
             Identification::Identified => 1.0,
@@ -77,16 +81,18 @@ impl Identification {
             Identification::LoadFollowsSpeed => -2.0,
             Identification::FromModel => -3.0,
             Identification::FrictionOrLoad => -4.0,
+            Identification::LoadMovesWithAcceleration => -5.0,
         }
     }
 
-    pub const ALL: [Identification; 6] = [
+    pub const ALL: [Identification; 7] = [
         Identification::Identified,
         Identification::TooLittleExcitation,
         Identification::NominalPredictsAsWell,
         Identification::LoadFollowsSpeed,
         Identification::FromModel,
         Identification::FrictionOrLoad,
+        Identification::LoadMovesWithAcceleration,
     ];
 
     /// The identification of a code (recordings); `FromModel` for anything else.
@@ -103,6 +109,7 @@ impl Identification {
             Identification::LoadFollowsSpeed => "load_follows_speed",
             Identification::FromModel => "from_model",
             Identification::FrictionOrLoad => "friction_or_load",
+            Identification::LoadMovesWithAcceleration => "load_moves_with_acceleration",
         }
     }
 
@@ -115,12 +122,16 @@ impl Identification {
                 "not identified: the adapted value predicts no better than the nominal, which stands"
             }
             Identification::LoadFollowsSpeed => {
-                "not identified: the load follows the speed and cannot be told from friction; the nominal stands"
+                "not identified: the load follows the speed, and its speed-dependent part cannot be told from friction"
             }
             Identification::FromModel => "not estimated: the model's value",
             Identification::FrictionOrLoad => {
                 "not identified: differs from the model's, and friction cannot be told from a load proportional to \
                  the speed; the value is their sum"
+            }
+            Identification::LoadMovesWithAcceleration => {
+                "not identified: the load changes with the acceleration (speed-ups and slow-downs give different \
+                 inertias), which cannot be told from inertia"
             }
         }
     }

@@ -1,6 +1,7 @@
-//! The windows' own B and J pooled as random-effects means (DerSimonian–Laird, Huber-robust), and the test of
-//! whether the windows' B depends on the speed they saw (a load that follows the speed). Pure: fed each window's
-//! estimate, variance and mean speed by `windows.rs`.
+//! The windows' own B and J pooled as random-effects means (DerSimonian–Laird, Huber-robust), and the tests of
+//! whether the windows' B depends on the speed they saw (a load that follows the speed) and whether their J
+//! differs between speed-ups and slow-downs (a load that moves with the acceleration). Pure: fed each window's
+//! estimate, variance and covariate (B: its mean speed; J: the sign of its speed change) by `windows.rs`.
 
 /// Huber threshold (σ) of a window's disagreement (with θ in the RLS, with the pooled value here): beyond it the
 /// window counts for less.
@@ -24,7 +25,9 @@ pub(super) const OVERLAP: f64 = 2.0;
 pub(super) struct WindowPool {
     prior: (f64, f64),
     windows: [(f64, f64); POOL],
-    /// Each window's mean speed: a B that grows with the speed it was measured at is a load that follows the speed.
+    /// Each window's covariate. B: its mean speed (a B that grows with the speed it was measured at is a load that
+    /// follows the speed). J: the sign of its speed change (a J that differs between speed-ups and slow-downs is a
+    /// load that moves with the acceleration; an inertia is the same both ways).
     speeds: [f64; POOL],
     len: usize,
     next: usize,
@@ -66,9 +69,37 @@ impl WindowPool {
     /// at every speed; a fan's torque has a slope that doubles with the speed. Once `shown`, `SPEED_SLOPE_HOLD_Z`
     /// standard errors keep it: the verdict flapped as windows left the pool.
     pub(super) fn depends_on_speed(&self, shown: bool) -> bool {
+        self.depends_on_covariate(shown, 0.5)
+    }
+
+    /// Whether the windows' J differs between speed-ups and slow-downs (the J pool's covariate is the sign of each
+    /// window's speed change): by `SPEED_SLOPE_Z` standard errors (`SPEED_SLOPE_HOLD_Z` once shown) and by more than
+    /// [`ACCELERATION_J_SHARE`] of J. An inertia is one number whichever way the speed goes; a load that rises on
+    /// every speed-up (a conveyor loading as it starts, a load timed with the setpoint program) adds to the J of the
+    /// speed-ups only. A load exactly proportional to the acceleration either way is inertia to any data of speed
+    /// and torque, and is not seen.
+    pub(super) fn depends_on_direction(&self, shown: bool) -> bool {
+        self.depends_on_covariate(shown, ACCELERATION_J_SHARE)
+    }
+
+    /// Whether the pool holds [`BOTH_WAYS_WINDOWS`] windows of each sign of its covariate that each know their value
+    /// to `share` of the pooled one (J: speed-ups and slow-downs, each of which alone knows J to 10 %). Until then a
+    /// load that moves with the acceleration cannot be told from inertia, since J has been seen one way only.
+    pub(super) fn seen_both_ways(&self, share: f64) -> bool {
+        let m = self.estimate.0;
+        let informative = |sign: f64| {
+            let windows = self.windows[..self.len].iter().zip(&self.speeds[..self.len]);
+            windows.filter(|&(&(_, v), &c)| c * sign > 0.0 && v.sqrt() <= share * m.abs()).count()
+        };
+        informative(1.0) >= BOTH_WAYS_WINDOWS && informative(-1.0) >= BOTH_WAYS_WINDOWS
+    }
+
+    /// The slope of the windows' values on their covariate is `SPEED_SLOPE_Z` standard errors from zero
+    /// (`SPEED_SLOPE_HOLD_Z` once `shown`) and moves the value by more than `share` of its mean over the range seen.
+    fn depends_on_covariate(&self, shown: bool, share: f64) -> bool {
         let z = if shown { SPEED_SLOPE_HOLD_Z } else { SPEED_SLOPE_Z };
         self.speed_slope()
-            .is_some_and(|s| (s.slope / s.se).abs() > z && (s.slope * s.speed_range).abs() > 0.5 * s.mean_b.abs())
+            .is_some_and(|s| (s.slope / s.se).abs() > z && (s.slope * s.speed_range).abs() > share * s.mean_b.abs())
     }
 
     /// Whether the windows' B hints at a speed dependence, its slope more than `SPEED_SLOPE_HOLD_Z` standard errors
@@ -177,6 +208,13 @@ const SPEED_SLOPE_Z: f64 = 3.0;
 const SPEED_SLOPE_HOLD_Z: f64 = 1.0;
 /// …among at least this many windows.
 const SPEED_SLOPE_WINDOWS: usize = 5;
+/// The windows' J of speed-ups and slow-downs differ by more than this share of J: a load that moves with the
+/// acceleration (twice the 5 % to which J must be known to be identified).
+const ACCELERATION_J_SHARE: f64 = 0.1;
+
+/// Informative windows of each way before J counts as seen both ways: one slow-down among speed-ups cannot show
+/// that they differ.
+const BOTH_WAYS_WINDOWS: usize = 2;
 /// The share of the between-window scatter (measured about the line) added to each window's variance in the
 /// slope's weights: a quarter, as the test has weighed it since it came in.
 const SCATTER_SHARE: f64 = 0.25;
@@ -268,6 +306,36 @@ mod tests {
         assert!(!friction.depends_on_speed(true), "once shown or not, friction shows no speed dependence");
         assert_eq!(friction.speed_hint(), Some(false));
         assert_eq!(pool(&|_, b_w, _| b_w).speed_hint(), Some(true));
+    }
+
+    /// The windows' J against the way the speed went (+1 a speed-up, −1 a slow-down). One inertia, every window off
+    /// by up to its own sd: no difference. A load that rises on every speed-up adds 20 % to the speed-ups' J: they
+    /// differ. Speed-ups alone, or a single slow-down among them: not seen both ways.
+    #[test]
+    fn speed_ups_and_slow_downs_must_agree_on_j() {
+        let pattern = [0.9, -0.6, 0.3, -1.0, 0.5, -0.2, 0.8, -0.7];
+        let pool = |windows: &[(f64, f64, f64)]| {
+            let mut p = WindowPool::new(0.08, 1e-3, [0.001, 1.0], OVERLAP);
+            for &(j, sd, way) in windows {
+                p.add(j, sd * sd, way);
+            }
+            p
+        };
+        let inertia: Vec<(f64, f64, f64)> =
+            (0..16).map(|i| (0.16 + 0.003 * pattern[i % 8], 0.003, if i % 2 == 0 { 1.0 } else { -1.0 })).collect();
+        let one = pool(&inertia);
+        assert!(!one.depends_on_direction(false) && !one.depends_on_direction(true));
+        assert!(one.seen_both_ways(0.1));
+        let timed: Vec<(f64, f64, f64)> =
+            inertia.iter().map(|&(j, sd, way)| (if way > 0.0 { 1.2 * j } else { j }, sd, way)).collect();
+        assert!(pool(&timed).depends_on_direction(false));
+        let ups: Vec<(f64, f64, f64)> = timed.iter().copied().filter(|w| w.2 > 0.0).collect();
+        assert!(!pool(&ups).seen_both_ways(0.1));
+        let mut downs = ups.clone();
+        downs.push((0.16, 0.003, -1.0));
+        assert!(!pool(&downs).seen_both_ways(0.1), "one slow-down");
+        downs.push((0.161, 0.003, -1.0));
+        assert!(pool(&downs).seen_both_ways(0.1), "two slow-downs");
     }
 
     /// A speed dependence once shown is kept on weaker evidence (`SPEED_SLOPE_HOLD_Z`): the first ten windows of

@@ -69,6 +69,9 @@ pub struct RlsSgd {
     judged: Judged,
     /// J's and B's credible standard deviations ([`RlsSgd::credible`]), refreshed with `judged`.
     credible_sd: (f64, f64),
+    /// Why an identified J (and B with it) is not called so in the output ([`RlsSgd::qualify`]), refreshed with
+    /// `judged`.
+    qualified: Option<Identification>,
     /// J and B after each recent window: the floor of the standard deviations reported and judged.
     drift: Drift,
 }
@@ -100,6 +103,8 @@ const VISCOUS_IDENTIFIED_SD: f64 = 0.25;
 /// windows' pooled J: at 1.1, J and B fell back 205 / 86 times over the six families of nine seed sets (151 / 69
 /// before that change), at 1.3 139 / 70, for 3 of 7992 new-load checkpoints covered fewer.
 const IDENTIFIED_HOLD_SD_FACTOR: f64 = 1.3;
+/// J is identified only once a speed-up and a slow-down window have each known it to this share on their own.
+const ONE_WAY_J_SD: f64 = 0.1;
 const IDENTIFIED_HOLD_Z: f64 = 0.0;
 /// B stands before it is known to its limit where the data put the nominal B this many of its standard deviations
 /// away, the windows say the adapted values predict better (the sign test at `IDENTIFIED_Z`) and their B shows no
@@ -127,9 +132,11 @@ impl RlsSgd {
             judged: ((Identification::TooLittleExcitation, Identification::TooLittleExcitation), (false, false)),
             drift: Drift::default(),
             credible_sd: (0.0, 0.0),
+            qualified: None,
         };
         est.combined = est.parameters();
         (est.judged, est.credible_sd) = est.judge();
+        est.qualified = est.qualify();
         est
     }
 
@@ -220,6 +227,7 @@ impl RlsSgd {
                 self.drift.push(j, b);
             }
             (self.judged, self.credible_sd) = self.judge();
+            self.qualified = self.qualify();
         }
     }
 
@@ -240,6 +248,13 @@ impl RlsSgd {
         implausible
             || (self.speed_test_applies()
                 && self.rls.viscous.depends_on_speed(shown == Identification::LoadFollowsSpeed))
+    }
+
+    /// The windows' B moves with the speed they saw (a load not proportional to the speed, such as a fan's): the
+    /// windows' J then carries the part of it their nuisance does not follow. A load ∝ ω is all in B's column,
+    /// and leaves J as it is.
+    fn speed_dependence_shown(&self) -> bool {
+        self.speed_test_applies() && self.rls.viscous.depends_on_speed(true)
     }
 
     /// Whether the windows' B against their speed says anything of a load that follows the speed: not where the
@@ -271,6 +286,25 @@ impl RlsSgd {
             viscous = Identification::FrictionOrLoad;
         }
         (((inertia, viscous), self.standing(fit, sds.0)), sds)
+    }
+
+    /// Why an identified J is not called the inertia, if it is not: J is the inertia only where the windows of
+    /// speed-ups and slow-downs agree. Seen one way only, it is not yet known (a load that rises on every speed-up
+    /// adds to it unseen); differing, it carries a load that moves with the acceleration; where the load follows the
+    /// speed and the windows' B shows it, the windows' J carries the load's speed dependence, which their nuisance
+    /// does not follow. Said in the output only ([`RlsSgd::estimate`]): what stands, and the evidence the holds keep,
+    /// are unchanged.
+    fn qualify(&self) -> Option<Identification> {
+        let pool = &self.rls.inertia;
+        let ((_, viscous), _) = self.judged;
+        let shown = self.qualified == Some(Identification::LoadMovesWithAcceleration);
+        if !pool.seen_both_ways(ONE_WAY_J_SD) {
+            Some(Identification::TooLittleExcitation)
+        } else if pool.depends_on_direction(shown) {
+            Some(Identification::LoadMovesWithAcceleration)
+        } else {
+            (viscous == Identification::LoadFollowsSpeed && self.speed_dependence_shown()).then_some(viscous)
+        }
     }
 
     /// The adapted (B, J) and their standard deviations as far as they are credible: the combined fit's, at least
@@ -401,7 +435,13 @@ impl Estimator for RlsSgd {
     fn estimate(&self) -> Estimate {
         let ((b, _), (j, _)) = self.combined;
         let (j0, b0) = self.nominal_parameters();
-        let ((inertia, viscous), (j_stands, b_stands)) = self.judged;
+        let ((mut inertia, mut viscous), (j_stands, b_stands)) = self.judged;
+        if let (Identification::Identified, Some(why)) = (inertia, self.qualified) {
+            inertia = why;
+            if matches!(viscous, Identification::Identified | Identification::FrictionOrLoad) {
+                viscous = why;
+            }
+        }
         // the load as tracked on the values that stand: the adapted tracker where both do, else the fallback one
         // (the nominal B, and J where it is not earned)
         let fast = if b_stands { self.tracker.estimate() } else { self.fallback.estimate() };

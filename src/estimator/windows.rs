@@ -425,7 +425,11 @@ impl WindowRls {
             let speed = w.rows.iter().map(|r| r.omega).sum::<f64>() / w.rows.len() as f64;
             self.viscous.add(b_w, var_w, speed);
             let gj = Vector2::new(-self.j0 / (t0 * t0), 0.0);
-            self.inertia.add(self.j0 / t0, gj.dot(&(c * gj)), speed);
+            let direction = match (w.rows.first(), w.rows.last()) {
+                (Some(first), Some(last)) => (last.omega - first.omega).signum(),
+                _ => 0.0,
+            };
+            self.inertia.add(self.j0 / t0, gj.dot(&(c * gj)), direction);
         }
     }
 

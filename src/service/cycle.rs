@@ -308,8 +308,10 @@ impl DriveCycle {
             if now {
                 tracing::warn!(
                     setpoint_hz = self.law.last_hz(),
-                    "the drive does not follow its setpoints (local mode, not ready or not running): the speed \
-                     regulator holds its integral and ramps from the drive's read-back"
+                    drive_hz = self.measured.map(|m| m.f_drive_hz),
+                    "the drive does not follow its setpoints (local mode, not ready or not running, or held by a \
+                     frequency limit of its own below the setpoint): the speed regulator holds its integral and \
+                     ramps from the drive's read-back"
                 );
             } else {
                 tracing::info!("the drive follows its setpoints again");
