@@ -40,14 +40,31 @@ impl Regulating {
     }
 }
 
+/// `serve` polling every `poll_ms` behind a fault-injecting proxy to the simulator, ready.
+struct Proxied {
+    _sim: hydrolens::modbus::simulator::SimHandle,
+    sim_stop: tokio_util::sync::CancellationToken,
+    proxy: FaultProxy,
+    _dir: tempfile::TempDir,
+    s: ServeProcess,
+    _task: tokio::task::JoinHandle<()>,
+}
+
+impl Proxied {
+    async fn start(poll_ms: u64) -> Proxied {
+        let (sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
+        let proxy = FaultProxy::start(sim_addr).await;
+        let dir = tempfile::tempdir().expect("tmp");
+        let s = ServeProcess::start(dir.path(), &config(proxy.addr, dir.path(), poll_ms));
+        wait_for(Duration::from_secs(10), || async { s.readyz().await.0 == 200 }).await.expect("ready");
+        Proxied { _sim: sim, sim_stop, proxy, _dir: dir, s, _task }
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_drive_that_refuses_every_write_is_not_ready_counted_and_logged_at_warn() {
     let run = async {
-        let (_sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
-        let proxy = FaultProxy::start(sim_addr).await;
-        let dir = tempfile::tempdir().expect("tmp");
-        let s = ServeProcess::start(dir.path(), &config(proxy.addr, dir.path(), 10));
-        wait_for(Duration::from_secs(10), || async { s.readyz().await.0 == 200 }).await.expect("ready");
+        let Proxied { _sim, sim_stop, proxy, s, _dir, _task } = Proxied::start(10).await;
         proxy.set(Fault::RefuseWrites);
         wait_for(Duration::from_secs(15), || async { s.readyz().await.0 == 503 })
             .await
@@ -95,11 +112,7 @@ async fn a_drive_that_refuses_every_write_is_not_ready_counted_and_logged_at_war
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn slow_write_echoes_that_make_the_loop_overrun_are_counted_and_logged() {
     let run = async {
-        let (_sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
-        let proxy = FaultProxy::start(sim_addr).await;
-        let dir = tempfile::tempdir().expect("tmp");
-        let s = ServeProcess::start(dir.path(), &config(proxy.addr, dir.path(), 5));
-        wait_for(Duration::from_secs(10), || async { s.readyz().await.0 == 200 }).await.expect("ready");
+        let Proxied { _sim, sim_stop, proxy, s, _dir, _task } = Proxied::start(5).await;
         proxy.set(Fault::SlowWrites(Duration::from_millis(40)));
         let m = wait_for(Duration::from_secs(15), || async {
             metric(&s.metrics().await, "hydrolens_slow_writes_total{drive=\"pump1\"}").unwrap_or(0.0) >= 1.0
@@ -230,11 +243,7 @@ async fn tachometer_reading_is_rejected(reading_rad_s: f64, said: &str) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_link_that_keeps_dropping_is_said_once_in_ten_seconds() {
     let run = async {
-        let (_sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
-        let proxy = FaultProxy::start(sim_addr).await;
-        let dir = tempfile::tempdir().expect("tmp");
-        let s = ServeProcess::start(dir.path(), &config(proxy.addr, dir.path(), 10));
-        wait_for(Duration::from_secs(10), || async { s.readyz().await.0 == 200 }).await.expect("ready");
+        let Proxied { _sim, sim_stop, proxy, s, _dir, _task } = Proxied::start(10).await;
         proxy.set(Fault::Drop);
         let reconnects =
             || async { metric(&s.metrics().await, "hydrolens_reconnects_total{drive=\"pump1\"}").unwrap_or(0.0) };
