@@ -260,8 +260,19 @@ impl EstimatorSettings {
             speed_bandwidth_rad_s: pos("speed_bandwidth_rad_s", s.speed_bandwidth_rad_s)?,
             rls_period_s: pos("rls_period_s", s.rls_period_s)?,
             load_forgetting: unit("load_forgetting", s.load_forgetting)?,
-            initial_covariance: pos("initial_covariance", s.initial_covariance)?,
-            max_covariance_trace: pos("max_covariance_trace", s.max_covariance_trace)?,
+            // paper-literal's P: from 1e308 its first update overflowed and the estimate stood at 0 without a word
+            initial_covariance: check(
+                "initial_covariance",
+                s.initial_covariance,
+                s.initial_covariance > 0.0 && s.initial_covariance <= MAX_COVARIANCE,
+                "in (0, 1e12]",
+            )?,
+            max_covariance_trace: check(
+                "max_covariance_trace",
+                s.max_covariance_trace,
+                s.max_covariance_trace > 0.0 && s.max_covariance_trace <= MAX_COVARIANCE,
+                "in (0, 1e12]",
+            )?,
             excitation_torque_nm: nonneg("excitation_torque_nm", s.excitation_torque_nm)?,
             excitation_speed_rad_s: nonneg("excitation_speed_rad_s", s.excitation_speed_rad_s)?,
             change_threshold: pos("change_threshold", s.change_threshold)?,
@@ -288,6 +299,9 @@ impl EstimatorSettings {
         })
     }
 }
+
+/// The largest covariance a setting may start from or be bounded by: beyond it an update's products overflow.
+const MAX_COVARIANCE: f64 = 1e12;
 
 #[cfg(test)]
 mod tests {
@@ -333,11 +347,17 @@ mod tests {
         let e = EstimatorSettings::from_model(&m, "p.toml").expect_err("out of range").to_string();
         assert!(e.contains("estimator.lambda") && e.contains("1.5"), "{e}");
         // a start beyond the bounds was clamped into them in silence
-        for (key, v) in [("initial_inertia_kg_m2", "1e300"), ("initial_viscous_nm_s_rad", "50.0")] {
+        for (key, v) in [
+            ("initial_inertia_kg_m2", "1e300"),
+            ("initial_viscous_nm_s_rad", "50.0"),
+            ("initial_covariance", "1e308"),
+            ("max_covariance_trace", "1e300"),
+        ] {
             let bad = text.replace("lambda = 0.98", &format!("{key} = {v}"));
             let m = PlantModel::parse(&bad, "p.toml").expect("model");
             let e = EstimatorSettings::from_model(&m, "p.toml").expect_err("beyond the bounds").to_string();
-            assert!(e.contains(&format!("estimator.{key}")) && e.contains("within") && e.len() < 300, "{e}");
+            let why = e.contains("within") || e.contains("1e12");
+            assert!(e.contains(&format!("estimator.{key}")) && why && e.len() < 300, "{e}");
         }
     }
 }
