@@ -427,7 +427,8 @@ async fn set_target(
     if !value.is_object() {
         return Err(expected(&"the body is not a JSON object"));
     }
-    let t: TargetBody = serde_json::from_value(value).map_err(|e| expected(&e))?;
+    // from the bytes, not the value: a value keeps only the last of two equal keys, the struct refuses the second
+    let t: TargetBody = serde_json::from_slice(&body).map_err(|e| expected(&e))?;
     match drive.mode {
         Mode::Speed => {}
         m => {

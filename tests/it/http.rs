@@ -65,6 +65,8 @@ async fn bad_input_gets_4xx_with_a_json_error() {
         (post(target, Some(TOKEN), r#"{"target_omega_rad_s": 30, "extra": 1}"#), StatusCode::BAD_REQUEST),
         (post(target, Some(TOKEN), r#"{"target_omega_rad_s": -1}"#), StatusCode::UNPROCESSABLE_ENTITY),
         (post(target, Some(TOKEN), "[40]"), StatusCode::BAD_REQUEST),
+        // two targets in one body: the last one was taken
+        (post(target, Some(TOKEN), r#"{"target_omega_rad_s":30,"target_omega_rad_s":70}"#), StatusCode::BAD_REQUEST),
         (post(target, Some(TOKEN), vec![b' '; 1 << 20]), StatusCode::PAYLOAD_TOO_LARGE),
         (post("/api/drives/nope/target", Some(TOKEN), ok_body), StatusCode::NOT_FOUND),
         (post("/api/drives/nope/reset", Some(TOKEN), ""), StatusCode::NOT_FOUND),
