@@ -314,7 +314,7 @@ async fn history(
 ) -> Result<Response, ApiError> {
     let Query(q) = q?;
     if !(q.seconds.is_finite() && q.seconds > 0.0) {
-        return Err(ApiError::bad_request(format!("seconds must be > 0, got {}", q.seconds)));
+        return Err(ApiError::bad_request(format!("seconds must be a finite number > 0, got {}", q.seconds)));
     }
     if !(1..=100_000).contains(&q.max_points) {
         return Err(ApiError::bad_request(format!("max_points must be 1 ..= 100000, got {}", q.max_points)));

@@ -74,6 +74,7 @@ async fn bad_input_gets_4xx_with_a_json_error() {
         (get("/api/history"), StatusCode::BAD_REQUEST),
         (get("/api/history?drive=pump1&seconds=abc"), StatusCode::BAD_REQUEST),
         (get("/api/history?drive=pump1&seconds=-3"), StatusCode::BAD_REQUEST),
+        (get("/api/history?drive=pump1&seconds=inf"), StatusCode::BAD_REQUEST),
         (get("/api/recordings/..%2F..%2Fetc%2Fpasswd"), StatusCode::BAD_REQUEST),
         (get("/api/recordings/none-1.csv"), StatusCode::NOT_FOUND),
         (get("/no/such/route"), StatusCode::NOT_FOUND),
@@ -87,6 +88,9 @@ async fn bad_input_gets_4xx_with_a_json_error() {
             assert!(json["error"].is_string(), "{what}: a JSON error body, got {json}");
         }
     }
+    // infinity is a number above 0: the error says it must be finite too (it said "must be > 0, got inf")
+    let (_, json) = call(&app, get("/api/history?drive=pump1&seconds=inf")).await;
+    assert!(json["error"].as_str().is_some_and(|e| e.contains("finite")), "{json}");
     let (status, json) = call(&app, post(target, Some(TOKEN), ok_body)).await;
     assert_eq!(status, StatusCode::OK, "{json}");
     // the scheme in any case (RFC 9110): it was 401 for `bearer`
