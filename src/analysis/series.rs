@@ -145,13 +145,22 @@ impl<'a> Columns<'a> {
 
     /// A speed (or position), or an inlet pressure, that holds one value in every row is a stuck sensor or a
     /// constant written in its place: fitted to, it gave an inertia of 10⁸ with "nothing named". Refused, naming
-    /// the column. (An outlet pressure may be a steady back pressure, and a torque a steady command: not checked.)
+    /// the column. So is a drive torque that holds one value while the inlet pressure, which makes it, moves (a
+    /// column of zeros beside real pressures was fitted to, "named: nothing"). (An outlet pressure may be a steady
+    /// back pressure, and a torque alone a steady command: not checked.)
     fn refuse_stuck(&self) -> Result<(), BadInput> {
-        for name in ["omega_rad_s", "theta_rad", "p_in_bar"] {
-            let Some(c) = self.raw_of(name) else { continue };
+        let stuck = |name: &str| {
+            let c = self.raw_of(name)?;
             let mut finite = c.iter().filter(|v| v.is_finite());
-            let Some(&first) = finite.next() else { continue };
-            if c.len() >= 200 && finite.all(|&v| v == first) {
+            let &first = finite.next()?;
+            (c.len() >= 200 && finite.all(|&v| v == first)).then_some(first)
+        };
+        let pressure_moves = self.raw_of("p_in_bar").is_some() && stuck("p_in_bar").is_none();
+        for name in ["omega_rad_s", "theta_rad", "p_in_bar", "torque_nm"] {
+            if name == "torque_nm" && !pressure_moves {
+                continue;
+            }
+            if let Some(first) = stuck(name) {
                 return Err(BadInput(format!(
                     "recording {}: column `{name}` holds {first} in every row: a stuck sensor, or a constant \
                      written in its place; the analysis needs it measured",

@@ -527,6 +527,15 @@ fn stuck_sensors_wrong_clocks_and_costly_loads_exit_2_naming_what() {
     // a stuck tachometer: J came out 10⁸ with "named: nothing"
     let stuck = edited("stuck.csv", &set("omega_rad_s", "30"));
     exits_2_naming(&analyze_args(&stuck, &model, &json), &["stuck.csv", "`omega_rad_s` holds 30 in every row"]);
+    // a drive torque column of zeros beside real pressures: it said "the speed hardly changes"
+    let zeros: String =
+        text.lines().enumerate().map(|(k, l)| format!("{l},{}\n", if k == 0 { "torque_nm" } else { "0" })).collect();
+    let zero_torque = dir.path().join("zero_torque.csv");
+    std::fs::write(&zero_torque, zeros).expect("write");
+    exits_2_naming(
+        &analyze_args(&zero_torque, &model, &json),
+        &["zero_torque.csv", "`torque_nm` holds 0 in every row"],
+    );
     // a clock in ms read as s: every row a gap, the load estimate 0 throughout
     let ms = edited("ms.csv", &|cells| cells[0] = format!("{}", cells[0].parse::<f64>().expect("t") * 1000.0));
     let out = dir.path().join("e.csv");
