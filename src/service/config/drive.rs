@@ -17,6 +17,15 @@ pub(super) fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Resu
     check_setpoint_fits(&registers.frequency_setpoint_hz, &c, &key)?;
     check_watchdog(d.comm_timeout_ms, d.watchdog_ms, &model, &key)?;
     check_poll_within_watchdog(c.mode, d.poll_ms, d.comm_timeout_ms, &model, &key)?;
+    if c.mode.writes() && d.unit_id == 0 {
+        // on TCP too: a gateway passes a write to unit 0 to every device on its serial line, none of which answers
+        return Err(KeyError::new(
+            key("unit_id"),
+            "0 is the broadcast address: in a writing mode a gateway would pass every setpoint to each device on its \
+             line; use the drive's own unit id (1 ..= 247)"
+                .to_string(),
+        ));
+    }
     let settings = DriveSettings {
         name: d.name,
         address,

@@ -37,6 +37,10 @@ fn errors_name_the_key() {
     assert!(e.contains("drives[0].realtime_priority") && e.contains("1 ..= 99"), "{e}");
     let e = err(&format!("{MINIMAL}stale_ms = 600001\n"));
     assert!(e.contains("drives[0].stale_ms") && e.contains("600000"), "{e}");
+    // unit 0 is broadcast: a writing drive names its own unit (monitor may read through unit 0)
+    let e = err(&format!("{MINIMAL}unit_id = 0\n[drives.control]\nmode = \"speed\"\n"));
+    assert!(e.contains("drives[0].unit_id") && e.contains("broadcast"), "{e}");
+    assert!(parse(&format!("{MINIMAL}unit_id = 0\n"), "t.toml", None).is_ok());
     // a writing drive polled less often than a third of its comm timeout would trip between polls; monitor may
     let e = err(&format!("{MINIMAL}poll_ms = 2000\n[drives.control]\nmode = \"manual\"\n"));
     assert!(e.contains("drives[0].poll_ms") && e.contains("comm timeout (1000 ms)"), "{e}");
