@@ -5,8 +5,8 @@
 //! the pump gives `D_p·2π·f/pole_pairs`. So `f_ff = pole_pairs/(2π·D_p)·(D_m·ω* + C_L·(B·ω* + T̂_L)/D_m)`, and the
 //! PI only removes what the model misses. The output is clamped to `[min_hz, max_hz]`, ramp limited, and leads a
 //! running drive's read-back by at most [`LEAD_HZ`] (a drive with a slower ramp of its own is waited for); the
-//! integral stops growing while the output is held by a limit (anti-windup). On stale data there is no output at all: the
-//! caller writes nothing and the drive's own watchdog takes over.
+//! integral stops growing while the output is held by a limit (anti-windup). On stale data there is no output at all:
+//! the caller writes nothing and the drive's own watchdog takes over.
 
 use std::f64::consts::PI;
 
@@ -406,7 +406,8 @@ mod tests {
         }
         assert!(widest <= LEAD_HZ + 20.0 * 0.01 + 1e-9, "the setpoint ran {widest:.2} Hz ahead of the drive");
         assert!((omega - 40.0).abs() < 0.1, "settles at the target: {omega}");
-        // the drive's own ramp carries it about 0.6 Hz past the frequency it needs while the plant's 0.15 s lag catches up
+        // the drive's own ramp carries it about 0.6 Hz past the frequency it needs while the plant's 0.15 s lag
+        // catches up
         assert!(peak <= 41.5, "no overshoot from a wound-up integral: {peak}");
         // the same drive with its ramp stuck (it stands at 12 Hz while running): found not following within 1 s
         let mut stuck = law(Mode::Speed);

@@ -106,8 +106,9 @@ pub struct DriveCycle {
     /// 0: none; 1: write the fault-reset bit next; 2: written, drop it next.
     reset_phase: u8,
     /// A trip this service saw (fault or comm-loss bit, a sample counter that restarted: the drive lost power, or a
-    /// drive running under RUN that stopped on its own), held until `POST …/reset`: a drive whose trip clears on its own side, or that comes back from a power cycle,
-    /// is not sent RUN again by the service itself (no unexpected restart, EN 60204-1 §7.5). Writing modes only.
+    /// drive running under RUN that stopped on its own), held until `POST …/reset`: a drive whose trip clears on its
+    /// own side, or that comes back from a power cycle, is not sent RUN again by the service itself (no unexpected
+    /// restart, EN 60204-1 §7.5). Writing modes only.
     trip_latched: bool,
     /// The last control word the drive confirmed carries RUN: a drive that then stops on its own is latched.
     run_sent: bool,
