@@ -155,9 +155,9 @@ impl<'a> Columns<'a> {
             let &first = finite.next()?;
             (c.len() >= 200 && finite.all(|&v| v == first)).then_some(first)
         };
-        let pressure_moves = self.raw_of("p_in_bar").is_some() && stuck("p_in_bar").is_none();
+        // in this order: a torque is judged only beside an inlet pressure already found moving
         for name in ["omega_rad_s", "theta_rad", "p_in_bar", "torque_nm"] {
-            if name == "torque_nm" && !pressure_moves {
+            if name == "torque_nm" && self.raw_of("p_in_bar").is_none() {
                 continue;
             }
             if let Some(first) = stuck(name) {

@@ -222,6 +222,8 @@ impl EstimatorSettings {
         let unit = |key: &str, v: f64| check(key, v, v > 0.0 && v <= 1.0, "in (0, 1]");
         let pos = |key: &str, v: f64| check(key, v, v > 0.0, "> 0");
         let nonneg = |key: &str, v: f64| check(key, v, v >= 0.0, "≥ 0");
+        // paper-literal's P: from 1e308 its first update overflowed and the estimate stood at 0 without a word
+        let covariance = |key: &str, v: f64| check(key, v, v > 0.0 && v <= MAX_COVARIANCE, "in (0, 1e12]");
         let j0 = model.motor.inertia_kg_m2;
         let b0 = model.motor.viscous_nm_s_rad;
         let [jlo, jhi] = s.inertia_bounds_factor;
@@ -260,19 +262,8 @@ impl EstimatorSettings {
             speed_bandwidth_rad_s: pos("speed_bandwidth_rad_s", s.speed_bandwidth_rad_s)?,
             rls_period_s: pos("rls_period_s", s.rls_period_s)?,
             load_forgetting: unit("load_forgetting", s.load_forgetting)?,
-            // paper-literal's P: from 1e308 its first update overflowed and the estimate stood at 0 without a word
-            initial_covariance: check(
-                "initial_covariance",
-                s.initial_covariance,
-                s.initial_covariance > 0.0 && s.initial_covariance <= MAX_COVARIANCE,
-                "in (0, 1e12]",
-            )?,
-            max_covariance_trace: check(
-                "max_covariance_trace",
-                s.max_covariance_trace,
-                s.max_covariance_trace > 0.0 && s.max_covariance_trace <= MAX_COVARIANCE,
-                "in (0, 1e12]",
-            )?,
+            initial_covariance: covariance("initial_covariance", s.initial_covariance)?,
+            max_covariance_trace: covariance("max_covariance_trace", s.max_covariance_trace)?,
             excitation_torque_nm: nonneg("excitation_torque_nm", s.excitation_torque_nm)?,
             excitation_speed_rad_s: nonneg("excitation_speed_rad_s", s.excitation_speed_rad_s)?,
             change_threshold: pos("change_threshold", s.change_threshold)?,

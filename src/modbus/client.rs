@@ -104,13 +104,39 @@ pub struct DriveClient {
     /// Connections opened after the first, for the `reconnects_total` metric.
     pub reconnects: u64,
     ever_connected: bool,
-    /// When a dropped connection was last said at WARN, and how many drops were held back since: a link that
-    /// connects and drops every back-off said it twice a second (7 000 lines an hour).
-    drop_said: Option<(Instant, u64)>,
+    /// Dropped connections said at WARN, rate-limited: a link that connects and drops every back-off said it twice
+    /// a second (7 000 lines an hour).
+    loud: Loud,
 }
 
-/// A dropped connection is said at WARN at most this often; the lines between are counted into the next.
-const DROP_WARN_EVERY: Duration = Duration::from_secs(10);
+/// How often one kind of failure is logged at WARN at most; the ones between are counted and said with the next.
+const WARN_EVERY: Duration = Duration::from_secs(10);
+
+/// Rate-limited warnings (the client's, and the poll loops' of what a device says back): per kind, when it was last
+/// said and how many were held back since.
+#[derive(Debug, Default)]
+pub struct Loud(Vec<(&'static str, Instant, u64)>);
+
+impl Loud {
+    /// Some(the number held back since the last) when `kind` may be said now; None (and counted) otherwise.
+    pub fn allow(&mut self, kind: &'static str, now: Instant) -> Option<u64> {
+        match self.0.iter_mut().find(|e| e.0 == kind) {
+            Some(e) if now.saturating_duration_since(e.1) < WARN_EVERY => {
+                e.2 += 1;
+                None
+            }
+            Some(e) => {
+                let held = e.2;
+                (e.1, e.2) = (now, 0);
+                Some(held)
+            }
+            None => {
+                self.0.push((kind, now, 0));
+                Some(0)
+            }
+        }
+    }
+}
 
 impl DriveClient {
     /// A Modbus TCP client that connects on first use. `address` is `host:port`; the host is resolved at each
@@ -136,7 +162,7 @@ impl DriveClient {
             next_attempt: None,
             reconnects: 0,
             ever_connected: false,
-            drop_said: None,
+            loud: Loud::default(),
         }
     }
 
@@ -225,17 +251,10 @@ impl DriveClient {
 
     /// Drops the connection and schedules the next attempt.
     fn failed(&mut self, err: ClientError) -> ClientError {
-        if self.ctx.take().is_some() {
-            let now = Instant::now();
-            match &mut self.drop_said {
-                Some((at, held)) if now.saturating_duration_since(*at) < DROP_WARN_EVERY => *held += 1,
-                _ => {
-                    let more_since_last = self.drop_said.map_or(0, |(_, held)| held);
-                    tracing::warn!(address = %self.endpoint.name(), error = %err, more_since_last,
-                        "modbus connection dropped");
-                    self.drop_said = Some((now, 0));
-                }
-            }
+        if self.ctx.take().is_some()
+            && let Some(more_since_last) = self.loud.allow("dropped", Instant::now())
+        {
+            tracing::warn!(address = %self.endpoint.name(), error = %err, more_since_last, "modbus connection dropped");
         }
         self.next_attempt = Some(Instant::now() + self.backoff);
         self.backoff = (self.backoff * 2).min(BACKOFF_CAP);

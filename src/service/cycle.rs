@@ -116,7 +116,7 @@ pub struct DriveCycle {
     hz_range: (f64, f64),
     /// Some write reached the drive: on a clean stop it is sent control word 0.
     commanded: bool,
-    /// The speed frozen while the drive's frequency moves: rejected.
+    /// The speed frozen while the drive's frequency moves, or showing no turn while the drive runs: rejected.
     frozen: FrozenSpeed,
     pending: Option<Pending>,
     status: DriveStatus,
@@ -181,12 +181,12 @@ impl DriveCycle {
         let before = self.status;
         self.status = drive_status(sample.status_word);
         let writing = self.mode.writes();
-        // while a requested reset goes out, the fault it is meant to clear is not latched again
-        self.trip_latched |= writing && self.reset_phase == 0 && (self.status.fault || self.status.comm_loss_trip);
         // a drive that ran under this service's RUN and stopped on its own (it lost ready or running: a safe torque
-        // off, an enable or an emergency stop, a power cycle) is latched too: it is not started again unasked
+        // off, an enable or an emergency stop, a power cycle) is latched as a fault is: not started again unasked;
+        // while a requested reset goes out, the fault it is meant to clear is not latched again
         let stopped = before.ready && before.running && !(self.status.ready && self.status.running);
-        self.trip_latched |= writing && self.reset_phase == 0 && self.run_sent && stopped;
+        let tripped = self.status.fault || self.status.comm_loss_trip || (self.run_sent && stopped);
+        self.trip_latched |= writing && self.reset_phase == 0 && tripped;
         match self.counter.observe(sample.counter) {
             CounterVerdict::Moved => {}
             CounterVerdict::Unchanged | CounterVerdict::Settling => return nothing(Verdict::Stale),

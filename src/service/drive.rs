@@ -22,7 +22,7 @@ use super::state::{DriveSnapshot, DriveState, Link, Point};
 use super::timing::{LoopTiming, ThreadSetup, Ticker, TimingStats, use_realtime_priority};
 use crate::estimator::Estimator;
 use crate::modbus::bus::Connection;
-use crate::modbus::client::ClientError;
+use crate::modbus::client::{ClientError, Loud};
 use crate::modbus::map::{Table, decode_sample, read_plan};
 
 /// Everything one drive's loop owns: the link, the pure cycle, and where its results go.
@@ -50,39 +50,11 @@ pub struct DriveLoop {
     was_tripped: bool,
 }
 
-/// How often one kind of failure is logged at WARN at most; the ones between are counted and said with the next.
-const WARN_EVERY: std::time::Duration = std::time::Duration::from_secs(10);
-
 /// Failed setpoint writes in a row after which the drive is not ready: every write is refused.
 const WRITES_FAILING_AFTER: u32 = 3;
 
 /// How long a writing drive's loop waits, on a clean stop, for its control word 0 to be confirmed.
 pub const STOP_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(1);
-
-/// Rate-limited warnings: per kind, when it was last said and how many were held back since.
-#[derive(Debug, Default)]
-struct Loud(Vec<(&'static str, Instant, u64)>);
-
-impl Loud {
-    /// Some(the number held back since the last) when `kind` may be said now; None (and counted) otherwise.
-    fn allow(&mut self, kind: &'static str, now: Instant) -> Option<u64> {
-        match self.0.iter_mut().find(|e| e.0 == kind) {
-            Some(e) if now.saturating_duration_since(e.1) < WARN_EVERY => {
-                e.2 += 1;
-                None
-            }
-            Some(e) => {
-                let held = e.2;
-                (e.1, e.2) = (now, 0);
-                Some(held)
-            }
-            None => {
-                self.0.push((kind, now, 0));
-                Some(0)
-            }
-        }
-    }
-}
 
 /// The longest span the loops' first ticks are spread over (see [`DriveLoop::stagger`]): a cycle takes well under
 /// 100 µs of CPU, so 50 loops 200 µs apart no longer meet.

@@ -67,13 +67,13 @@ impl FrozenSpeed {
     /// ones).
     pub fn observe(&mut self, omega_rad_s: f64, f_drive_hz: f64, at: std::time::Instant) -> Option<Rejected> {
         let no_turn = f_drive_hz.abs() >= NO_TURN_HZ && omega_rad_s * f_drive_hz.signum() <= 0.0;
-        let since = if no_turn { *self.no_turn_since.get_or_insert(at) } else { at };
         if !no_turn {
             self.no_turn_since = None;
-        }
-        let held_s = at.saturating_duration_since(since).as_secs_f64();
-        if held_s > NO_TURN_S {
-            return Some(Rejected::NoTurn { entry: "shaft_speed_rpm", value: omega_rad_s, f_drive_hz, held_s });
+        } else {
+            let held_s = at.saturating_duration_since(*self.no_turn_since.get_or_insert(at)).as_secs_f64();
+            if held_s > NO_TURN_S {
+                return Some(Rejected::NoTurn { entry: "shaft_speed_rpm", value: omega_rad_s, f_drive_hz, held_s });
+            }
         }
         match &mut self.held {
             Some((w, lo, hi)) if *w == omega_rad_s && omega_rad_s != 0.0 => {

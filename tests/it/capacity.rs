@@ -222,6 +222,19 @@ async fn a_client_that_stops_reading_is_closed() {
     assert!(rest.len() < text.len(), "the download was cut: {} of {} bytes", rest.len(), text.len());
 }
 
+/// Whether the server's open-connection gauge reaches `n` within 15 s, read from another address (127.0.0.2, whose
+/// share is its own): the connections a test opened are taken by the server, not waiting in the backlog.
+async fn connections_reach(url: &str, n: f64) -> bool {
+    let other =
+        reqwest::Client::builder().local_address(std::net::IpAddr::from([127, 0, 0, 2])).build().expect("client");
+    wait_for(Duration::from_secs(15), || async {
+        let Ok(r) = other.get(format!("{url}/metrics")).send().await else { return false };
+        metric(&r.text().await.unwrap_or_default(), "hydrolens_http_connections ").unwrap_or(0.0) >= n
+    })
+    .await
+    .is_some()
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn one_address_holds_at_most_its_share_and_then_reaches_only_the_reserve() {
     let dir = tempfile::tempdir().expect("tmp");
@@ -233,16 +246,8 @@ async fn one_address_holds_at_most_its_share_and_then_reaches_only_the_reserve()
         assert_eq!(code, 200);
         held.push(stream);
     }
-    // all four taken by the server: its open-connection gauge, read from another address (127.0.0.2, whose share
-    // is its own) counts them and the connection that asks
-    let other =
-        reqwest::Client::builder().local_address(std::net::IpAddr::from([127, 0, 0, 2])).build().expect("client");
-    let taken = wait_for(Duration::from_secs(15), || async {
-        let Ok(r) = other.get(format!("{}/metrics", s.url)).send().await else { return false };
-        metric(&r.text().await.unwrap_or_default(), "hydrolens_http_connections ").unwrap_or(0.0) >= 5.0
-    })
-    .await;
-    assert!(taken.is_some(), "the four connections are taken by the server");
+    // all four taken by the server (the gauge counts them and the connection that asks)
+    assert!(connections_reach(&s.url, 5.0).await, "the four connections are taken by the server");
     let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: t\r\n\r\n").await.map(|(c, _)| c);
     let [(health, _), (target, _)] = operator(&s.url).await;
     assert_eq!(status, Some(503), "a fifth connection from the address is a reserved one");
@@ -275,14 +280,7 @@ async fn connections_held_half_sent_give_way_to_the_operator_on_the_same_address
         c.write_all(b"GET /api/status HTTP/1.1\r\nHost: t\r\n").await.expect("half a request");
         held.push(c);
     }
-    let other =
-        reqwest::Client::builder().local_address(std::net::IpAddr::from([127, 0, 0, 2])).build().expect("client");
-    let taken = wait_for(Duration::from_secs(15), || async {
-        let Ok(r) = other.get(format!("{}/metrics", s.url)).send().await else { return false };
-        metric(&r.text().await.unwrap_or_default(), "hydrolens_http_connections ").unwrap_or(0.0) >= 9.0
-    })
-    .await;
-    assert!(taken.is_some(), "half-sent connections are taken by the server");
+    assert!(connections_reach(&s.url, 9.0).await, "half-sent connections are taken by the server");
     for _ in 0..3 {
         let [(health, _), (target, _)] = operator(&s.url).await;
         assert_eq!((health, target), (200, 200), "the operator on the flooded address");

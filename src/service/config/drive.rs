@@ -15,8 +15,7 @@ pub(super) fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Resu
     let registers = apply_overrides(d.registers, &key("registers"))?;
     let condition = validate_condition(d.condition, &key("condition"), &model, |p| resolve(p, base))?;
     check_setpoint_fits(&registers.frequency_setpoint_hz, &c, &key)?;
-    check_watchdog(d.comm_timeout_ms, d.watchdog_ms, &model, &key)?;
-    check_poll_within_watchdog(c.mode, d.poll_ms, d.comm_timeout_ms, &model, &key)?;
+    check_watchdog(d.comm_timeout_ms, (d.watchdog_ms, d.poll_ms, c.mode), &model, &key)?;
     if c.mode.writes() && d.unit_id == 0 {
         // on TCP too: a gateway passes a write to unit 0 to every device on its serial line, none of which answers
         return Err(KeyError::new(
@@ -231,10 +230,12 @@ pub(super) fn check_setpoint_fits(
     Ok(())
 }
 
-/// The watchdog is refreshed well within the drive's comm timeout (`comm_timeout_ms`, else the model's).
+/// The watchdog is refreshed well within the drive's comm timeout (`comm_timeout_ms`, else the model's): every
+/// `watchdog_ms`, and, in a writing mode, at most once a poll, so the poll too is at most a third of it (`poll_ms =
+/// 2000` against 1000 ms tripped the drive a second after the start).
 pub(super) fn check_watchdog(
     comm_timeout_ms: Option<u64>,
-    watchdog_ms: u64,
+    (watchdog_ms, poll_ms, mode): (u64, u64, Mode),
     model: &PlantModel,
     key: &dyn Fn(&str) -> String,
 ) -> Result<(), Invalid> {
@@ -255,21 +256,6 @@ pub(super) fn check_watchdog(
             ),
         ));
     }
-    Ok(())
-}
-
-/// In a writing mode the watchdog is written at most once a poll: a poll period beyond a third of the drive's comm
-/// timeout lets the drive trip on comm loss between two healthy polls (`poll_ms = 2000` against 1000 ms tripped it a
-/// second after the start).
-pub(super) fn check_poll_within_watchdog(
-    mode: Mode,
-    poll_ms: u64,
-    comm_timeout_ms: Option<u64>,
-    model: &PlantModel,
-    key: &dyn Fn(&str) -> String,
-) -> Result<(), Invalid> {
-    let comm_timeout_ms =
-        comm_timeout_ms.unwrap_or_else(|| model.drive.as_ref().map_or(1000, |drive| drive.comm_timeout_ms));
     if mode.writes() && poll_ms.saturating_mul(3) > comm_timeout_ms {
         return Err(KeyError::new(
             key("poll_ms"),
