@@ -205,6 +205,14 @@ fn signal_families() -> Vec<(Desc, MetricType, Read)> {
             Gauge,
             |s| measured(s).map(|_| Float(if s.status.not_following { 1.0 } else { 0.0 })),
         ),
+        (
+            desc(
+                "drive_another_master",
+                "1 while another master writes the drive (its watchdog register read back values this service never wrote): nothing is written until a reset",
+            ),
+            Gauge,
+            |s| measured(s).map(|_| Float(if s.status.another_master { 1.0 } else { 0.0 })),
+        ),
         (with_unit("setpoint", "Last frequency setpoint written", other("hertz")), Gauge, |s| s.setpoint_hz.map(Float)),
         (with_unit("target_omega", "Speed target", other(RAD_S)), Gauge, |s| Some(Float(s.target_omega_rad_s))),
     ]

@@ -182,6 +182,7 @@ function updateCard(entry, d) {
   const st = d.status;
   q(".status").textContent = [st.ready && "ready", st.running && "running", st.fault && "FAULT",
     st.comm_loss_trip && "COMM-LOSS TRIP", st.not_following && "NOT FOLLOWING SETPOINTS",
+    st.another_master && "ANOTHER MASTER WRITES THIS DRIVE: STOOD BACK",
     d.link.writes_failing && "WRITES REFUSED"].filter(Boolean).join(", ") || "–";
   q(".counts").textContent = `${d.link.polls} / ${d.link.errors} / ${d.link.reconnects}`;
   q(".jitter").textContent = `${fmt(d.timing.jitter_p50_ms, 2)} / ${fmt(d.timing.jitter_p99_ms, 2)} ms`;

@@ -585,6 +585,7 @@ async fn readyz(State(s): State<AppState>) -> Response {
                 "not_ready": not_ready,
                 "stale_or_down": names(&|d| d.stale_or_down()),
                 "not_following": names(&|d| d.not_following()),
+                "another_master": names(&|d| d.another_master()),
                 "writes_refused": names(&|d| d.writes_failing()),
                 "recording_failing": names(&|d| d.recording_failing()),
             })),

@@ -17,6 +17,7 @@ use tokio::time::Instant;
 
 use super::config::DriveSettings;
 use super::freshness::{CounterCheck, CounterVerdict, FrozenSpeed, Rejected, ValidRanges, implausible_jump};
+use super::owner::{Echo, Finding};
 use super::state::{Commands, DriveStatus, Measured, Point};
 use crate::control::{Inputs, Mode, SpeedLaw};
 use crate::estimator::{Estimate, Estimator, Measurement};
@@ -31,6 +32,7 @@ pub fn drive_status(word: u16) -> DriveStatus {
         fault: word & status::FAULT != 0,
         comm_loss_trip: word & status::COMM_LOSS_TRIP != 0,
         not_following: false,
+        another_master: false,
     }
 }
 
@@ -116,6 +118,11 @@ pub struct DriveCycle {
     hz_range: (f64, f64),
     /// Some write reached the drive: on a clean stop it is sent control word 0.
     commanded: bool,
+    /// The watchdog value of the last write the drive confirmed; None before one, and after a failed write (the
+    /// device may or may not hold it).
+    confirmed_watchdog: Option<u16>,
+    /// Whether another master writes the drive (see [`super::owner`]); once found, nothing is written until a reset.
+    echo: Echo,
     /// The speed frozen while the drive's frequency moves, or showing no turn while the drive runs: rejected.
     frozen: FrozenSpeed,
     pending: Option<Pending>,
@@ -154,6 +161,8 @@ impl DriveCycle {
             run_sent: false,
             hz_range: (settings.limits.min_hz, settings.limits.max_hz),
             commanded: false,
+            confirmed_watchdog: None,
+            echo: Echo::default(),
             frozen: FrozenSpeed::default(),
             pending: None,
             status: DriveStatus::default(),
@@ -170,6 +179,11 @@ impl DriveCycle {
             self.reset_phase = 1;
             // what the drive still reports latches again at its next sample
             self.trip_latched = false;
+            if self.echo.found() {
+                // a service that stood back for another master writes again, ramping from what the drive runs at
+                self.echo.reset();
+                self.last_fresh_at = None;
+            }
         }
     }
 
@@ -246,7 +260,8 @@ impl DriveCycle {
         });
         self.note_following();
         let (mut f_set_hz, mut writes, mut encode_error) = (f64::NAN, Vec::new(), None);
-        if let Some(hz) = setpoint {
+        // standing back for another master: nothing is written (writing a stop would fight it as much as a setpoint)
+        if let Some(hz) = setpoint.filter(|_| !self.echo.found()) {
             match self.plan(now, hz) {
                 Ok(w) => (f_set_hz, writes) = (hz, w),
                 Err(e) => encode_error = Some(e),
@@ -287,18 +302,49 @@ impl DriveCycle {
         let p = self.pending.take()?;
         if !ok {
             self.last_written.clear();
+            self.confirmed_watchdog = None;
             return None;
         }
         if p.watchdog_at.is_some() {
             self.last_watchdog_at = p.watchdog_at;
         }
         self.watchdog = p.watchdog;
+        self.confirmed_watchdog = Some(p.watchdog);
         self.last_written = p.writes;
         self.run_sent = p.run;
         self.commanded = true;
         let reset_sent = self.reset_phase == 1;
         self.reset_phase = if reset_sent { 2 } else { 0 };
         Some(Confirmed { setpoint_hz: p.setpoint_hz, reset_sent })
+    }
+
+    /// The watchdog register to read back now, as (address, words): due every [`super::owner::CHECK_EVERY`] in a
+    /// writing mode once a write of this service was confirmed. The loop reads it before the sample, so the read
+    /// covers the whole time since this service last wrote.
+    pub fn echo_due(&self, now: Instant) -> Option<(u16, u16)> {
+        let spec = self.registers.watchdog;
+        (self.mode.writes() && self.confirmed_watchdog.is_some() && self.echo.due(now))
+            .then(|| (spec.address, spec.kind.words()))
+    }
+
+    /// The watchdog register read back (`None`: the device refused the read): what it showed, where that changed
+    /// anything. Once another master is found, this service writes nothing, and on a clean stop sends nothing.
+    pub fn echo_read(&mut self, now: Instant, read: Option<&[u16]>) -> Option<Finding> {
+        let Some(read) = read else { return self.echo.refused() };
+        let ours = self.registers.watchdog.encode(f64::from(self.confirmed_watchdog?)).ok()?;
+        let finding = self.echo.observe(now, read, &ours);
+        if self.echo.found() {
+            // the drive is the other master's now: its stopping is no trip of ours, and a clean stop leaves it be
+            self.commanded = false;
+            self.run_sent = false;
+            self.confirmed_watchdog = None;
+        }
+        finding
+    }
+
+    /// Another master was found writing the drive: this service stands back until a reset.
+    pub fn another_master(&self) -> bool {
+        self.echo.found()
     }
 
     /// Logs a drive that stops (or starts again) following its setpoints, once per episode.
@@ -607,5 +653,47 @@ mod tests {
             assert!(!c.tripped(), "{what}: a reset re-arms it");
             assert_eq!(again.iter().filter_map(written).next_back().map(|w| w.1), Some(control::RUN), "{what}");
         }
+    }
+
+    /// Another master's watchdog values in the read-back: once found, the cycle writes nothing (no setpoint, no
+    /// stop) and leaves a clean stop's control word 0 unsent; a reset writes again, ramping from the drive's
+    /// read-back. Before any confirmed write, and in monitor mode, nothing is read back.
+    #[test]
+    fn a_cycle_that_finds_another_master_stands_back_until_a_reset() {
+        let (mut m, t0) = cycle("mode = \"monitor\"");
+        run(&mut m, t0, 0, 5, 30.0, 3);
+        assert_eq!(m.echo_due(t0 + MS * 60), None, "monitor mode reads nothing back");
+        let (mut c, t0) = cycle("mode = \"manual\"\nfixed_hz = 40.0\nramp_hz_per_s = 100.0");
+        assert_eq!(c.echo_due(t0), None, "nothing written yet: nothing to compare");
+        run(&mut c, t0, 0, 3, 30.0, 3);
+        let mut k = 3;
+        let mut found = None;
+        let mut checks = 0;
+        for check in 0..6 {
+            if found.is_some() {
+                break;
+            }
+            checks += 1;
+            let at = t0 + MS * (10 * k as u32);
+            let (address, words) = c.echo_due(at).expect("due every 200 ms");
+            assert_eq!((address, words), (2, 1), "the default map's watchdog");
+            // ours once (arming the check), then another master's value each time
+            let ours = c.confirmed_watchdog.expect("confirmed");
+            let read = if check == 0 { ours } else { ours.wrapping_add(1000) };
+            found = found.or(c.echo_read(at, Some(&[read])));
+            run(&mut c, t0, k, 20, 30.0, 3);
+            k += 20;
+        }
+        assert!(matches!(found, Some(Finding::AnotherMaster { .. })), "{found:?}");
+        assert_eq!(checks, 4, "ours, then found at the third foreign value");
+        assert!(c.another_master() && !c.commanded(), "stood back; a clean stop sends nothing");
+        let quiet = run(&mut c, t0, k, 30, 30.0, 3);
+        assert!(quiet.iter().all(|s| s.writes.is_empty()), "nothing written while another master writes");
+        assert!(quiet.iter().all(|s| s.point.as_ref().is_some_and(|p| p.sample.f_set_hz.is_nan())), "no setpoint");
+        c.command(Commands { target_omega_rad_s: 0.0, reset_requested: true });
+        let again = run(&mut c, t0, k + 30, 2, 30.0, 3);
+        let first = again.first().and_then(written).expect("writes again");
+        assert!((20.0..=21.0).contains(&first.0), "from the read-back (20 Hz), not 40 at once: {first:?}");
+        assert!(!c.another_master() && c.commanded());
     }
 }

@@ -17,6 +17,7 @@ use tokio_util::sync::CancellationToken;
 use super::config::DriveSettings;
 use super::cycle::{DriveCycle, Verdict};
 use super::freshness::{Rejected, out_of_range};
+use super::owner::Finding;
 use super::recorder::Recorder;
 use super::state::{DriveSnapshot, DriveState, Link, Point};
 use super::timing::{LoopTiming, ThreadSetup, Ticker, TimingStats, use_realtime_priority};
@@ -191,6 +192,7 @@ impl DriveLoop {
         if let Some(commands) = self.state.take_commands() {
             self.cycle.command(commands);
         }
+        self.check_echo(now).await;
 
         match self.read().await {
             Err(e) => self.error(&e),
@@ -212,6 +214,33 @@ impl DriveLoop {
         self.link.connected = self.client.is_connected();
         self.timing.end(Instant::now());
         self.publish();
+    }
+
+    /// Reads the watchdog register back when it is due, before this cycle's sample and writes (see
+    /// [`super::owner`]): another master writing the drive is said at WARN, and this service stands back.
+    async fn check_echo(&mut self, now: Instant) {
+        let Some((address, count)) = self.cycle.echo_due(now) else { return };
+        let finding = match self.client.read(Table::Holding, address, count).await {
+            Ok(words) => self.cycle.echo_read(now, Some(&words)),
+            Err(e) if e.kind() == "exception" => {
+                self.error(&e);
+                self.cycle.echo_read(now, None)
+            }
+            // a lost link shows as such; the read-back waits for the next check
+            Err(e) => return self.error(&e),
+        };
+        let name = &self.settings.name;
+        match finding {
+            Some(Finding::AnotherMaster { read, ours }) => tracing::warn!(drive = %name, register = address,
+                read = ?read, ours = ?ours,
+                "another master writes this drive (its watchdog register holds values this service never wrote): \
+                 this service stands back and writes nothing, not even a stop, so the two do not fight; the \
+                 drive's own watchdog stops it if the other master does not feed it; POST \
+                 /api/drives/<name>/reset writes again"),
+            Some(Finding::Unavailable(why)) => tracing::warn!(drive = %name, register = address,
+                "{why}: another master writing this drive cannot be detected"),
+            None => {}
+        }
     }
 
     fn reject(&mut self, r: &Rejected) {
@@ -338,7 +367,11 @@ impl DriveLoop {
             target_omega_rad_s: self.cycle.target_omega_rad_s(),
             setpoint_hz: self.cycle.setpoint_hz(),
             tripped: self.cycle.tripped(),
-            status: super::state::DriveStatus { not_following: self.cycle.not_following(), ..self.cycle.status() },
+            status: super::state::DriveStatus {
+                not_following: self.cycle.not_following(),
+                another_master: self.cycle.another_master(),
+                ..self.cycle.status()
+            },
             link: self.link.clone(),
             sample: self.cycle.measured(),
             estimate: self.cycle.estimate(),

@@ -4,9 +4,9 @@
 //!
 //! # Layout
 //! The service's modules, floor by floor (a module uses only those listed before it; this file uses them all):
-//! - [`timing`], [`retention`], [`program`], [`freshness`]: a loop's ticker and timing statistics, the recordings'
-//!   retention, the demo's target program, whether a decoded sample may be used (PURE); none uses another module of
-//!   the service.
+//! - [`timing`], [`retention`], [`program`], [`freshness`], [`owner`]: a loop's ticker and timing statistics, the
+//!   recordings' retention, the demo's target program, whether a decoded sample may be used, whether another master
+//!   writes a drive (PURE); none uses another module of the service.
 //! - [`config`], [`state`]: the config file, parsed and validated; one drive's shared state (its snapshot, its
 //!   history ring of rows, the commands waiting for its loop).
 //! - [`cycle`], [`recorder`], [`condition`]: PURE drive cycle (a validated sample and its time → the writes and the
@@ -22,6 +22,7 @@ pub mod config;
 pub mod cycle;
 pub mod drive;
 pub mod freshness;
+pub mod owner;
 pub mod program;
 pub mod recorder;
 pub mod retention;

@@ -104,6 +104,9 @@ pub struct DriveStatus {
     /// A writing drive that does not follow its setpoints (read-back away from them, or not ready and running, for
     /// longer than its ramp explains): an alarm; the regulator holds its integral meanwhile.
     pub not_following: bool,
+    /// Another master writes the drive (its watchdog register read back values this service never wrote): this
+    /// service writes nothing until `POST /api/drives/<name>/reset`.
+    pub another_master: bool,
 }
 
 /// The kinds of failed Modbus call counted apart ([`crate::modbus::client::ClientError::kind`], and the loop's own:
@@ -300,7 +303,7 @@ impl DriveState {
             let s = lock(&self.snapshot);
             (s.link.connected, s.recording.as_ref().is_none_or(|r| r.ok), !s.link.writes_failing)
         };
-        connected && recording_ok && writes_ok && !self.freshness().0 && !self.not_following()
+        connected && recording_ok && writes_ok && !self.freshness().0 && !self.not_following() && !self.another_master()
     }
 
     /// The link is down or the data stale: the part of [`DriveState::ready`] that is the device's.
@@ -321,6 +324,11 @@ impl DriveState {
     /// The drive does not follow its setpoints (the snapshot's `status.not_following`).
     pub fn not_following(&self) -> bool {
         lock(&self.snapshot).status.not_following
+    }
+
+    /// Another master writes the drive (the snapshot's `status.another_master`).
+    pub fn another_master(&self) -> bool {
+        lock(&self.snapshot).status.another_master
     }
 
     // The poll thread never waits for a lock the HTTP side may hold: an HTTP worker runs at a lower priority and

@@ -262,3 +262,80 @@ async fn a_link_that_keeps_dropping_is_said_once_in_ten_seconds() {
     };
     tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
 }
+
+/// Two masters on one drive: a second `serve` pointed at the same drive. Before, the two fought over its setpoint
+/// and RUN without a word (only the one whose setpoints lost said "not following"). Now each reads the drive's
+/// watchdog register back: values it never wrote are another master, and the one that finds them says so, stops
+/// writing (not even a stop) and is not ready, until a reset; alone again, a reset makes it write and regulate.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_second_master_on_the_same_drive_is_found_and_the_finder_stands_back() {
+    let run = async {
+        let (sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
+        let (dir_a, dir_b) = (tempfile::tempdir().expect("tmp"), tempfile::tempdir().expect("tmp"));
+        let a = ServeProcess::start(dir_a.path(), &config(sim_addr, dir_a.path(), 10));
+        wait_for(Duration::from_secs(10), || async { (sim.lock().truth().omega_rad_s - 30.0).abs() < 2.0 })
+            .await
+            .expect("A alone runs the drive at the target");
+        assert_eq!(a.drive_status().await["status"]["another_master"], false, "alone: no other master");
+        let mut b = ServeProcess::start(dir_b.path(), &config(sim_addr, dir_b.path(), 10));
+        let found = |s: &ServeProcess| {
+            let url = s.url.clone();
+            async move {
+                let st: serde_json::Value =
+                    reqwest::get(format!("{url}/api/status")).await.expect("GET").json().await.expect("json");
+                st["drives"][0]["status"]["another_master"] == true
+            }
+        };
+        let took = wait_for(Duration::from_secs(20), || async { found(&a).await || found(&b).await }).await;
+        eprintln!("a second master found after {took:?}");
+        assert!(took.is_some(), "found:\nA: {}\nB: {}", a.log(), b.log());
+        // whoever found it writes nothing any more (the other may find it later, or go on as the only master)
+        let writes = |s: &ServeProcess| {
+            let url = s.url.clone();
+            async move {
+                let st: serde_json::Value =
+                    reqwest::get(format!("{url}/api/status")).await.expect("GET").json().await.expect("json");
+                st["drives"][0]["link"]["writes"].as_u64().expect("writes")
+            }
+        };
+        let (fa, fb) = (found(&a).await, found(&b).await);
+        let before = (writes(&a).await, writes(&b).await);
+        let polls = || async { a.drive_status().await["link"]["polls"].as_u64().expect("polls") };
+        let from = polls().await;
+        wait_for(Duration::from_secs(10), || async { polls().await >= from + 50 }).await.expect("A polls on");
+        let after = (writes(&a).await, writes(&b).await);
+        eprintln!(
+            "stood back: A {fa}, B {fb}; writes over 50 polls: A {}, B {}",
+            after.0 - before.0,
+            after.1 - before.1
+        );
+        assert!(!fa || after.0 == before.0, "A found another master and still wrote");
+        assert!(!fb || after.1 == before.1, "B found another master and still wrote");
+        for (s, f) in [(&a, fa), (&b, fb)] {
+            if f {
+                let (code, body) = s.readyz().await;
+                assert_eq!((code, body["another_master"].clone()), (503, serde_json::json!(["pump1"])), "{body}");
+                let m = s.metrics().await;
+                assert_eq!(metric(&m, "hydrolens_drive_another_master{drive=\"pump1\"}"), Some(1.0), "{m}");
+                assert!(s.log().lines().any(|l| l.contains("WARN") && l.contains("another master")), "{}", s.log());
+            }
+        }
+        // B leaves; A, reset, is the drive's only master again: it writes, regulates and is ready
+        b.stop();
+        let reset = reqwest::Client::new()
+            .post(format!("{}/api/drives/pump1/reset", a.url))
+            .bearer_auth(TOKEN)
+            .send()
+            .await
+            .expect("POST reset");
+        assert_eq!(reset.status(), 202);
+        let ready = wait_for(Duration::from_secs(20), || async { a.readyz().await.0 == 200 }).await;
+        assert!(ready.is_some(), "A ready again: {}\n{}", a.readyz().await.1, a.log());
+        wait_for(Duration::from_secs(15), || async { (sim.lock().truth().omega_rad_s - 30.0).abs() < 2.0 })
+            .await
+            .expect("A regulates again");
+        assert!(!found(&a).await, "alone: no other master");
+        sim_stop.cancel();
+    };
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
+}

@@ -187,6 +187,7 @@ async fn shipped_rules_config_and_dashboard_check_and_name_only_exported_metrics
         "HydrolensRecorderFailing",
         "HydrolensConditionAlarm",
         "HydrolensConditionLimitNear",
+        "HydrolensAnotherMaster",
     ] {
         assert!(rules.contains(&format!("alert: {alert}\n")), "alerts.yml lacks {alert}");
     }

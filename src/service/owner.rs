@@ -1,0 +1,177 @@
+//! PURE: whether this service is the only master writing a drive. A drive obeys one master; two (a second `serve`
+//! pointed at the same drive, an HMI or an engineering tool left writing) fight over its setpoint and RUN, each
+//! undoing the other's writes, and each regulator winds up against a drive it does not command.
+//!
+//! The watchdog register tells them apart: every write of this service carries its own watchdog value, which no
+//! other master has reason to write, so read back between two writes it is the last value this service wrote
+//! unless another master wrote since. [`Echo`] reads it back every [`CHECK_EVERY`] and finds another master once
+//! [`MISMATCHES`] of the last [`WINDOW`] read-backs were not ours (one mismatch is a drive that lost power and came
+//! back with its registers cleared; the next write puts ours back). A device that never echoes our value (a
+//! write-only register, a gateway answering reads from elsewhere) or refuses the read cannot show another master:
+//! the check stands down and says so once.
+
+use std::time::Duration;
+
+use tokio::time::Instant;
+
+/// How often the watchdog register is read back: an extra read (function 03) every this long.
+pub const CHECK_EVERY: Duration = Duration::from_millis(200);
+
+/// Read-backs remembered.
+const WINDOW: u32 = 8;
+
+/// Read-backs of the last [`WINDOW`] not ours that find another master.
+const MISMATCHES: u32 = 3;
+
+/// Read-backs allowed to show our value for the first time before the check stands down (5 s at [`CHECK_EVERY`]).
+const LEARN_CHECKS: u32 = 25;
+
+/// What a read-back found, where it changed the check's state.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Finding {
+    /// Another master writes the drive.
+    AnotherMaster { read: Vec<u16>, ours: Vec<u16> },
+    /// The check cannot work on this device, and why.
+    Unavailable(&'static str),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum State {
+    /// Not yet seen our value echoed: `checks` read-backs so far.
+    Learning {
+        checks: u32,
+    },
+    /// The device echoes our writes; `recent` holds the last read-backs, one bit each (1: not ours), newest lowest.
+    Armed {
+        recent: u32,
+    },
+    /// Another master was found: this service writes nothing until a reset.
+    Found,
+    Unavailable,
+}
+
+/// The read-back check of one drive.
+#[derive(Debug, Clone)]
+pub struct Echo {
+    state: State,
+    last_check: Option<Instant>,
+}
+
+impl Default for Echo {
+    fn default() -> Echo {
+        Echo { state: State::Learning { checks: 0 }, last_check: None }
+    }
+}
+
+impl Echo {
+    /// A read-back is due now (the caller also needs a confirmed write of its own to compare with).
+    pub fn due(&self, now: Instant) -> bool {
+        matches!(self.state, State::Learning { .. } | State::Armed { .. })
+            && self.last_check.is_none_or(|t| now.saturating_duration_since(t) >= CHECK_EVERY)
+    }
+
+    /// Another master was found, and this service has stood back.
+    pub fn found(&self) -> bool {
+        self.state == State::Found
+    }
+
+    /// The register read back as `read`; `ours` is what this service last wrote there (and the drive confirmed).
+    pub fn observe(&mut self, now: Instant, read: &[u16], ours: &[u16]) -> Option<Finding> {
+        self.last_check = Some(now);
+        let foreign = read != ours;
+        match self.state {
+            State::Learning { .. } if !foreign => self.state = State::Armed { recent: 0 },
+            State::Learning { checks } if checks + 1 >= LEARN_CHECKS => {
+                self.state = State::Unavailable;
+                return Some(Finding::Unavailable("the drive never read back the watchdog value this service wrote"));
+            }
+            State::Learning { checks } => self.state = State::Learning { checks: checks + 1 },
+            State::Armed { recent } => {
+                let recent = ((recent << 1) | u32::from(foreign)) & ((1 << WINDOW) - 1);
+                if recent.count_ones() >= MISMATCHES {
+                    self.state = State::Found;
+                    return Some(Finding::AnotherMaster { read: read.to_vec(), ours: ours.to_vec() });
+                }
+                self.state = State::Armed { recent };
+            }
+            State::Found | State::Unavailable => {}
+        }
+        None
+    }
+
+    /// The device refused the read (a Modbus exception): the check cannot work on it.
+    pub fn refused(&mut self) -> Option<Finding> {
+        if matches!(self.state, State::Unavailable | State::Found) {
+            return None;
+        }
+        self.state = State::Unavailable;
+        Some(Finding::Unavailable("the drive refuses to read back its watchdog register (a Modbus exception)"))
+    }
+
+    /// An operator's reset: a master that stood back writes again, and looks afresh.
+    pub fn reset(&mut self) {
+        if self.state == State::Found {
+            self.state = State::Armed { recent: 0 };
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn at(ms: u64) -> Instant {
+        // one base for every call of a test: Instant::now() once, then offsets
+        static BASE: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
+        *BASE.get_or_init(Instant::now) + Duration::from_millis(ms)
+    }
+
+    #[test]
+    fn another_master_is_found_on_the_third_foreign_value_in_eight_and_not_on_a_power_cycle() {
+        let mut e = Echo::default();
+        assert!(e.due(at(0)));
+        assert_eq!(e.observe(at(0), &[5], &[5]), None, "ours: armed");
+        assert!(!e.due(at(100)) && e.due(at(200)), "every 200 ms");
+        // a power cycle: the register reads 0 once, then ours again
+        assert_eq!(e.observe(at(200), &[0], &[6]), None);
+        for i in 0..10 {
+            assert_eq!(e.observe(at(400 + 200 * i), &[7 + i as u16], &[7 + i as u16]), None);
+        }
+        // two foreign values, four of ours, a third foreign one: 3 of the last 8
+        assert_eq!(e.observe(at(3000), &[900], &[20]), None);
+        assert_eq!(e.observe(at(3200), &[901], &[20]), None);
+        for i in 0..4 {
+            assert_eq!(e.observe(at(3400 + 200 * i), &[21], &[21]), None);
+        }
+        let found = e.observe(at(4200), &[902], &[22]);
+        assert_eq!(found, Some(Finding::AnotherMaster { read: vec![902], ours: vec![22] }));
+        assert!(e.found() && !e.due(at(9000)), "stood back: no more reads");
+        e.reset();
+        assert!(!e.found() && e.due(at(9000)), "a reset looks afresh");
+        assert_eq!(e.observe(at(9000), &[903], &[23]), None, "the old mismatches are forgotten");
+    }
+
+    #[test]
+    fn foreign_values_spread_wider_than_the_window_are_not_another_master() {
+        let mut e = Echo::default();
+        e.observe(at(0), &[1], &[1]);
+        for i in 0..40u16 {
+            let read = if i % 4 == 0 { 500 + i } else { i };
+            assert_eq!(e.observe(at(200 * u64::from(i + 1)), &[read], &[i]), None, "check {i}");
+        }
+    }
+
+    #[test]
+    fn a_device_that_never_echoes_or_refuses_the_read_stands_the_check_down() {
+        let mut e = Echo::default();
+        for i in 0..LEARN_CHECKS - 1 {
+            assert_eq!(e.observe(at(200 * u64::from(i)), &[0], &[u16::try_from(i).unwrap_or(0) + 1]), None);
+        }
+        assert!(matches!(e.observe(at(10_000), &[0], &[99]), Some(Finding::Unavailable(_))));
+        assert!(!e.due(at(20_000)) && !e.found());
+        let mut r = Echo::default();
+        assert!(matches!(r.refused(), Some(Finding::Unavailable(_))));
+        assert_eq!(r.refused(), None, "said once");
+        assert!(!r.due(at(0)));
+    }
+}
