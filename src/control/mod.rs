@@ -422,6 +422,36 @@ mod tests {
         assert!(found as f64 * 0.01 <= 0.08 + STALL_S + FOLLOW_GRACE_S + 0.02, "found after {found} polls");
     }
 
+    /// A healthy drive that follows its setpoint with a lag of its own (a first-order time constant of 0.3–1.5 s, a
+    /// drive with a long filter or a heavy motor) is no drive failing to follow: it moves towards the setpoint all
+    /// the time. No alarm at any time constant, the speed settles at the target, and the setpoint never runs more
+    /// than the lead ahead of the drive.
+    #[test]
+    fn a_drive_with_a_slow_time_constant_of_its_own_is_waited_for() {
+        let ff = reference_ff();
+        for tau_s in [0.3, 0.6, 1.0, 1.5] {
+            let mut s = law(Mode::Speed);
+            s.target_omega_rad_s = 40.0;
+            let (mut drive_hz, mut omega, mut peak, mut widest): (f64, f64, f64, f64) = (0.0, 0.0, 0.0, 0.0);
+            for k in 0..3000 {
+                let hz = s.step(&Inputs { drive_hz, ..fresh(omega, 5.0) }).expect("writes");
+                assert!(
+                    !s.not_following(),
+                    "τ {tau_s} s: found not following at {:.2} s: drive {drive_hz:.2}, setpoint {hz:.2}",
+                    k as f64 * 0.01
+                );
+                widest = widest.max(hz - drive_hz);
+                drive_hz += (hz - drive_hz) * 0.01 / tau_s;
+                omega += (ff.omega_rad_s(drive_hz) - 0.1 * 5.0 - omega) * 0.01 / 0.15;
+                peak = peak.max(omega);
+            }
+            eprintln!("τ {tau_s} s: lead at most {widest:.2} Hz, peak {peak:.2} rad/s, end {omega:.2} rad/s");
+            assert!(widest <= LEAD_HZ + 20.0 * 0.01 + 1e-9, "τ {tau_s} s: the setpoint ran {widest:.2} Hz ahead");
+            assert!((omega - 40.0).abs() < 0.2, "τ {tau_s} s: settles at the target: {omega}");
+            assert!(peak <= 42.0, "τ {tau_s} s: no overshoot from a wound-up integral: {peak}");
+        }
+    }
+
     /// After a gap the first setpoint is a ramp step from what the drive runs at, not from the last wish.
     #[test]
     fn after_a_gap_the_ramp_starts_from_the_read_back() {
