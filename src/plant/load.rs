@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 /// `[load]`: what the load torque T_L(t, ω, θ) is (ω the motor's speed, θ its shaft angle). `recorded` means "taken from a recording" (estimate, analyze) or,
 /// for the test-stand run of `simulate`, the built-in brake-load steps; `unknown` says that no recording has it.
 #[derive(Debug, Clone, PartialEq, Deserialize, Serialize, Default)]
-#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(tag = "kind", rename_all = "snake_case", try_from = "LoadTable")]
 pub enum LoadSpec {
     /// No load torque.
     None,
@@ -44,6 +44,142 @@ pub enum LoadSpec {
     /// Not measured (no torque transducer, as on most plants): `analyze` finds what the flow balance shows and
     /// names nothing that the load could hide. In `simulate`/`sim`/`demo`, the test stand's brake program.
     Unknown,
+}
+
+/// The kinds of `[load]`, by name.
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(rename_all = "snake_case")]
+enum LoadKind {
+    None,
+    Constant,
+    Steps,
+    Ramp,
+    Trend,
+    Sine,
+    Speed,
+    Centrifugal,
+    ShaftAngle,
+    Random,
+    Impacts,
+    Sines,
+    Recorded,
+    Unknown,
+}
+
+macro_rules! load_table {
+    ($($key:ident: $ty:ty),* $(,)?) => {
+        /// `[load]` as written: its kind and every key some kind takes, each read where it stands, so that a key of
+        /// the wrong type or an unknown one is reported at its line and column (as an internally tagged enum,
+        /// `[load]` was read into a buffer first, and its errors pointed at the table; unknown keys beside a kind
+        /// without parameters were ignored).
+        #[derive(Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct LoadTable {
+            kind: LoadKind,
+            $($key: Option<$ty>,)*
+        }
+
+        impl LoadTable {
+            /// The keys given, besides `kind`.
+            fn given(&self) -> Vec<&'static str> {
+                [$((stringify!($key), self.$key.is_some()),)*].into_iter().filter(|k| k.1).map(|k| k.0).collect()
+            }
+        }
+    };
+}
+
+load_table! {
+    torque_nm: f64, levels_nm: Vec<f64>, period_s: f64, from_nm: f64, to_nm: f64, start_s: f64, duration_s: f64,
+    start_nm: f64, rate_nm_per_s: f64, max_nm: f64, mean_nm: f64, amplitude_nm: f64, constant_nm: f64,
+    linear_nm_s_rad: f64, quadratic_nm_s2_rad2: f64, at_rad_s: f64, cycles_per_rev: f64, sd_nm: f64,
+    correlation_s: f64, seed: u64, base_nm: f64, peak_nm: f64, width_s: f64, mean_interval_s: f64,
+    amplitudes_nm: Vec<f64>, periods_s: Vec<f64>,
+}
+
+impl TryFrom<LoadTable> for LoadSpec {
+    type Error = String;
+
+    fn try_from(t: LoadTable) -> Result<LoadSpec, String> {
+        let given = t.given();
+        let kind = t.kind;
+        // the name as written: ShaftAngle is shaft_angle
+        let name: String = format!("{kind:?}")
+            .chars()
+            .enumerate()
+            .flat_map(|(i, c)| (i > 0 && c.is_uppercase()).then_some('_').into_iter().chain(c.to_lowercase()))
+            .collect();
+        fn need<T>(value: Option<T>, kind: &str, key: &str) -> Result<T, String> {
+            value.ok_or_else(|| format!("kind {kind:?} needs the key `{key}`"))
+        }
+        let spec = match kind {
+            LoadKind::None => LoadSpec::None,
+            LoadKind::Constant => LoadSpec::Constant { torque_nm: need(t.torque_nm, &name, "torque_nm")? },
+            LoadKind::Steps => LoadSpec::Steps {
+                levels_nm: need(t.levels_nm, &name, "levels_nm")?,
+                period_s: need(t.period_s, &name, "period_s")?,
+            },
+            LoadKind::Ramp => LoadSpec::Ramp {
+                from_nm: need(t.from_nm, &name, "from_nm")?,
+                to_nm: need(t.to_nm, &name, "to_nm")?,
+                start_s: need(t.start_s, &name, "start_s")?,
+                duration_s: need(t.duration_s, &name, "duration_s")?,
+            },
+            LoadKind::Trend => LoadSpec::Trend {
+                start_nm: need(t.start_nm, &name, "start_nm")?,
+                rate_nm_per_s: need(t.rate_nm_per_s, &name, "rate_nm_per_s")?,
+                max_nm: need(t.max_nm, &name, "max_nm")?,
+            },
+            LoadKind::Sine => LoadSpec::Sine {
+                mean_nm: need(t.mean_nm, &name, "mean_nm")?,
+                amplitude_nm: need(t.amplitude_nm, &name, "amplitude_nm")?,
+                period_s: need(t.period_s, &name, "period_s")?,
+            },
+            LoadKind::Speed => LoadSpec::Speed {
+                constant_nm: need(t.constant_nm, &name, "constant_nm")?,
+                linear_nm_s_rad: need(t.linear_nm_s_rad, &name, "linear_nm_s_rad")?,
+                quadratic_nm_s2_rad2: need(t.quadratic_nm_s2_rad2, &name, "quadratic_nm_s2_rad2")?,
+            },
+            LoadKind::Centrifugal => LoadSpec::Centrifugal {
+                torque_nm: need(t.torque_nm, &name, "torque_nm")?,
+                at_rad_s: need(t.at_rad_s, &name, "at_rad_s")?,
+            },
+            LoadKind::ShaftAngle => LoadSpec::ShaftAngle {
+                mean_nm: need(t.mean_nm, &name, "mean_nm")?,
+                amplitude_nm: need(t.amplitude_nm, &name, "amplitude_nm")?,
+                cycles_per_rev: need(t.cycles_per_rev, &name, "cycles_per_rev")?,
+            },
+            LoadKind::Random => LoadSpec::Random {
+                mean_nm: need(t.mean_nm, &name, "mean_nm")?,
+                sd_nm: need(t.sd_nm, &name, "sd_nm")?,
+                correlation_s: need(t.correlation_s, &name, "correlation_s")?,
+                seed: need(t.seed, &name, "seed")?,
+            },
+            LoadKind::Impacts => LoadSpec::Impacts {
+                base_nm: need(t.base_nm, &name, "base_nm")?,
+                peak_nm: need(t.peak_nm, &name, "peak_nm")?,
+                width_s: need(t.width_s, &name, "width_s")?,
+                mean_interval_s: need(t.mean_interval_s, &name, "mean_interval_s")?,
+                seed: need(t.seed, &name, "seed")?,
+            },
+            LoadKind::Sines => LoadSpec::Sines {
+                mean_nm: need(t.mean_nm, &name, "mean_nm")?,
+                amplitudes_nm: need(t.amplitudes_nm, &name, "amplitudes_nm")?,
+                periods_s: need(t.periods_s, &name, "periods_s")?,
+            },
+            LoadKind::Recorded => LoadSpec::Recorded,
+            LoadKind::Unknown => LoadSpec::Unknown,
+        };
+        // a key of another kind is a mistake (a misspelt kind, a key left from an edit): said, not ignored
+        let takes: Vec<String> = match toml::Value::try_from(&spec) {
+            Ok(toml::Value::Table(t)) => t.keys().filter(|k| *k != "kind").cloned().collect(),
+            _ => Vec::new(),
+        };
+        match given.iter().find(|k| !takes.iter().any(|t| t == *k)) {
+            Some(extra) if takes.is_empty() => Err(format!("kind {name:?} takes no keys, got `{extra}`")),
+            Some(extra) => Err(format!("kind {name:?} takes no key `{extra}` (it takes {})", takes.join(", "))),
+            None => Ok(spec),
+        }
+    }
 }
 
 /// The test stand's brake: load levels (N·m) applied in turn.
@@ -268,6 +404,49 @@ fn impacts(seed: u64, width_s: f64, interval_s: f64, t_s: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `[load]` errors name the key and stand at its line and column (they pointed at the table, and said
+    /// "invalid type: string, expected f64" of no key); keys of another kind are refused, also beside a kind that
+    /// takes none (they were ignored).
+    #[test]
+    fn load_table_errors_name_the_key_where_it_stands() {
+        #[derive(Debug, Deserialize)]
+        struct Model {
+            #[allow(dead_code)]
+            load: LoadSpec,
+        }
+        let error = |body: &str| {
+            let text = format!("[load]\n{body}\n");
+            toml::from_str::<Model>(&text).map(|m| format!("{m:?}")).expect_err(body).to_string()
+        };
+        let e = error("kind = \"sine\"\nmean_nm = 1.0\namplitude_nm = \"a\"\nperiod_s = 2.0");
+        assert!(e.contains("line 4, column 16") && e.contains("expected f64"), "{e}");
+        let e = error("kind = \"recorded\"\nbogus = 1");
+        assert!(e.contains("line 3, column 1") && e.contains("unknown field `bogus`"), "{e}");
+        let e = error("kind = \"recorded\"\ntorque_nm = 1.0");
+        assert!(e.contains("kind \"recorded\" takes no keys, got `torque_nm`"), "{e}");
+        let e = error("kind = \"constant\"\ntorque_nm = 1.0\nperiod_s = 3.0");
+        assert!(e.contains("kind \"constant\" takes no key `period_s` (it takes torque_nm)"), "{e}");
+        let e = error("kind = \"shaft_angle\"\nmean_nm = 1.0\namplitude_nm = 2.0");
+        assert!(e.contains("kind \"shaft_angle\" needs the key `cycles_per_rev`"), "{e}");
+        let e = error("kind = \"fan\"");
+        assert!(e.contains("line 2, column 8") && e.contains("unknown variant `fan`"), "{e}");
+        // every kind written back and read again is itself (the keys each kind takes are its variant's fields)
+        for spec in [
+            LoadSpec::Random { mean_nm: 1.0, sd_nm: 0.5, correlation_s: 2.0, seed: 7 },
+            LoadSpec::Sines { mean_nm: 1.0, amplitudes_nm: vec![1.0, 2.0], periods_s: vec![3.0, 5.0] },
+            LoadSpec::ShaftAngle { mean_nm: 1.0, amplitude_nm: 2.0, cycles_per_rev: 0.5 },
+            LoadSpec::Unknown,
+        ] {
+            let text = format!("[load]\n{}", toml::to_string(&spec).expect("writes"));
+            let back: LoadSpec = toml::from_str::<toml::Table>(&text)
+                .ok()
+                .and_then(|t| t.get("load").cloned())
+                .and_then(|v| v.try_into().ok())
+                .expect("reads");
+            assert_eq!(back, spec);
+        }
+    }
 
     #[test]
     fn profiles() {
