@@ -176,7 +176,34 @@ pub struct Replayer<'e> {
     /// Whether the speed column, the torque column (or `p_in_bar`) and `p_out_bar` held a finite value yet.
     held: [bool; 3],
     rows: u64,
+    /// Rows whose speed (or its position) was missing or not finite, and rows whose torque (or a pressure) was.
+    without: [u64; 2],
     recording: String,
+}
+
+/// What a replay went through.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Replayed {
+    pub rows: u64,
+    /// Rows without a speed: ω̂ there is the model's prediction alone.
+    pub without_speed: u64,
+    /// Rows without a drive torque: the last one is held there.
+    pub without_torque: u64,
+}
+
+impl Replayed {
+    /// The rows it filled in, as `; N without …` clauses (empty when none): what `estimate` says of a recording with
+    /// holes, so that a user knows how much of the output stands on the model alone.
+    pub fn filled(&self) -> String {
+        let mut said = String::new();
+        if self.without_speed > 0 {
+            said += &format!("; {} without a speed (ω̂ there is the model's prediction alone)", self.without_speed);
+        }
+        if self.without_torque > 0 {
+            said += &format!("; {} without a drive torque (the last one held there)", self.without_torque);
+        }
+        said
+    }
 }
 
 impl<'e> Replayer<'e> {
@@ -204,6 +231,7 @@ impl<'e> Replayer<'e> {
             prev_theta_rad: f64::NAN,
             held: [false; 3],
             rows: 0,
+            without: [0; 2],
             recording: recording.to_string(),
         }
     }
@@ -244,14 +272,16 @@ impl<'e> Replayer<'e> {
                 TorqueFrom::Pressures => d * bar_to_pa(torque[k] - p_out[k]),
                 _ => torque[k],
             };
+            self.without[0] += u64::from(!omega_rad_s.is_finite());
+            self.without[1] += u64::from(!drive_torque_nm.is_finite());
             let m = Measurement { dt_s: t - self.prev_t_s, omega_rad_s, drive_torque_nm };
             self.prev_t_s = t;
             out(t, &self.estimator.update(&m));
         }
     }
 
-    /// Whether the replay stands, with [`replay`]'s error if not; the number of rows replayed.
-    pub fn finish(self) -> Result<u64, ReplayError> {
+    /// Whether the replay stands, with [`replay`]'s error if not; the rows replayed, and how many it filled in.
+    pub fn finish(self) -> Result<Replayed, ReplayError> {
         let [speed, torque_or_p_in, p_out] = self.held;
         match self.plan.torque {
             TorqueFrom::TorqueColumn if torque_or_p_in => {}
@@ -263,7 +293,8 @@ impl<'e> Replayer<'e> {
         if self.plan.speed == SpeedFrom::Nothing || !speed {
             return Err(no_speed(&self.recording));
         }
-        Ok(self.rows)
+        let [without_speed, without_torque] = self.without;
+        Ok(Replayed { rows: self.rows, without_speed, without_torque })
     }
 }
 
@@ -309,8 +340,8 @@ mod tests {
             let cols: Vec<Vec<f64>> = columns.iter().map(|c| c[start..end].to_vec()).collect();
             replayer.push(&rec.t_s()[start..end], &cols, |_, e| out.push(*e));
         }
-        let rows = replayer.finish()?;
-        assert_eq!(rows as usize, rec.len());
+        let done = replayer.finish()?;
+        assert_eq!(done.rows as usize, rec.len());
         Ok(out)
     }
 

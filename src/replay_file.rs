@@ -24,7 +24,7 @@ use crate::estimator::{Estimate, Estimator};
 use crate::output::Replacement;
 use crate::plant::PlantModel;
 use crate::recording::{Batch, RecordingError, StreamReader, push_value};
-use crate::replay::{Plan, ReplayError, Replayer};
+use crate::replay::{Plan, ReplayError, Replayed, Replayer};
 
 /// The columns of an estimates file.
 pub const COLUMNS: [&str; 10] = crate::recording::concat(["t_s"], crate::recording::ESTIMATE_COLUMNS);
@@ -69,7 +69,7 @@ pub fn estimate_file(
     model_origin: &str,
     estimator: &dyn Estimator,
     out: &Path,
-) -> Result<u64, EstimateError> {
+) -> Result<Replayed, EstimateError> {
     estimate_file_in_batches(recording, model, model_origin, estimator, out, BATCH_ROWS)
 }
 
@@ -82,7 +82,7 @@ pub fn estimate_file_in_batches(
     estimator: &dyn Estimator,
     out: &Path,
     batch_rows: usize,
-) -> Result<u64, EstimateError> {
+) -> Result<Replayed, EstimateError> {
     let mut estimator = estimator.boxed_clone();
     let (reader, plan) = open_planned(recording)?;
     let name = recording.display().to_string();
@@ -109,8 +109,8 @@ pub fn estimate_file_in_batches(
     if let Some(e) = recording_error {
         return Err(EstimateError::Recording(e));
     }
-    let rows = replayer.finish().map_err(EstimateError::Replay)?;
-    output?.commit().map(|()| rows)
+    let done = replayer.finish().map_err(EstimateError::Replay)?;
+    output?.commit().map(|()| done)
 }
 
 /// The reading and writing thread: reads the recording `batch_rows` rows at a time into `batches` (reusing the
@@ -334,8 +334,8 @@ mod tests {
         let model = PlantModel::reference();
         for method in [Method::RlsSgd, Method::Kalman] {
             let out = dir.path().join("est.csv");
-            let rows = estimate_file(&rec, &model, "model", estimator(method).as_ref(), &out).expect("valid");
-            assert_eq!(rows, 2001);
+            let done = estimate_file(&rec, &model, "model", estimator(method).as_ref(), &out).expect("valid");
+            assert_eq!(done.rows, 2001);
             let expected = std::fs::read(&out).expect("output");
             for batch_rows in [1, 7, 100] {
                 let est = estimator(method);

@@ -103,8 +103,8 @@ pub fn estimate(rec_path: &Path, model_path: &Path, out: &Path, flags: &Estimate
     })?;
     let max_gap_s = settings.resolve(&model).map(|r| r.max_gap_s).unwrap_or(f64::INFINITY);
     check_time_steps(rec_path, max_gap_s, &origin)?;
-    let rows = replay_file::estimate_file(rec_path, &model, &origin, est.as_ref(), out)?;
-    eprintln!("estimate ({}): {rows} rows written to {}", settings.method, out.display());
+    let done = replay_file::estimate_file(rec_path, &model, &origin, est.as_ref(), out)?;
+    eprintln!("estimate ({}): {} rows written to {}{}", settings.method, done.rows, out.display(), done.filled());
     Ok(())
 }
 

@@ -221,6 +221,7 @@ fn estimate_command_writes_one_row_per_input_row_and_ignores_the_truth() {
         w[k] = f64::NAN;
         p[k + 1 - (k + 1) / w.len()] = f64::NAN;
     }
+    let holes = (w.iter().filter(|v| v.is_nan()).count(), p.iter().filter(|v| v.is_nan()).count());
     damaged.set_column("omega_rad_s", w);
     damaged.set_column("p_in_bar", p);
     // The same recording with the load and the truth scrambled: the estimator must not notice.
@@ -237,7 +238,15 @@ fn estimate_command_writes_one_row_per_input_row_and_ignores_the_truth() {
         for name in ["a.csv", "b.csv"] {
             let out = path(&format!("{method}-{name}"));
             let o = run_bin(&["estimate", &path(name), "--model", &model, "--out", &out, "--method", method]);
-            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            let said = String::from_utf8_lossy(&o.stderr);
+            assert!(o.status.success(), "{said}");
+            // the rows it filled in are said, not passed over (the summary said only the rows written)
+            let filled = format!(
+                "; {} without a speed (ω̂ there is the model's prediction alone); {} without a drive \
+                                  torque (the last one held there)",
+                holes.0, holes.1
+            );
+            assert!(holes.0 > 20 && said.contains(&filled), "{said}");
             outs.push(std::fs::read_to_string(&out).expect("output"));
         }
         assert_eq!(outs[0], outs[1], "{method}: the output depends on load_nm or true_* columns");
