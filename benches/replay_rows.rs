@@ -62,7 +62,7 @@ fn main() {
         }
         let elapsed = start.elapsed().as_secs_f64();
         black_box(sum);
-        assert_eq!(replayer.finish().expect("the recording replays") as usize, rows);
+        assert_eq!(replayer.finish().expect("the recording replays").rows as usize, rows);
         times.push(elapsed);
     }
     times.sort_by(f64::total_cmp);
