@@ -129,15 +129,7 @@ async fn a_restarted_server_is_reconnected_within_a_second() {
         wait_for(Duration::from_secs(15), || async { stack.readyz().await == 503 }).await.expect("down");
         assert_eq!(stack.status().await["link"]["connected"], false);
         // a reset asked for while the drive is not seen is refused: kept, it went out unseen when the link returned
-        let reset = || async {
-            reqwest::Client::new()
-                .post(format!("{}/api/drives/pump1/reset", stack.url))
-                .bearer_auth(support::TOKEN)
-                .send()
-                .await
-                .expect("POST reset")
-                .status()
-        };
+        let reset = || support::post_reset(&stack.url);
         assert_eq!(reset().await, 409, "a reset while the link is down");
         // the back-off reaches its cap: it doubles from 50 ms with each failed connect, to 500 ms at the fifth
         let connects = |m: &str| metric(m, "hydrolens_errors_total{drive=\"pump1\",kind=\"connect\"}");

@@ -10,7 +10,7 @@ use hydrolens::modbus::simulator::Faults;
 use tokio_modbus::ExceptionCode;
 
 use crate::proxy::{Fault, FaultProxy};
-use crate::support::{Stack, TOKEN, metric, wait_for};
+use crate::support::{self, Stack, metric, wait_for};
 
 /// One fault of the harness and the `/api/status` link counter it must move.
 #[derive(Debug, Clone, Copy)]
@@ -64,7 +64,6 @@ async fn every_fault_is_survived_and_cleared_by_a_reset() {
     let run = async {
         let (stack, proxy) = Stack::start_behind_proxy(5.0, 10, SPEED).await;
         regulating(&stack, Duration::from_secs(10)).await.expect("regulating before any fault");
-        let client = reqwest::Client::new();
         let sim = Faults::default();
         for fault in [
             Injected::Link(Fault::Drop),
@@ -113,13 +112,8 @@ async fn every_fault_is_survived_and_cleared_by_a_reset() {
             // tripped: the service never re-arms it by itself
             stack.wait_polls(30, "ready, not reset").await;
             assert!(stack.sim.lock().truth().tripped, "{fault:?}: re-armed without a reset");
-            let r = client
-                .post(format!("{}/api/drives/pump1/reset", stack.url))
-                .bearer_auth(TOKEN)
-                .send()
-                .await
-                .expect("POST reset");
-            assert!(r.status().is_success(), "{fault:?}: reset {}", r.status());
+            let r = support::post_reset(&stack.url).await;
+            assert_eq!(r, 202, "{fault:?}: reset {r}");
             // the simulated ramp back to the target takes 5–7.5 s; the deadline only bounds the wait
             let again = regulating(&stack, Duration::from_secs(15)).await;
             assert!(again.is_some(), "{fault:?}: regulating again after the reset");

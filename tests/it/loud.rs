@@ -8,7 +8,7 @@ use hydrolens::modbus::Table;
 use hydrolens::modbus::map::control;
 
 use crate::proxy::{Fault, FaultProxy};
-use crate::support::{ServeProcess, TOKEN, metric, start_sim, test_plant, wait_for};
+use crate::support::{ServeProcess, TOKEN, metric, post_reset, start_sim, test_plant, wait_for};
 
 fn config(modbus: std::net::SocketAddr, dir: &std::path::Path, poll_ms: u64) -> String {
     format!(
@@ -95,13 +95,7 @@ async fn a_drive_that_refuses_every_write_is_not_ready_counted_and_logged_at_war
         proxy.set(Fault::Pass);
         let listed = || async { s.readyz().await.1["writes_refused"] == serde_json::json!(["pump1"]) };
         wait_for(Duration::from_secs(15), || async { !listed().await }).await.expect("writes go through again");
-        let reset = reqwest::Client::new()
-            .post(format!("{}/api/drives/pump1/reset", s.url))
-            .bearer_auth(TOKEN)
-            .send()
-            .await
-            .expect("POST reset");
-        assert_eq!(reset.status(), 202);
+        assert_eq!(post_reset(&s.url).await, 202);
         let ready = wait_for(Duration::from_secs(15), || async { s.readyz().await.0 == 200 }).await;
         assert!(ready.is_some(), "ready again: {}", s.readyz().await.1);
         sim_stop.cancel();
@@ -158,13 +152,7 @@ async fn a_tripped_drive_is_sent_no_run_until_it_is_reset_and_ready() {
         let m = s.metrics().await;
         assert_eq!(metric(&m, "hydrolens_trips_total{drive=\"pump1\"}"), Some(1.0), "{m}");
         assert!(s.log().lines().any(|l| l.contains("WARN") && l.contains("the drive tripped")), "{}", s.log());
-        let reset = reqwest::Client::new()
-            .post(format!("{}/api/drives/pump1/reset", s.url))
-            .bearer_auth(TOKEN)
-            .send()
-            .await
-            .expect("POST reset");
-        assert_eq!(reset.status(), 202);
+        assert_eq!(post_reset(&s.url).await, 202);
         wait_for(Duration::from_secs(15), || async { (sim.lock().truth().omega_rad_s - 30.0).abs() < 3.0 })
             .await
             .expect("re-armed: runs again");
@@ -322,13 +310,7 @@ async fn a_second_master_on_the_same_drive_is_found_and_the_finder_stands_back()
         }
         // B leaves; A, reset, is the drive's only master again: it writes, regulates and is ready
         b.stop();
-        let reset = reqwest::Client::new()
-            .post(format!("{}/api/drives/pump1/reset", a.url))
-            .bearer_auth(TOKEN)
-            .send()
-            .await
-            .expect("POST reset");
-        assert_eq!(reset.status(), 202);
+        assert_eq!(post_reset(&a.url).await, 202);
         let ready = wait_for(Duration::from_secs(20), || async { a.readyz().await.0 == 200 }).await;
         assert!(ready.is_some(), "A ready again: {}\n{}", a.readyz().await.1, a.log());
         wait_for(Duration::from_secs(15), || async { (sim.lock().truth().omega_rad_s - 30.0).abs() < 2.0 })

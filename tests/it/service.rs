@@ -205,13 +205,7 @@ async fn monitor_mode_writes_nothing_and_refuses_write_routes() {
         wait_for(Duration::from_secs(15), || async { stack.state.ready() }).await.expect("fresh data");
         stack.wait_polls(30, "monitoring").await;
         assert_eq!(post_target(&stack, 30.0, Some(TOKEN)).await, reqwest::StatusCode::CONFLICT);
-        let reset = reqwest::Client::new()
-            .post(format!("{}/api/drives/pump1/reset", stack.url))
-            .bearer_auth(TOKEN)
-            .send()
-            .await
-            .expect("POST reset");
-        assert_eq!(reset.status(), reqwest::StatusCode::CONFLICT);
+        assert_eq!(support::post_reset(&stack.url).await, 409);
         stack.wait_polls(5, "a write, had the refused routes asked for one, would land").await;
         assert_eq!(stack.sim.lock().writes, 0, "monitor mode never writes");
         let s = stack.status().await;

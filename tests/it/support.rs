@@ -209,6 +209,18 @@ pub async fn wait_polls(drive: &hydrolens::service::DriveState, n: u64, what: &s
 }
 
 /// `GET url`, its body as JSON.
+/// `POST {url}/api/drives/pump1/reset` with the test token: the status code.
+pub async fn post_reset(url: &str) -> u16 {
+    reqwest::Client::new()
+        .post(format!("{url}/api/drives/pump1/reset"))
+        .bearer_auth(TOKEN)
+        .send()
+        .await
+        .expect("POST reset")
+        .status()
+        .as_u16()
+}
+
 pub async fn get_json(url: impl AsRef<str>) -> serde_json::Value {
     let url = url.as_ref();
     let r = reqwest::get(url).await.unwrap_or_else(|e| panic!("GET {url}: {e}"));
