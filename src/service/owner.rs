@@ -5,8 +5,9 @@
 //! The watchdog register tells them apart: every write of this service carries its own watchdog value, which no
 //! other master has reason to write, so read back between two writes it is the last value this service wrote
 //! unless another master wrote since. [`Echo`] reads it back every [`CHECK_EVERY`] and finds another master once
-//! [`MISMATCHES`] of the last [`WINDOW`] read-backs were not ours (one mismatch is a drive that lost power and came
-//! back with its registers cleared; the next write puts ours back). A device that never echoes our value (a
+//! [`MISMATCHES`] of the last [`WINDOW`] read-backs held a value neither ours nor 0 (a register cleared is a drive
+//! that lost power and came back, or a PLC that clears the watchdog it has read; one stray value is a write of ours
+//! the drive took in a way we did not see: the next write puts ours back). A device that never echoes our value (a
 //! write-only register, a gateway answering reads from elsewhere) or refuses the read cannot show another master:
 //! the check stands down and says so once.
 
@@ -78,9 +79,9 @@ impl Echo {
     /// The register read back as `read`; `ours` is what this service last wrote there (and the drive confirmed).
     pub fn observe(&mut self, now: Instant, read: &[u16], ours: &[u16]) -> Option<Finding> {
         self.last_check = Some(now);
-        let foreign = read != ours;
+        let foreign = read != ours && read.iter().any(|&w| w != 0);
         match self.state {
-            State::Learning { .. } if !foreign => self.state = State::Armed { recent: 0 },
+            State::Learning { .. } if read == ours => self.state = State::Armed { recent: 0 },
             State::Learning { checks } if checks + 1 >= LEARN_CHECKS => {
                 self.state = State::Unavailable;
                 return Some(Finding::Unavailable("the drive never read back the watchdog value this service wrote"));
@@ -132,8 +133,10 @@ mod tests {
         assert!(e.due(at(0)));
         assert_eq!(e.observe(at(0), &[5], &[5]), None, "ours: armed");
         assert!(!e.due(at(100)) && e.due(at(200)), "every 200 ms");
-        // a power cycle: the register reads 0 once, then ours again
-        assert_eq!(e.observe(at(200), &[0], &[6]), None);
+        // a power cycle, or a PLC that clears the watchdog it has read: 0 is no other master's
+        for i in 0..5 {
+            assert_eq!(e.observe(at(200), &[0], &[6]), None, "cleared {i}");
+        }
         for i in 0..10 {
             assert_eq!(e.observe(at(400 + 200 * i), &[7 + i as u16], &[7 + i as u16]), None);
         }
