@@ -101,7 +101,7 @@ fn bench_estimate_file(c: &mut Criterion) {
                     let _ = std::fs::remove_file(&out);
                     estimator::try_build(&settings, &model).expect("settings")
                 },
-                |est| hydrolens::replay_file::estimate_file(&path, &model, "model", est.as_ref(), &out),
+                |est| hydrolens::replay_file::estimate_file(&path, &model, "model", est.as_ref(), &out, None),
                 criterion::BatchSize::PerIteration,
             )
         });

@@ -178,7 +178,58 @@ pub struct Replayer<'e> {
     rows: u64,
     /// Rows whose speed (or its position) was missing or not finite, and rows whose torque (or a pressure) was.
     without: [u64; 2],
+    /// The check of the recording's time step, while it waits for its rows.
+    time_step: Option<TimeStepCheck>,
+    /// Why the replay cannot stand, found on the way (its time step).
+    refused: Option<String>,
     recording: String,
+}
+
+/// Rows whose time steps decide whether the recording's clock fits the estimator.
+const TIME_STEP_ROWS: usize = 2000;
+
+/// The check of a recording's time step against the estimator's bounds, made as the rows pass (once: a pipe or a
+/// FIFO cannot be read twice): the median of the first [`TIME_STEP_ROWS`] steps.
+struct TimeStepCheck {
+    max_gap_s: f64,
+    model_origin: String,
+    last_t_s: f64,
+    steps: Vec<f64>,
+}
+
+impl TimeStepCheck {
+    fn take(&mut self, t_s: &[f64]) {
+        for &t in t_s {
+            if self.steps.len() >= TIME_STEP_ROWS {
+                break;
+            }
+            if self.last_t_s.is_finite() {
+                self.steps.push(t - self.last_t_s);
+            }
+            self.last_t_s = t;
+        }
+    }
+
+    /// Why the estimator cannot run on this clock, if it cannot (too few steps: no verdict).
+    fn verdict(mut self, recording: &str) -> Option<String> {
+        if self.steps.len() < 2 {
+            return None;
+        }
+        let mid = self.steps.len() / 2;
+        let median = *self.steps.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let why = if median > self.max_gap_s {
+            format!(
+                "longer than estimator.max_gap_s = {} s (model file {}): every row would be a gap the estimator \
+                 restarts at, and nothing would be estimated; check the unit of t_s, or raise max_gap_s",
+                self.max_gap_s, self.model_origin
+            )
+        } else if median < 1e-5 {
+            "shorter than 10 µs, faster than any drive is polled: check the unit of t_s".to_string()
+        } else {
+            return None;
+        };
+        Some(format!("recording {recording}: its time step is {median:.3e} s (the median of its first rows), {why}"))
+    }
 }
 
 /// What a replay went through.
@@ -232,14 +283,29 @@ impl<'e> Replayer<'e> {
             held: [false; 3],
             rows: 0,
             without: [0; 2],
+            time_step: None,
+            refused: None,
             recording: recording.to_string(),
         }
+    }
+
+    /// Checks the recording's time step (the median of its first rows) against the estimator's bounds: longer than
+    /// `max_gap_s` (every row a gap) or shorter than 10 µs (a clock in the wrong unit) fails the replay, naming it.
+    pub fn check_time_step(&mut self, max_gap_s: f64, model_origin: &str) {
+        let model_origin = model_origin.to_string();
+        self.time_step = Some(TimeStepCheck { max_gap_s, model_origin, last_t_s: f64::NAN, steps: Vec::new() });
     }
 
     /// Replays rows: `columns` are [`Plan::columns`]' values for the times `t_s`. Calls `out(t_s, estimate)` for each
     /// row, unless the replay is already sure to fail.
     pub fn push(&mut self, t_s: &[f64], columns: &[Vec<f64>], mut out: impl FnMut(f64, &Estimate)) {
         let n = t_s.len();
+        if let Some(check) = self.time_step.as_mut() {
+            check.take(t_s);
+            if check.steps.len() >= TIME_STEP_ROWS {
+                self.judge_time_step();
+            }
+        }
         let has_speed = self.plan.speed != SpeedFrom::Nothing;
         let torque_at = usize::from(has_speed);
         let empty: &[f64] = &[];
@@ -280,8 +346,20 @@ impl<'e> Replayer<'e> {
         }
     }
 
+    /// The time step's verdict, once: a refusal stops the estimating (the rows are only looked at).
+    fn judge_time_step(&mut self) {
+        if let Some(why) = self.time_step.take().and_then(|c| c.verdict(&self.recording)) {
+            self.refused = Some(why);
+            self.runs = false;
+        }
+    }
+
     /// Whether the replay stands, with [`replay`]'s error if not; the rows replayed, and how many it filled in.
-    pub fn finish(self) -> Result<Replayed, ReplayError> {
+    pub fn finish(mut self) -> Result<Replayed, ReplayError> {
+        self.judge_time_step();
+        if let Some(why) = self.refused {
+            return Err(BadInput(why));
+        }
         let [speed, torque_or_p_in, p_out] = self.held;
         match self.plan.torque {
             TorqueFrom::TorqueColumn if torque_or_p_in => {}

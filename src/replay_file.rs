@@ -62,15 +62,19 @@ impl EstimateError {
 
 /// Replays the recording at `recording` through a copy of `estimator` (its state is where the replay starts)
 /// into an estimates CSV at `out` ([`COLUMNS`], one row per recorded row); `model_origin` names the model in
-/// messages. Returns the number of rows.
+/// messages. With `max_gap_s`, a recording whose time step (the median of its first 2000) is longer (every row a gap
+/// the estimator restarts at: a clock in ms read as s, a 1 Hz recording) or shorter than 10 µs (a clock in the wrong
+/// unit) is refused, checked as the rows pass: the recording is read once, so that a pipe or a FIFO works. Returns
+/// the rows and how many were filled in.
 pub fn estimate_file(
     recording: &Path,
     model: &PlantModel,
     model_origin: &str,
     estimator: &dyn Estimator,
     out: &Path,
+    max_gap_s: Option<f64>,
 ) -> Result<Replayed, EstimateError> {
-    estimate_file_in_batches(recording, model, model_origin, estimator, out, BATCH_ROWS)
+    estimate_file_in_batches(recording, model, model_origin, estimator, out, max_gap_s, BATCH_ROWS)
 }
 
 /// [`estimate_file`], handing `batch_rows` rows at a time from one thread to the other (tests make it small).
@@ -81,12 +85,16 @@ pub fn estimate_file_in_batches(
     model_origin: &str,
     estimator: &dyn Estimator,
     out: &Path,
+    max_gap_s: Option<f64>,
     batch_rows: usize,
 ) -> Result<Replayed, EstimateError> {
     let mut estimator = estimator.boxed_clone();
     let (reader, plan) = open_planned(recording)?;
     let name = recording.display().to_string();
     let mut replayer = Replayer::new(plan, model, model_origin, &name, estimator.as_mut());
+    if let Some(max_gap_s) = max_gap_s {
+        replayer.check_time_step(max_gap_s, model_origin);
+    }
     // an output error waits until the recording and the replay are known to be good
     let output = Output::create(out);
 
@@ -334,12 +342,12 @@ mod tests {
         let model = PlantModel::reference();
         for method in [Method::RlsSgd, Method::Kalman] {
             let out = dir.path().join("est.csv");
-            let done = estimate_file(&rec, &model, "model", estimator(method).as_ref(), &out).expect("valid");
+            let done = estimate_file(&rec, &model, "model", estimator(method).as_ref(), &out, None).expect("valid");
             assert_eq!(done.rows, 2001);
             let expected = std::fs::read(&out).expect("output");
             for batch_rows in [1, 7, 100] {
                 let est = estimator(method);
-                estimate_file_in_batches(&rec, &model, "model", est.as_ref(), &out, batch_rows).expect("valid");
+                estimate_file_in_batches(&rec, &model, "model", est.as_ref(), &out, None, batch_rows).expect("valid");
                 let got = std::fs::read(&out).expect("output");
                 assert!(got == expected, "{method}, batches of {batch_rows}: the output differs");
             }
@@ -385,7 +393,7 @@ mod tests {
             std::fs::write(&out, "before").expect("write");
             for batch_rows in [1, 30, 4096] {
                 let est = estimator(Method::Kalman);
-                let err = estimate_file_in_batches(&rec, &model, "model", est.as_ref(), &out, batch_rows)
+                let err = estimate_file_in_batches(&rec, &model, "model", est.as_ref(), &out, None, batch_rows)
                     .expect_err("bad input")
                     .to_string();
                 for p in parts {

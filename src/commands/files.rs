@@ -102,42 +102,9 @@ pub fn estimate(rec_path: &Path, model_path: &Path, out: &Path, flags: &Estimate
         BadInput(format!("{key} (command line or model file {origin}) {msg}"))
     })?;
     let max_gap_s = settings.resolve(&model).map(|r| r.max_gap_s).unwrap_or(f64::INFINITY);
-    check_time_steps(rec_path, max_gap_s, &origin)?;
-    let done = replay_file::estimate_file(rec_path, &model, &origin, est.as_ref(), out)?;
+    let done = replay_file::estimate_file(rec_path, &model, &origin, est.as_ref(), out, Some(max_gap_s))?;
     eprintln!("estimate ({}): {} rows written to {}{}", settings.method, done.rows, out.display(), done.filled());
     Ok(())
-}
-
-/// The recording's typical time step (the median of its first 2000) against what the estimator can use: longer than
-/// `estimator.max_gap_s`, every row is a gap the estimator restarts at, and it estimates nothing (a clock in ms read
-/// as s, or a 1 Hz recording); shorter than 10 µs, no drive is polled so fast (a clock in the wrong unit), and the
-/// load's estimate swings to its clamp. Either is refused before anything is written; a recording the reader
-/// refuses is left to the replay's own error.
-fn check_time_steps(rec_path: &Path, max_gap_s: f64, model_origin: &str) -> anyhow::Result<()> {
-    let Ok(mut reader) = recording::StreamReader::open(rec_path) else { return Ok(()) };
-    reader.select(&[]);
-    let mut batch = recording::Batch::default();
-    if reader.read_batch(&mut batch, 2001).is_err() || batch.t_s.len() < 3 {
-        return Ok(());
-    }
-    let mut steps: Vec<f64> = batch.t_s.windows(2).map(|w| w[1] - w[0]).collect();
-    let mid = steps.len() / 2;
-    let median = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
-    let why = if median > max_gap_s {
-        format!(
-            "longer than estimator.max_gap_s = {max_gap_s} s (model file {model_origin}): every row would be a gap \
-             the estimator restarts at, and nothing would be estimated; check the unit of t_s, or raise max_gap_s"
-        )
-    } else if median < 1e-5 {
-        "shorter than 10 µs, faster than any drive is polled: check the unit of t_s".to_string()
-    } else {
-        return Ok(());
-    };
-    Err(BadInput(format!(
-        "recording {}: its time step is {median:.3e} s (the median of its first rows), {why}",
-        rec_path.display()
-    ))
-    .into())
 }
 
 /// The recording files `analyze` reads: one file, several files of one drive joined in time order, or a directory's

@@ -61,7 +61,7 @@ fn assert_same_as_whole_file(dir: &Path, name: &str, text: &[u8]) {
         // and in small batches, so that the two threads hand rows over many times
         let (model, origin, est) = model_and_estimator(method);
         let small = dir.join(format!("small-{flag}-{name}"));
-        hydrolens::replay_file::estimate_file_in_batches(&rec, &model, &origin, est.as_ref(), &small, 7)
+        hydrolens::replay_file::estimate_file_in_batches(&rec, &model, &origin, est.as_ref(), &small, None, 7)
             .expect("valid");
         assert!(std::fs::read(&small).expect("output") == expected, "{name} {flag}: differs in batches of 7 rows");
     }
@@ -314,4 +314,43 @@ fn outputs_written_in_place_get_every_row_once() {
     assert!(run_estimate(&rec, &link, "rls-sgd").status.success());
     assert!(std::fs::symlink_metadata(&link).expect("link").file_type().is_symlink());
     assert!(std::fs::read(&real).expect("real") == expected);
+}
+
+/// `estimate` reads its recording once: from a pipe (standard input here; a FIFO and `<(…)` alike) it writes the same
+/// estimates as from the file, and a pipe whose clock is in the wrong unit is refused naming the time step. It read
+/// the recording twice (a look at its time step first): a small pipe hung on the second open, a larger one was
+/// refused with a "header" from its middle.
+#[test]
+fn a_recording_from_a_pipe_is_read_once() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec = late_fallback_recording(dir.path());
+    let expected = whole_file_estimate(&rec, Method::RlsSgd);
+    let piped = |rec: &Path, out: &Path| {
+        let mut cat = Command::new("cat").arg(rec).stdout(std::process::Stdio::piped()).spawn().expect("cat");
+        let o = Command::new(support::bin())
+            .args(["estimate", "/dev/stdin", "--model"])
+            .arg(model_path())
+            .arg("--out")
+            .arg(out)
+            .stdin(cat.stdout.take().expect("cat's stdout"))
+            .output()
+            .expect("run hydrolens");
+        let _ = cat.wait();
+        o
+    };
+    let out = dir.path().join("est.csv");
+    let o = piped(&rec, &out);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(std::fs::read(&out).expect("output") == expected, "a pipe gives other estimates than the file");
+    // a clock of 10 s steps (a clock in the wrong unit): refused from a pipe too, before anything is written
+    let text = std::fs::read_to_string(&rec).expect("read");
+    let slow = map_cells(&text, "\n", |r, c, v| if r > 0 && c == 0 { format!("{}", r * 10) } else { v.into() });
+    let slow_path = dir.path().join("slow.csv");
+    std::fs::write(&slow_path, slow).expect("write");
+    let out = dir.path().join("slow-est.csv");
+    let o = piped(&slow_path, &out);
+    let said = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{said}");
+    assert!(said.contains("its time step is 1.000e1 s") && said.contains("max_gap_s"), "{said}");
+    assert!(!out.exists(), "nothing written");
 }
