@@ -411,6 +411,24 @@ impl Series {
         // a recording far slower than the model's fastest mode (a 1 s clock on a hydraulic drive, or ms read as s);
         // the nominal plant's, without the effects (dry friction's smoothed sign is not a mode of the plant)
         let rate = crate::plant::dynamics::model_rate(&PlantModel { effects: Default::default(), ..model.clone() });
+        // beyond 100× nothing of the dynamics the fit looks for can show, and the free runs between samples made a
+        // 5000-row recording at 10 s steps run for hours; below 10 µs no drive is polled: a clock in the wrong unit
+        // either way, refused as `estimate` refuses it
+        if rate / sample_hz > MAX_SAMPLE_OVER_MODE || sample_hz > 1e5 {
+            let why = if sample_hz > 1e5 {
+                "shorter than 10 µs, faster than any drive is polled".to_string()
+            } else {
+                format!(
+                    "more than {MAX_SAMPLE_OVER_MODE}× the model's fastest dynamics ({} s): nothing of the inertia, \
+                     the dead time or the line shows in it",
+                    short(1.0 / rate)
+                )
+            };
+            return Err(BadInput(format!(
+                "recording {src}: it samples every {} s (its typical time step), {why}; check the unit of t_s",
+                short(1.0 / sample_hz)
+            )));
+        }
         if rate / sample_hz > 10.0 {
             tracing::warn!(recording = %src, sample_s = 1.0 / sample_hz, fastest_mode_s = 1.0 / rate,
                 "the recording samples far slower than the model's fastest dynamics: inertia, dead time and the \
@@ -532,6 +550,10 @@ fn synthetic_speed_noise(omega: &[f64], omega_f: &[f64], cutoff_hz: f64, sample_
 
 /// The most RK4 steps one free run may take: 10⁸ steps of [`FREE_RUN_STEP_S`] is about 28 hours of recording.
 pub const MAX_FREE_RUN_STEPS: f64 = 1e8;
+
+/// A recording sampled more slowly than this many times the model's fastest mode is refused (a clock in the wrong
+/// unit): the reference plant's fastest mode is 25 ms, so 1 s samples (40×) are taken, with a warning above 10×.
+pub const MAX_SAMPLE_OVER_MODE: f64 = 100.0;
 
 /// Per row, the time recorded up to it with the gaps before `restarts` left out (each counts as nothing).
 fn active_time(t_s: &[f64], restarts: &[usize]) -> Vec<f64> {

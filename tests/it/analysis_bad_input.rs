@@ -126,6 +126,26 @@ fn an_endless_line_is_refused_by_number_and_cap_not_echoed() {
     }
 }
 
+/// A clock in the wrong unit: 10 s steps (ms written as s ×10⁴; 4000 rows over 11 hours) and 1 µs steps. The slow
+/// one ran for hours (the free runs between samples; 1000 rows took 206 s, 5000 did not end) with only a warning;
+/// the fine one failed as "the speed hardly changes". Both are refused at once, naming the time step, as `estimate`
+/// refuses them.
+#[test]
+fn a_clock_in_the_wrong_unit_is_refused_at_once_naming_the_time_step() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec = simulated(dir.path(), "r.csv");
+    for (name, step, said) in [
+        ("slow.csv", 10.0, "samples every 10 s (its typical time step), more than 100× the model's fastest dynamics"),
+        ("fine.csv", 1e-6, "shorter than 10 µs, faster than any drive is polled; check the unit of t_s"),
+    ] {
+        let path = dir.path().join(name);
+        edited(&rec, &path, |k, cells| cells[0] = format!("{:.9}", k as f64 * step));
+        let (out, json) = analyze(dir.path(), &[path.as_os_str()]);
+        assert_eq!(out.status.code(), Some(2), "{name}: {}", stderr(&out));
+        assert!(stderr(&out).contains(said) && json.is_none(), "{name}: {}", stderr(&out));
+    }
+}
+
 #[test]
 fn an_absurd_cell_is_missing_counted_and_named() {
     let tmp = tempfile::tempdir().expect("tmp");
