@@ -496,7 +496,9 @@ fn io_error(origin: &str, error: std::io::Error) -> RecordingError {
     RecordingError::Io { path: origin.to_string(), error }
 }
 
-/// The header's names (trimmed), checked: not empty, `t_s` present, no name twice; unknown names are logged once.
+/// The header's names (trimmed), checked: not empty, `t_s` present, no column of the contract twice (which of the two
+/// would be meant?); unknown names are ignored, also twice (a spreadsheet's empty trailing columns, two `note`
+/// columns), and logged once.
 /// `line` is the header's. Returns the names and where `t_s` is.
 fn header_names(names: Vec<String>, line: u64, origin: &str) -> Result<(Vec<String>, usize), RecordingError> {
     if names.is_empty() || (names.len() == 1 && names[0].is_empty()) {
@@ -513,7 +515,7 @@ fn header_names(names: Vec<String>, line: u64, origin: &str) -> Result<(Vec<Stri
         });
     };
     for (i, n) in names.iter().enumerate() {
-        if names[..i].contains(n) {
+        if is_known(n) && names[..i].contains(n) {
             return Err(RecordingError::Line {
                 path: origin.into(),
                 line,

@@ -172,6 +172,13 @@ fn bad_input_names_line_and_column() {
     assert!(e.contains("line 1") && e.contains("no `t_s`"), "{e}");
     assert!(err("\nomega_rad_s\n1\n").contains("line 2"));
     assert!(err("t_s,t_s\n1,2\n").contains("twice"));
+    let e = err("t_s,omega_rad_s,note,omega_rad_s\n1,2,a,3\n");
+    assert!(e.contains("line 1") && e.contains("column `omega_rad_s` appears twice"), "{e}");
+    // unknown columns twice are ignored as any unknown column: a spreadsheet's empty trailing columns, two notes
+    for text in ["t_s,omega_rad_s,,\n0,1,,\n0.001,2,,\n", "t_s,note,omega_rad_s,note\n0,a,1,b\n0.001,c,2,d\n"] {
+        let r = super::parse(text.as_bytes(), "r.csv").expect(text);
+        assert_eq!(r.column("omega_rad_s").expect("speed"), [1.0, 2.0], "{text}");
+    }
     // quotes: a comma inside is text, a quote that does not close takes the rest of its line
     let e = err("t_s,omega_rad_s\n0,1\n\"0.001\",\"2,5\"\n");
     assert!(e.contains("line 3") && e.contains("`omega_rad_s`") && e.contains("2,5"), "{e}");
