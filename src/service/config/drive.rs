@@ -162,11 +162,12 @@ pub(super) fn validate_estimator(
             ));
         }
     };
-    let model = match e.model {
-        None => PlantModel::reference(),
+    let (model, origin) = match e.model {
+        None => (PlantModel::reference(), "(the built-in reference)".to_string()),
         Some(p) => {
             let path = resolve(&p, base);
-            PlantModel::load(&path).map_err(|e| KeyError::new(key("estimator.model"), e.to_string()))?
+            let model = PlantModel::load(&path).map_err(|e| KeyError::new(key("estimator.model"), e.to_string()))?;
+            (model, path.display().to_string())
         }
     };
     if model.motor.displacement_cm3.is_none() {
@@ -175,7 +176,7 @@ pub(super) fn validate_estimator(
             "the model needs motor.displacement_cm3 (torque from pressures)".into(),
         ));
     }
-    let mut estimator = EstimatorSettings::from_model(&model, "the model file")
+    let mut estimator = EstimatorSettings::from_model(&model, &origin)
         .map_err(|e| KeyError::new(key("estimator.model"), e.to_string()))?;
     estimator.method = method;
     let coefficients =

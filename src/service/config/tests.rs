@@ -259,3 +259,15 @@ fn entries_sharing_a_word_are_refused_naming_both() {
         format!("{MINIMAL}[drives.registers.watchdog]\naddress = 3\n[drives.registers.drive_power_w]\naddress = 10\n");
     parse(&text, "t.toml", None).expect("holding 3 shares a number with input 3, not a word");
 }
+
+/// A model whose `[estimator]` table is wrong is named by its path (the message said "model file the model file").
+#[test]
+fn a_bad_estimator_table_in_a_drives_model_names_the_model_file() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let model = dir.path().join("badest.toml");
+    let reference = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/plant.toml")).expect("plant");
+    std::fs::write(&model, format!("{reference}\n[estimator]\nlambda = 5.0\n")).expect("write");
+    let e = err(&format!("{MINIMAL}[drives.estimator]\nmodel = {:?}\n", model.display().to_string()));
+    assert!(e.contains("drives[0].estimator.model") && e.contains("badest.toml") && e.contains("lambda"), "{e}");
+    assert!(!e.contains("the model file"), "{e}");
+}
