@@ -248,20 +248,25 @@ impl DriveCycle {
             drive_torque_nm: torque,
         });
         self.estimate = Some(est);
-        let setpoint = self.law.step(&Inputs {
-            dt_s: if resumed { self.poll } else { dt }.as_secs_f64(),
-            fresh: true,
-            tripped: self.tripped(),
-            omega_hat_rad_s: est.omega_hat_rad_s,
-            load_hat_nm: est.load_hat_nm,
-            drive_hz: m.f_drive_hz,
-            drive_running: self.status.ready && self.status.running,
-            resumed,
-        });
+        // standing back for another master: the regulator rests (nothing is written, not even a stop: that would
+        // fight the other master as much as a setpoint), and starts again from the drive's read-back after a reset
+        let setpoint = if self.echo.found() {
+            None
+        } else {
+            self.law.step(&Inputs {
+                dt_s: if resumed { self.poll } else { dt }.as_secs_f64(),
+                fresh: true,
+                tripped: self.tripped(),
+                omega_hat_rad_s: est.omega_hat_rad_s,
+                load_hat_nm: est.load_hat_nm,
+                drive_hz: m.f_drive_hz,
+                drive_running: self.status.ready && self.status.running,
+                resumed,
+            })
+        };
         self.note_following();
         let (mut f_set_hz, mut writes, mut encode_error) = (f64::NAN, Vec::new(), None);
-        // standing back for another master: nothing is written (writing a stop would fight it as much as a setpoint)
-        if let Some(hz) = setpoint.filter(|_| !self.echo.found()) {
+        if let Some(hz) = setpoint {
             match self.plan(now, hz) {
                 Ok(w) => (f_set_hz, writes) = (hz, w),
                 Err(e) => encode_error = Some(e),
