@@ -223,8 +223,8 @@ impl TimeStepCheck {
                  restarts at, and nothing would be estimated; check the unit of t_s, or raise max_gap_s",
                 self.max_gap_s, self.model_origin
             )
-        } else if median < 1e-5 {
-            "shorter than 10 µs, faster than any drive is polled: check the unit of t_s".to_string()
+        } else if median < crate::recording::MIN_TIME_STEP_S {
+            format!("{}: check the unit of t_s", crate::recording::TOO_SHORT_A_STEP)
         } else {
             return None;
         };

@@ -414,9 +414,10 @@ impl Series {
         // beyond 100× nothing of the dynamics the fit looks for can show, and the free runs between samples made a
         // 5000-row recording at 10 s steps run for hours; below 10 µs no drive is polled: a clock in the wrong unit
         // either way, refused as `estimate` refuses it
-        if rate / sample_hz > MAX_SAMPLE_OVER_MODE || sample_hz > 1e5 {
-            let why = if sample_hz > 1e5 {
-                "shorter than 10 µs, faster than any drive is polled".to_string()
+        let too_short = 1.0 / sample_hz < crate::recording::MIN_TIME_STEP_S;
+        if rate / sample_hz > MAX_SAMPLE_OVER_MODE || too_short {
+            let why = if too_short {
+                crate::recording::TOO_SHORT_A_STEP.to_string()
             } else {
                 format!(
                     "more than {MAX_SAMPLE_OVER_MODE}× the model's fastest dynamics ({} s): nothing of the inertia, \

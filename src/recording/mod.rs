@@ -67,6 +67,10 @@ pub const MAX_FREQUENCY_HZ: f64 = 400.0;
 pub const MIN_FREQUENCY_HZ: f64 = -0.5;
 /// Torque beyond this (N·m, either way) is no measurement of a drive of this kind.
 pub const MAX_TORQUE_NM: f64 = 1e5;
+/// A recording's typical time step below this (s) is a clock in the wrong unit: `estimate` and `analyze` refuse it,
+/// saying [`TOO_SHORT_A_STEP`].
+pub const MIN_TIME_STEP_S: f64 = 1e-5;
+pub const TOO_SHORT_A_STEP: &str = "shorter than 10 µs, faster than any drive is polled";
 
 /// The range a column's sensor can read; a cell outside it is not a measurement and is read as missing (the same
 /// rule for `estimate` and `analyze`, and the service's defaults for what it accepts from a drive). Columns without
