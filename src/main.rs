@@ -1,7 +1,7 @@
 //! The `hydrolens` command line: parses the arguments and dispatches to the subcommands (`commands`). Exit 0 ok,
 //! 2 bad input, 1 other.
 
-use std::io::IsTerminal;
+use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -164,13 +164,16 @@ fn main() -> ExitCode {
         )
         .with_writer(std::io::stderr)
         .with_ansi(colour)
+        // a log line that cannot be written (stderr's reader went away: a `| head`, a log shipper restarted) is
+        // lost, not reported with eprintln!, whose panic on the closed pipe ended the process without a clean stop
+        .log_internal_errors(false)
         .init();
     stop_on_panic();
     let cli = Cli::parse();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {
-            eprintln!("error: {err:#}");
+            let _ = writeln!(std::io::stderr(), "error: {err:#}");
             if hydrolens::is_bad_input(err.as_ref()) { ExitCode::from(2) } else { ExitCode::from(1) }
         }
     }

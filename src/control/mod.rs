@@ -184,7 +184,9 @@ impl SpeedLaw {
         let last = self.last_hz?;
         let known = x.drive_hz.is_finite();
         let within = known && (x.drive_hz - last).abs() <= FOLLOW_TOLERANCE_HZ && x.drive_running;
-        let held = known.then(|| x.drive_hz.clamp(self.limits.min_hz, self.limits.max_hz));
+        // never above the last setpoint: a read-back above it is another hand on the drive or a wrong scale (a
+        // frequency register read at twice the truth took the setpoint to max_hz in one write), never a setpoint
+        let held = known.then(|| x.drive_hz.min(last).clamp(self.limits.min_hz, self.limits.max_hz));
         if let Some(t) = self.held_s {
             self.followed_s = 0.0;
             self.held_s = (t + dt < HOLD_S).then_some(t + dt);
@@ -249,7 +251,8 @@ impl SpeedLaw {
         }
         let dt = if x.dt_s.is_finite() && x.dt_s > 0.0 { x.dt_s.min(1.0) } else { 0.0 };
         if x.resumed {
-            self.start_from(x.drive_hz);
+            // from what the drive runs at, but never above where this service left it (the same reason as the hold)
+            self.start_from(self.last_hz.map_or(x.drive_hz, |last| x.drive_hz.min(last)));
         }
         if let Some(held) = self.follow_test(x, dt) {
             // not following: the setpoint holds what the drive runs at, and the integral is back-calculated so
@@ -457,6 +460,27 @@ mod tests {
             idle.step(&Inputs { drive_hz: 0.0, drive_running: false, ..fresh(0.0, 0.0) });
         }
         assert!(idle.not_following());
+    }
+
+    /// A frequency register read at twice the truth (a changed display unit, a PLC's scaling): the drive seems not
+    /// to follow, and the setpoint held its read-back, so one write took it from 26 Hz to max_hz (a reviewer's run:
+    /// 745 rpm against a 40 rad/s target). The hold never rises above the last setpoint, nor does a resumed ramp.
+    #[test]
+    fn a_read_back_at_twice_the_truth_never_lifts_the_setpoint() {
+        let ff = reference_ff();
+        let mut s = law(Mode::Speed);
+        s.target_omega_rad_s = 40.0;
+        let (mut last, mut highest) = (0.0_f64, 0.0_f64);
+        for k in 0..3000 {
+            let omega = ff.omega_rad_s(last);
+            let x = Inputs { drive_hz: 2.0 * last, resumed: k == 1500, ..fresh(omega, 0.0) };
+            let hz = s.step(&x).expect("writes");
+            assert!(hz <= last + 20.0 * 0.01 + 1e-9, "cycle {k}: {last} → {hz}");
+            (last, highest) = (hz, highest.max(hz));
+        }
+        // 40 rad/s needs 25.6 Hz: the speed law, not the read-back, sets the setpoint
+        assert!(highest < 30.0, "{highest}");
+        assert!(s.not_following(), "a read-back this far from the setpoint is said");
     }
 
     #[test]

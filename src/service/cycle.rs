@@ -73,7 +73,30 @@ struct Pending {
     setpoint_hz: f64,
     /// The control word carries RUN.
     run: bool,
+    /// The control word carries the fault-reset bit.
+    reset: bool,
 }
+
+/// A gap between fresh samples longer than this (or than `stale_ms`, if shorter; at least two polls) starts the
+/// ramp again from the drive's read-back with one poll's step: with `stale_ms` raised to 5 s, a 3.7 s gap made the
+/// first write a whole second's ramp (26 → 46 Hz at 20 Hz/s).
+pub const RESUME_AFTER: Duration = Duration::from_millis(250);
+
+/// A reset asked for through the API, until the drive shows no fault after its bit went out, or it lapses.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct ResetRequest {
+    /// When the cycle first saw a sample after the request: the reset lapses [`RESET_LAPSES_AFTER`] later.
+    since: Option<Instant>,
+    /// The fault-reset bit reached the drive at least once.
+    sent: bool,
+}
+
+/// A requested reset that has not cleared the drive's fault this long after the request (or three polls, if
+/// longer) lapses: a link that drops meanwhile does not carry it out when it returns (a reviewer's run: the drive
+/// tripped on the lost link, and 5.8 s later the old request cleared that trip and sent RUN), and a trip seen after
+/// it latches again. Until then the bit stays on, so that a gateway that forwards the latest values every few polls
+/// still passes it on.
+pub const RESET_LAPSES_AFTER: Duration = Duration::from_secs(1);
 
 /// What a confirmed write did.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -105,8 +128,10 @@ pub struct DriveCycle {
     last_watchdog_at: Option<Instant>,
     last_written: Vec<(u16, Vec<u16>)>,
     watchdog: u16,
-    /// 0: none; 1: write the fault-reset bit next; 2: written, drop it next.
-    reset_phase: u8,
+    /// A reset asked for and not yet done or lapsed: its bit goes out with every write meanwhile.
+    reset: Option<ResetRequest>,
+    /// A reset lapsed before its bit reached the drive (the loop says so once).
+    reset_lapsed: bool,
     /// A trip this service saw (fault or comm-loss bit, a sample counter that restarted: the drive lost power, or a
     /// drive running under RUN that stopped on its own), held until `POST …/reset`: a drive whose trip clears on its
     /// own side, or that comes back from a power cycle, is not sent RUN again by the service itself (no unexpected
@@ -156,7 +181,8 @@ impl DriveCycle {
             last_watchdog_at: None,
             last_written: Vec::new(),
             watchdog: 0,
-            reset_phase: 0,
+            reset: None,
+            reset_lapsed: false,
             trip_latched: false,
             run_sent: false,
             hz_range: (settings.limits.min_hz, settings.limits.max_hz),
@@ -176,7 +202,7 @@ impl DriveCycle {
     pub fn command(&mut self, c: Commands) {
         self.law.target_omega_rad_s = c.target_omega_rad_s;
         if c.reset_requested && self.mode.writes() {
-            self.reset_phase = 1;
+            self.reset = Some(ResetRequest { since: None, sent: false });
             // what the drive still reports latches again at its next sample
             self.trip_latched = false;
             if self.echo.found() {
@@ -199,8 +225,19 @@ impl DriveCycle {
         // off, an enable or an emergency stop, a power cycle) is latched as a fault is: not started again unasked;
         // while a requested reset goes out, the fault it is meant to clear is not latched again
         let stopped = before.ready && before.running && !(self.status.ready && self.status.running);
-        let tripped = self.status.fault || self.status.comm_loss_trip || (self.run_sent && stopped);
-        self.trip_latched |= writing && self.reset_phase == 0 && tripped;
+        let faulted = self.status.fault || self.status.comm_loss_trip;
+        let tripped = faulted || (self.run_sent && stopped);
+        if let Some(r) = &mut self.reset {
+            let since = *r.since.get_or_insert(sent_at);
+            if r.sent && !faulted {
+                // done: the drive shows no fault after the bit went out
+                self.reset = None;
+            } else if sent_at.saturating_duration_since(since) > RESET_LAPSES_AFTER.max(3 * self.poll) {
+                self.reset_lapsed = !r.sent;
+                self.reset = None;
+            }
+        }
+        self.trip_latched |= writing && self.reset.is_none() && tripped;
         match self.counter.observe(sample.counter) {
             CounterVerdict::Moved => {}
             CounterVerdict::Unchanged | CounterVerdict::Settling => return nothing(Verdict::Stale),
@@ -238,7 +275,7 @@ impl DriveCycle {
         let dt = self.last_fresh_at.map_or(self.poll, |t| now.saturating_duration_since(t));
         // the first fresh cycle, or the first after a gap (longer than the data may age: a PLC that refreshes its
         // registers every few polls is no gap): the setpoint ramps from what the drive runs at, one poll's step
-        let resumed = first || dt > self.stale_after.max(2 * self.poll);
+        let resumed = first || dt > self.stale_after.min(RESUME_AFTER).max(2 * self.poll);
         self.last_fresh_at = Some(now);
         let m = &sample.measured;
         let torque = self.motor_m3_rad * (m.p_in_bar - m.p_out_bar) * crate::units::PA_PER_BAR;
@@ -286,7 +323,8 @@ impl DriveCycle {
         // stop (its setpoint still ramps down); a requested reset goes out alone, and RUN follows once the drive
         // reports ready again
         let mut control_word = if self.status.ready && !self.tripped() { control::RUN } else { 0 };
-        if self.reset_phase == 1 {
+        let reset = self.reset.is_some();
+        if reset {
             control_word |= control::FAULT_RESET;
         }
         let due = self.last_watchdog_at.is_none_or(|t| now.saturating_duration_since(t) >= self.watchdog_every);
@@ -297,7 +335,7 @@ impl DriveCycle {
         }
         let watchdog_at = due.then_some(now);
         let run = control_word & control::RUN != 0;
-        self.pending = Some(Pending { writes: writes.clone(), watchdog, watchdog_at, setpoint_hz: hz, run });
+        self.pending = Some(Pending { writes: writes.clone(), watchdog, watchdog_at, setpoint_hz: hz, run, reset });
         Ok(writes)
     }
 
@@ -318,8 +356,10 @@ impl DriveCycle {
         self.last_written = p.writes;
         self.run_sent = p.run;
         self.commanded = true;
-        let reset_sent = self.reset_phase == 1;
-        self.reset_phase = if reset_sent { 2 } else { 0 };
+        let reset_sent = p.reset && self.reset.is_some_and(|r| !r.sent);
+        if let Some(r) = self.reset.as_mut().filter(|_| p.reset) {
+            r.sent = true;
+        }
         Some(Confirmed { setpoint_hz: p.setpoint_hz, reset_sent })
     }
 
@@ -348,6 +388,11 @@ impl DriveCycle {
     }
 
     /// Another master was found writing the drive: this service stands back until a reset.
+    /// True once after a requested reset lapsed before its bit reached the drive (for the loop's WARN).
+    pub fn take_reset_lapsed(&mut self) -> bool {
+        std::mem::take(&mut self.reset_lapsed)
+    }
+
     pub fn another_master(&self) -> bool {
         self.echo.found()
     }
@@ -612,7 +657,66 @@ mod tests {
         // monitor mode ignores a reset
         let (mut m, _) = cycle("mode = \"monitor\"");
         m.command(Commands { target_omega_rad_s: 1.0, reset_requested: true });
-        assert_eq!(m.reset_phase, 0);
+        assert_eq!(m.reset, None);
+    }
+
+    /// A reset asked for just before the link dropped (a reviewer's run: the drive tripped on the lost link, and
+    /// when the link came back 5.8 s later the old request cleared that trip and RUN followed 5 ms later): it lapses,
+    /// and the trip seen after it stays latched. A reset's bit stays on while the drive still shows its fault, so a
+    /// gateway that forwards the latest values every few polls passes it on.
+    #[test]
+    fn a_reset_lapses_over_a_link_gap_and_its_bit_stays_on_while_the_fault_shows() {
+        let (mut c, t0) = cycle("mode = \"manual\"\nfixed_hz = 20.0\nramp_hz_per_s = 100.0");
+        let running = status::READY | status::RUNNING;
+        run(&mut c, t0, 0, 5, 30.0, running);
+        c.command(Commands { target_omega_rad_s: 0.0, reset_requested: true });
+        // one reply comes (stale: the counter did not move), then nothing for 5.8 s
+        let at = t0 + MS * 50;
+        assert_eq!(c.step(&sample(4, 30.0, 20.0, running), at, at + MS).verdict, Verdict::Stale);
+        let back = run(&mut c, t0, 585, 3, 30.0, status::COMM_LOSS_TRIP | status::READY);
+        assert!(c.take_reset_lapsed(), "said once");
+        assert!(!c.take_reset_lapsed());
+        assert!(back.iter().filter_map(written).all(|w| w.1 == 0), "no fault reset and no RUN: {back:?}");
+        let cleared = run(&mut c, t0, 588, 5, 30.0, status::READY);
+        assert!(c.tripped(), "the trip after the request is latched");
+        assert!(cleared.iter().filter_map(written).all(|w| w.1 == 0), "no RUN from the service itself");
+        // a reset now: its bit goes out with every write until the drive shows no fault, then RUN
+        c.command(Commands { target_omega_rad_s: 0.0, reset_requested: true });
+        let fault = status::FAULT | status::READY;
+        let held = run(&mut c, t0, 593, 4, 30.0, fault);
+        assert!(held.iter().filter_map(written).all(|w| w.1 == control::FAULT_RESET), "{held:?}");
+        let ready = run(&mut c, t0, 597, 2, 30.0, status::READY);
+        assert_eq!(ready.iter().filter_map(written).map(|w| w.1).collect::<Vec<_>>(), vec![control::RUN; 2]);
+        assert!(!c.tripped());
+        // a fault that does not clear: the bit lapses after a second, and the fault is latched again
+        c.command(Commands { target_omega_rad_s: 0.0, reset_requested: true });
+        let stuck = run(&mut c, t0, 600, 150, 30.0, fault);
+        // (the writes that go out: every watchdog change, every 100 ms)
+        let bits: Vec<(usize, bool)> = (stuck.iter().enumerate())
+            .filter_map(|(k, s)| written(s).map(|w| (k, w.1 & control::FAULT_RESET != 0)))
+            .collect();
+        let (early, late): (Vec<&(usize, bool)>, Vec<_>) = bits.iter().partition(|(k, _)| *k < 95);
+        assert!(early.len() >= 9 && early.iter().all(|b| b.1), "on for the first second: {bits:?}");
+        assert!(late.len() >= 4 && late.iter().filter(|(k, _)| *k > 110).all(|b| !b.1), "then off: {bits:?}");
+        assert!(!c.take_reset_lapsed(), "it went out: not lapsed unsent");
+        assert!(c.tripped());
+    }
+
+    /// With `stale_ms` raised to 5 s, a gap of 3.7 s is fresh on both sides; the first write after it is one poll's
+    /// ramp step from the drive's read-back, not a whole second's (a reviewer's run: 26.3 → 46.3 Hz at 20 Hz/s).
+    #[test]
+    fn a_gap_within_a_long_stale_ms_starts_the_ramp_again() {
+        let text = "[[drives]]\nname = \"d\"\naddress = \"127.0.0.1:1\"\npoll_ms = 10\nstale_ms = 5000\n\
+                    comm_timeout_ms = 10000\n[drives.control]\nmode = \"manual\"\nfixed_hz = 50.0\n";
+        let s = super::super::config::parse(text, "test", None).expect("valid config").drives.remove(0);
+        let t0 = Instant::now();
+        let mut c = DriveCycle::new(&s, crate::estimator::build(&s.estimator, &s.model), t0);
+        let before = run(&mut c, t0, 0, 3, 30.0, status::READY | status::RUNNING);
+        let last = before.iter().filter_map(written).last().expect("writes").0;
+        let at = t0 + Duration::from_millis(3730);
+        let after = c.step(&sample(373, 30.0, last, status::READY | status::RUNNING), at, at + MS);
+        let first = written(&after).expect("writes").0;
+        assert!(first - last <= 20.0 * 0.01 + 0.011, "{last} → {first}");
     }
 
     /// A PLC that refreshes its registers every third poll (30 ms at a 10 ms poll): each fresh sample is a ramp step

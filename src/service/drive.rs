@@ -205,6 +205,11 @@ impl DriveLoop {
                     // a good poll: the link may forget its back-off
                     self.client.good_poll();
                     let step = self.cycle.step(&sample, now, Instant::now());
+                    if self.cycle.take_reset_lapsed() {
+                        tracing::warn!(drive = %self.settings.name,
+                            "a requested fault reset lapsed unsent (the drive was not seen fresh within a second of \
+                             the request): POST /api/drives/<name>/reset again once it is");
+                    }
                     self.act(now, step).await
                 }
             },

@@ -211,6 +211,15 @@ fn bad_input_exits_2_naming_what_and_where() {
 
 #[test]
 fn sim_serves_until_sigterm_and_exits_cleanly() {
+    for reader_kept in [true, false] {
+        sigterm_with_stderr(reader_kept);
+    }
+}
+
+/// `sim` on SIGTERM, its stderr read to the end or closed after its address (a `| head` or a log shipper that went
+/// away): it logs "shutting down" and exits 0 either way. Before, the log line into the closed pipe aborted it (the
+/// logger's own error report panicked: exit 134, and a `serve` so killed sends no stop).
+fn sigterm_with_stderr(reader_kept: bool) {
     use std::io::{BufRead, BufReader};
     let mut child = Command::new(bin())
         .args(["sim", "--model"])
@@ -230,8 +239,11 @@ fn sim_serves_until_sigterm_and_exits_cleanly() {
     let addr: std::net::SocketAddr = addr.parse().expect("an address");
     assert!(addr.ip().is_loopback());
     std::net::TcpStream::connect_timeout(&addr, Duration::from_secs(2)).expect("accepts connections");
+    if !reader_kept {
+        drop(lines);
+    }
     let pid = child.id().to_string();
     assert!(Command::new("kill").args(["-TERM", &pid]).status().expect("kill").success());
     let status = crate::support::wait_exit(&mut child, Duration::from_secs(5)).expect("sim stops on SIGTERM");
-    assert!(status.success(), "exit {status:?}");
+    assert!(status.success(), "stderr read: {reader_kept}; exit {status:?}");
 }
