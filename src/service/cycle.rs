@@ -146,6 +146,8 @@ pub struct DriveCycle {
     /// The watchdog value of the last write the drive confirmed; None before one, and after a failed write (the
     /// device may or may not hold it).
     confirmed_watchdog: Option<u16>,
+    /// The confirmed watchdog value before the last one.
+    previous_watchdog: Option<u16>,
     /// Whether another master writes the drive (see [`super::owner`]); once found, nothing is written until a reset.
     echo: Echo,
     /// The speed frozen while the drive's frequency moves, or showing no turn while the drive runs: rejected.
@@ -188,6 +190,7 @@ impl DriveCycle {
             hz_range: (settings.limits.min_hz, settings.limits.max_hz),
             commanded: false,
             confirmed_watchdog: None,
+            previous_watchdog: None,
             echo: Echo::default(),
             frozen: FrozenSpeed::default(),
             pending: None,
@@ -207,9 +210,10 @@ impl DriveCycle {
             self.trip_latched = false;
             if self.echo.found() {
                 // a service that stood back for another master writes again, ramping from what the drive runs at
-                self.echo.reset();
                 self.last_fresh_at = None;
             }
+            // and the check looks afresh (also where a refused read had stood it down)
+            self.echo.reset();
         }
     }
 
@@ -328,7 +332,7 @@ impl DriveCycle {
             control_word |= control::FAULT_RESET;
         }
         let due = self.last_watchdog_at.is_none_or(|t| now.saturating_duration_since(t) >= self.watchdog_every);
-        let watchdog = if due { self.watchdog.wrapping_add(1) } else { self.watchdog };
+        let watchdog = if due { self.next_watchdog() } else { self.watchdog };
         let writes = plan_writes(&self.registers, (hz, self.hz_range), control_word, watchdog)?;
         if !due && writes == self.last_written {
             return Ok(Vec::new());
@@ -351,6 +355,9 @@ impl DriveCycle {
         if p.watchdog_at.is_some() {
             self.last_watchdog_at = p.watchdog_at;
         }
+        if self.confirmed_watchdog != Some(p.watchdog) {
+            self.previous_watchdog = self.confirmed_watchdog;
+        }
         self.watchdog = p.watchdog;
         self.confirmed_watchdog = Some(p.watchdog);
         self.last_written = p.writes;
@@ -361,6 +368,14 @@ impl DriveCycle {
             r.sent = true;
         }
         Some(Confirmed { setpoint_hz: p.setpoint_hz, reset_sent })
+    }
+
+    /// The next watchdog value: counting up, and from 1 again where the register cannot hold the next one (a PLC's
+    /// INT, a scale): an `i16` watchdog failed every write from 32768 on, after 54.6 min at 100 ms, and the drive
+    /// tripped. 0 is skipped: it is what a drive that lost power shows.
+    fn next_watchdog(&self) -> u16 {
+        let next = self.watchdog.wrapping_add(1);
+        if next != 0 && self.registers.watchdog.encode(f64::from(next)).is_ok() { next } else { 1 }
     }
 
     /// The watchdog register to read back now, as (address, words): due every [`super::owner::CHECK_EVERY`] in a
@@ -376,8 +391,12 @@ impl DriveCycle {
     /// anything. Once another master is found, this service writes nothing, and on a clean stop sends nothing.
     pub fn echo_read(&mut self, now: Instant, read: Option<&[u16]>) -> Option<Finding> {
         let Some(read) = read else { return self.echo.refused() };
-        let ours = self.registers.watchdog.encode(f64::from(self.confirmed_watchdog?)).ok()?;
-        let finding = self.echo.observe(now, read, &ours);
+        let encode = |w: u16| self.registers.watchdog.encode(f64::from(w)).ok();
+        let ours = encode(self.confirmed_watchdog?)?;
+        // our value before the last is ours too: a gateway that answers reads from a cache it refreshes every few
+        // polls shows it for a while (a reviewer's 20 ms cache was found "another master" within 5 s)
+        let lagging = self.previous_watchdog.and_then(encode).is_some_and(|p| p == read);
+        let finding = self.echo.observe(now, read, if lagging { read } else { &ours });
         if self.echo.found() {
             // the drive is the other master's now: its stopping is no trip of ours, and a clean stop leaves it be
             self.commanded = false;
@@ -387,12 +406,12 @@ impl DriveCycle {
         finding
     }
 
-    /// Another master was found writing the drive: this service stands back until a reset.
     /// True once after a requested reset lapsed before its bit reached the drive (for the loop's WARN).
     pub fn take_reset_lapsed(&mut self) -> bool {
         std::mem::take(&mut self.reset_lapsed)
     }
 
+    /// Another master was found writing the drive: this service stands back until a reset.
     pub fn another_master(&self) -> bool {
         self.echo.found()
     }
@@ -717,6 +736,41 @@ mod tests {
         let after = c.step(&sample(373, 30.0, last, status::READY | status::RUNNING), at, at + MS);
         let first = written(&after).expect("writes").0;
         assert!(first - last <= 20.0 * 0.01 + 0.011, "{last} → {first}");
+    }
+
+    /// A gateway that answers reads from a cache refreshed every few polls shows our value before the last: that is
+    /// ours, not another master's (a reviewer's 20 ms cache was found "another master" within 5 s).
+    #[test]
+    fn a_read_back_one_value_behind_is_ours() {
+        let (mut c, t0) = cycle("mode = \"manual\"\nfixed_hz = 40.0\nramp_hz_per_s = 100.0");
+        let mut k = 0;
+        for _ in 0..30 {
+            let at = t0 + MS * (10 * k as u32);
+            if c.echo_due(at).is_some() {
+                let behind = c.previous_watchdog.or(c.confirmed_watchdog).expect("written");
+                assert_eq!(c.echo_read(at, Some(&[behind])), None);
+            }
+            run(&mut c, t0, k, 20, 30.0, 3);
+            k += 20;
+        }
+        assert!(!c.another_master());
+    }
+
+    /// An `i16` watchdog (a PLC's INT) counts up to 32767 and then from 1 again: every write failed to encode from
+    /// 32768 on before, and the drive tripped.
+    #[test]
+    fn a_watchdog_counter_wraps_within_what_its_register_holds() {
+        let text = "[[drives]]\nname = \"d\"\naddress = \"127.0.0.1:1\"\npoll_ms = 10\nwatchdog_ms = 100\n\
+                    [drives.registers.watchdog]\naddress = 2\ntype = \"i16\"\n\
+                    [drives.control]\nmode = \"manual\"\nfixed_hz = 20.0\n";
+        let s = super::super::config::parse(text, "test", None).expect("valid config").drives.remove(0);
+        let t0 = Instant::now();
+        let mut c = DriveCycle::new(&s, crate::estimator::build(&s.estimator, &s.model), t0);
+        c.watchdog = 32_766;
+        let steps = run(&mut c, t0, 0, 40, 30.0, 3);
+        assert!(steps.iter().all(|s| s.encode_error.is_none()), "{:?}", steps.iter().find(|s| s.encode_error.is_some()));
+        let counted: Vec<u16> = steps.iter().filter_map(written).map(|w| w.2).collect();
+        assert!(counted.contains(&32_767) && counted.contains(&1), "{counted:?}");
     }
 
     /// A PLC that refreshes its registers every third poll (30 ms at a 10 ms poll): each fresh sample is a ramp step

@@ -27,6 +27,10 @@ const MISMATCHES: u32 = 3;
 /// Read-backs allowed to show our value for the first time before the check stands down (5 s at [`CHECK_EVERY`]).
 const LEARN_CHECKS: u32 = 25;
 
+/// Refused read-backs in a row (Modbus exceptions) that stand the check down: one exception 11 (a gateway's target
+/// that did not answer once) stood it down for good, and a second master then went unseen.
+const REFUSALS: u32 = 3;
+
 /// What a read-back found, where it changed the check's state.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Finding {
@@ -56,11 +60,13 @@ enum State {
 pub struct Echo {
     state: State,
     last_check: Option<Instant>,
+    /// Refused read-backs in a row.
+    refusals: u32,
 }
 
 impl Default for Echo {
     fn default() -> Echo {
-        Echo { state: State::Learning { checks: 0 }, last_check: None }
+        Echo { state: State::Learning { checks: 0 }, last_check: None, refusals: 0 }
     }
 }
 
@@ -79,6 +85,7 @@ impl Echo {
     /// The register read back as `read`; `ours` is what this service last wrote there (and the drive confirmed).
     pub fn observe(&mut self, now: Instant, read: &[u16], ours: &[u16]) -> Option<Finding> {
         self.last_check = Some(now);
+        self.refusals = 0;
         let foreign = read != ours && read.iter().any(|&w| w != 0);
         match self.state {
             State::Learning { .. } if read == ours => self.state = State::Armed { recent: 0 },
@@ -100,19 +107,27 @@ impl Echo {
         None
     }
 
-    /// The device refused the read (a Modbus exception): the check cannot work on it.
+    /// The device refused the read (a Modbus exception): [`REFUSALS`] in a row, the check cannot work on it.
     pub fn refused(&mut self) -> Option<Finding> {
         if matches!(self.state, State::Unavailable | State::Found) {
+            return None;
+        }
+        self.refusals += 1;
+        if self.refusals < REFUSALS {
             return None;
         }
         self.state = State::Unavailable;
         Some(Finding::Unavailable("the drive refuses to read back its watchdog register (a Modbus exception)"))
     }
 
-    /// An operator's reset: a master that stood back writes again, and looks afresh.
+    /// An operator's reset: a master that stood back writes again and looks afresh, and a check that stood down
+    /// tries again.
     pub fn reset(&mut self) {
-        if self.state == State::Found {
-            self.state = State::Armed { recent: 0 };
+        self.refusals = 0;
+        match self.state {
+            State::Found => self.state = State::Armed { recent: 0 },
+            State::Unavailable => self.state = State::Learning { checks: 0 },
+            State::Learning { .. } | State::Armed { .. } => {}
         }
     }
 }
@@ -172,9 +187,23 @@ mod tests {
         }
         assert!(matches!(e.observe(at(10_000), &[0], &[99]), Some(Finding::Unavailable(_))));
         assert!(!e.due(at(20_000)) && !e.found());
+        // one refusal is a transient (exception 11, a gateway's target that did not answer once): the check goes
+        // on; three in a row stand it down, said once; a reset tries again
         let mut r = Echo::default();
-        assert!(matches!(r.refused(), Some(Finding::Unavailable(_))));
+        assert_eq!(r.refused(), None, "one refusal");
+        assert_eq!(r.observe(at(0), &[4], &[4]), None, "armed");
+        assert_eq!((r.refused(), r.refused()), (None, None));
+        assert_eq!(r.observe(at(200), &[5], &[5]), None, "a good read starts the count again");
+        assert_eq!((r.refused(), r.refused()), (None, None));
+        assert!(matches!(r.refused(), Some(Finding::Unavailable(_))), "the third in a row");
         assert_eq!(r.refused(), None, "said once");
-        assert!(!r.due(at(0)));
+        assert!(!r.due(at(10_000)));
+        r.reset();
+        assert!(r.due(at(10_000)), "a reset tries again");
+        assert_eq!(r.observe(at(10_000), &[6], &[6]), None);
+        for i in 0..3u16 {
+            r.observe(at(10_200 + 200 * u64::from(i)), &[900 + i], &[7]);
+        }
+        assert!(r.found(), "and finds a second master again");
     }
 }
