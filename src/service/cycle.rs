@@ -731,7 +731,7 @@ mod tests {
         let t0 = Instant::now();
         let mut c = DriveCycle::new(&s, crate::estimator::build(&s.estimator, &s.model), t0);
         let before = run(&mut c, t0, 0, 3, 30.0, status::READY | status::RUNNING);
-        let last = before.iter().filter_map(written).last().expect("writes").0;
+        let last = before.iter().filter_map(written).next_back().expect("writes").0;
         let at = t0 + Duration::from_millis(3730);
         let after = c.step(&sample(373, 30.0, last, status::READY | status::RUNNING), at, at + MS);
         let first = written(&after).expect("writes").0;
@@ -768,7 +768,11 @@ mod tests {
         let mut c = DriveCycle::new(&s, crate::estimator::build(&s.estimator, &s.model), t0);
         c.watchdog = 32_766;
         let steps = run(&mut c, t0, 0, 40, 30.0, 3);
-        assert!(steps.iter().all(|s| s.encode_error.is_none()), "{:?}", steps.iter().find(|s| s.encode_error.is_some()));
+        assert!(
+            steps.iter().all(|s| s.encode_error.is_none()),
+            "{:?}",
+            steps.iter().find(|s| s.encode_error.is_some())
+        );
         let counted: Vec<u16> = steps.iter().filter_map(written).map(|w| w.2).collect();
         assert!(counted.contains(&32_767) && counted.contains(&1), "{counted:?}");
     }

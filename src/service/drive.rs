@@ -56,6 +56,8 @@ const WRITES_FAILING_AFTER: u32 = 3;
 
 /// How long a writing drive's loop waits, on a clean stop, for its control word 0 to be confirmed.
 pub const STOP_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(1);
+/// The pause between two tries of the stop's write.
+const STOP_RETRY: std::time::Duration = std::time::Duration::from_millis(20);
 
 /// The longest span the loops' first ticks are spread over (see [`DriveLoop::stagger`]): a cycle takes well under
 /// 100 µs of CPU, so 50 loops 200 µs apart no longer meet.
@@ -144,10 +146,25 @@ impl DriveLoop {
         let spec = self.settings.registers.control_word;
         let name = &self.settings.name;
         // a cycle cut short by the shutdown may have left a reply in flight on the connection: a fresh one
+        let deadline = tokio::time::Instant::now() + STOP_TIMEOUT;
         self.client.close().await;
         let write = async {
             let words = spec.encode(0.0).map_err(|e| e.to_string())?;
-            self.client.write(spec.address, &words).await.map_err(|e| e.to_string())
+            // a link in its reconnect back-off is waited for and tried again within the stop's time, as is one
+            // failed try: a SIGTERM during the back-off skipped the stop, and the drive ran on under RUN until its
+            // own watchdog (up to an hour)
+            let mut last = String::new();
+            while tokio::time::Instant::now() < deadline {
+                match self.client.write(spec.address, &words).await {
+                    Ok(()) => return Ok(()),
+                    Err(ClientError::Backoff(wait)) => tokio::time::sleep(wait.max(STOP_RETRY)).await,
+                    Err(e) => {
+                        last = e.to_string();
+                        tokio::time::sleep(STOP_RETRY).await;
+                    }
+                }
+            }
+            Err(last)
         };
         match tokio::time::timeout(STOP_TIMEOUT, write).await {
             Ok(Ok(())) => tracing::info!(drive = %name, "stopping: the drive was sent control word 0 (no RUN)"),
