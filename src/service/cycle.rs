@@ -450,6 +450,16 @@ impl DriveCycle {
         self.commanded
     }
 
+    /// A trip this service latched and that was not reset since (writing modes).
+    pub fn trip_latched(&self) -> bool {
+        self.trip_latched
+    }
+
+    /// Latches the trip a previous run of the service left unreset (writing modes).
+    pub fn latch_from_before(&mut self) {
+        self.trip_latched |= self.mode.writes();
+    }
+
     /// The drive reports a fault or a comm-loss trip, or (writing modes) one was seen and not yet reset.
     pub fn tripped(&self) -> bool {
         self.status.fault || self.status.comm_loss_trip || self.trip_latched

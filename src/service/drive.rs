@@ -49,6 +49,8 @@ pub struct DriveLoop {
     writes_failed_in_row: u32,
     /// The drive reported a trip at the last sample.
     was_tripped: bool,
+    /// Where the trip latch outlives the process (`<recordings>/<drive>.tripped`), and whether it holds one now.
+    latch_file: Option<(std::path::PathBuf, bool)>,
 }
 
 /// Failed setpoint writes in a row after which the drive is not ready: every write is refused.
@@ -93,6 +95,50 @@ impl DriveLoop {
             loud: Loud::default(),
             writes_failed_in_row: 0,
             was_tripped: false,
+            latch_file: None,
+        }
+    }
+
+    /// Keeps the trip latch in `<dir>/<drive>.tripped` while it stands, so that it outlives the process: a service
+    /// killed while the drive was latched (a crash, an OOM kill) and started again (`restart: unless-stopped`) sent
+    /// RUN to the drive as soon as it reported ready. A writing drive whose file is there starts latched.
+    pub fn keep_trip_latch_in(&mut self, dir: &std::path::Path) {
+        if !self.settings.mode.writes() {
+            return;
+        }
+        let path = dir.join(format!("{}.tripped", self.settings.name));
+        let latched = path.exists();
+        if latched {
+            self.cycle.latch_from_before();
+            tracing::warn!(drive = %self.settings.name, file = %path.display(),
+                "the drive was tripped, and not reset, when this service last ran: no RUN is sent until POST \
+                 /api/drives/<name>/reset");
+        }
+        self.latch_file = Some((path, latched));
+    }
+
+    /// Writes or removes the latch file where the latch changed (see [`DriveLoop::keep_trip_latch_in`]).
+    fn save_trip_latch(&mut self) {
+        let Some((path, saved)) = &mut self.latch_file else { return };
+        let latched = self.cycle.trip_latched();
+        if latched == *saved {
+            return;
+        }
+        let done = if latched {
+            std::fs::write(&*path, "tripped: POST /api/drives/<name>/reset re-arms the drive\n")
+        } else {
+            std::fs::remove_file(&*path)
+                .or_else(|e| if e.kind() == std::io::ErrorKind::NotFound { Ok(()) } else { Err(e) })
+        };
+        match done {
+            Ok(()) => *saved = latched,
+            Err(e) => {
+                let file = path.display().to_string();
+                if let Some(held) = self.loud.allow("latch file", Instant::now()) {
+                    tracing::warn!(drive = %self.settings.name, file, error = %e, more_since_last = held,
+                        "the trip latch could not be kept on disk: a restart would not know of it");
+                }
+            }
         }
     }
 
@@ -372,6 +418,7 @@ impl DriveLoop {
 
     fn publish(&mut self) {
         self.note_trip();
+        self.save_trip_latch();
         let now = Instant::now();
         if self.stats_at.is_none_or(|t| now.saturating_duration_since(t) >= STATS_EVERY) {
             self.stats = self.timing.stats();

@@ -124,7 +124,11 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
         tracing::info!(drive = %d.name, method = ?d.estimator.method, "estimator");
         let estimator = crate::estimator::build(&d.estimator, &d.model);
         let connection = connection_for(d, &buses);
-        loops.push(DriveLoop::new(d.clone(), connection, estimator, state.clone(), recorder, started));
+        let mut drive = DriveLoop::new(d.clone(), connection, estimator, state.clone(), recorder, started);
+        if let Some(dir) = &settings.recording.dir {
+            drive.keep_trip_latch_in(dir);
+        }
+        loops.push(drive);
         let cond = Arc::new(condition::DriveCondition::new(&d.name, &d.condition));
         if d.condition.enabled {
             condition_jobs.push(condition::Job::new(

@@ -122,10 +122,15 @@ async fn slow_write_echoes_that_make_the_loop_overrun_are_counted_and_logged() {
     tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
 
+/// The poll cycles a service's first drive has run.
+async fn polls_of(s: &ServeProcess) -> u64 {
+    s.drive_status().await["link"]["polls"].as_u64().expect("polls")
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_tripped_drive_is_sent_no_run_until_it_is_reset_and_ready() {
     let run = async {
-        let Regulating { sim, sim_stop, s, _dir, _task } = Regulating::start().await;
+        let Regulating { sim, sim_stop, mut s, _dir, _task } = Regulating::start().await;
         let control_word = || sim.lock().read(Table::Holding, 1, 1).expect("control word")[0];
         assert_eq!(control_word() & control::RUN, control::RUN);
         sim.lock().set_fault(true);
@@ -133,9 +138,8 @@ async fn a_tripped_drive_is_sent_no_run_until_it_is_reset_and_ready() {
             .await
             .expect("RUN withdrawn from a drive that reports a fault");
         // and it stays withdrawn while the fault stands: checked through the next 20 poll cycles
-        let polls = || async { s.drive_status().await["link"]["polls"].as_u64().expect("polls") };
-        let from = polls().await;
-        while polls().await < from + 20 {
+        let from = polls_of(&s).await;
+        while polls_of(&s).await < from + 20 {
             assert_eq!(control_word() & control::RUN, 0, "no RUN to a faulted drive");
             tokio::time::sleep(Duration::from_millis(5)).await;
         }
@@ -143,8 +147,8 @@ async fn a_tripped_drive_is_sent_no_run_until_it_is_reset_and_ready() {
         // the fault clears on the drive's side (an auto-resetting drive, a local reset): the trip stays latched,
         // no RUN from the service itself (it was re-armed 0.4 s later)
         sim.lock().set_fault(false);
-        let from = polls().await;
-        while polls().await < from + 30 {
+        let from = polls_of(&s).await;
+        while polls_of(&s).await < from + 30 {
             assert_eq!(control_word() & control::RUN, 0, "no RUN until POST reset");
             tokio::time::sleep(Duration::from_millis(5)).await;
         }
@@ -152,11 +156,32 @@ async fn a_tripped_drive_is_sent_no_run_until_it_is_reset_and_ready() {
         let m = s.metrics().await;
         assert_eq!(metric(&m, "hydrolens_trips_total{drive=\"pump1\"}"), Some(1.0), "{m}");
         assert!(s.log().lines().any(|l| l.contains("WARN") && l.contains("the drive tripped")), "{}", s.log());
+        // the service is killed (a crash, an OOM kill) and started again, as `restart: unless-stopped` does: the
+        // latch outlives it in the recordings directory, and the new one sends no RUN either (before, it sent RUN
+        // within 2 ms of the drive reporting ready)
+        let latch = _dir.path().join("rec/pump1.tripped");
+        assert!(latch.exists(), "the latch is kept on disk");
+        s.kill();
+        s = ServeProcess::start_limited("true", &_dir.path().join("serve.toml"));
+        let from = loop {
+            if let Some(p) = s.drive_status().await["link"]["polls"].as_u64().filter(|&p| p > 0) {
+                break p;
+            }
+            assert_eq!(control_word() & control::RUN, 0, "no RUN from the new instance");
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        };
+        while polls_of(&s).await < from + 30 {
+            assert_eq!(control_word() & control::RUN, 0, "no RUN from the new instance until POST reset");
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+        assert_eq!(s.drive_status().await["tripped"], true, "{}", s.drive_status().await);
+        assert!(s.log().contains("was tripped, and not reset"), "{}", s.log());
         assert_eq!(post_reset(&s.url).await, 202);
         wait_for(Duration::from_secs(15), || async { (sim.lock().truth().omega_rad_s - 30.0).abs() < 3.0 })
             .await
             .expect("re-armed: runs again");
         assert!(s.log().contains("trip has cleared"), "{}", s.log());
+        wait_for(Duration::from_secs(15), || async { !latch.exists() }).await.expect("a reset removes the kept latch");
         sim_stop.cancel();
     };
     tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");

@@ -350,6 +350,12 @@ impl ServeProcess {
         code
     }
 
+    /// SIGKILL (a crash, an OOM kill: no clean stop), and waits for it.
+    pub fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
     /// The log so far (stderr).
     pub fn log(&self) -> String {
         self.log.lock().unwrap_or_else(|e| e.into_inner()).clone()
