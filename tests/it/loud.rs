@@ -210,6 +210,30 @@ async fn a_clean_stop_withdraws_run_and_a_hangup_is_a_clean_stop() {
     tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
 }
 
+/// SIGTERM while the link waits in its reconnect back-off: the stop's write waits it out and goes through (before, it
+/// failed at once, "waiting 31 ms before reconnecting", and the drive ran on under RUN until its own watchdog).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stop_during_the_reconnect_back_off_still_withdraws_run() {
+    let run = async {
+        let Proxied { _sim: sim, sim_stop, proxy, mut s, .. } = Proxied::start(10).await;
+        let control_word = || sim.lock().read(Table::Holding, 1, 1).expect("control word")[0];
+        wait_for(Duration::from_secs(10), || async { control_word() & control::RUN != 0 }).await.expect("RUN sent");
+        proxy.set(Fault::Refuse);
+        // three refused connects: the back-off is at 200–400 ms now (50 ms doubling), inside the drive's 1 s watchdog
+        let connects = |m: &str| metric(m, "hydrolens_errors_total{drive=\"pump1\",kind=\"connect\"}");
+        wait_for(Duration::from_secs(15), || async { connects(&s.metrics().await).is_some_and(|c| c >= 3.0) })
+            .await
+            .expect("in its back-off");
+        proxy.set(Fault::Pass);
+        let status = s.stop();
+        assert_eq!(status.and_then(|c| c.code()), Some(0), "{}", s.log());
+        assert!(s.log().contains("was sent control word 0"), "{}", s.log());
+        assert_eq!(control_word() & control::RUN, 0, "RUN withdrawn on the way out: {}", s.log());
+        sim_stop.cancel();
+    };
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
+}
+
 /// A tachometer frozen at 20 rad/s while the speed regulator wants 30: the setpoint climbed to max_hz in 5 s, the
 /// drive ready throughout. Now its samples are rejected as a frozen sensor: stale, nothing written, not ready.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
