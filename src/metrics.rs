@@ -207,6 +207,14 @@ fn signal_families() -> Vec<(Desc, MetricType, Read)> {
         ),
         (
             desc(
+                "drive_tripped",
+                "1 while the drive is tripped: it reports a fault or a comm-loss trip, or (writing modes) a trip this service latched has not been reset",
+            ),
+            Gauge,
+            |s| measured(s).map(|_| Float(if s.tripped { 1.0 } else { 0.0 })),
+        ),
+        (
+            desc(
                 "drive_another_master",
                 "1 while another master writes the drive (its watchdog register read back values this service never wrote): nothing is written until a reset",
             ),

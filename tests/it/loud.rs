@@ -155,6 +155,7 @@ async fn a_tripped_drive_is_sent_no_run_until_it_is_reset_and_ready() {
         assert_eq!(s.drive_status().await["tripped"], true, "{}", s.drive_status().await);
         let m = s.metrics().await;
         assert_eq!(metric(&m, "hydrolens_trips_total{drive=\"pump1\"}"), Some(1.0), "{m}");
+        assert_eq!(metric(&m, "hydrolens_drive_tripped{drive=\"pump1\"}"), Some(1.0), "{m}");
         assert!(s.log().lines().any(|l| l.contains("WARN") && l.contains("the drive tripped")), "{}", s.log());
         // the service is killed (a crash, an OOM kill) and started again, as `restart: unless-stopped` does: the
         // latch outlives it in the recordings directory, and the new one sends no RUN either (before, it sent RUN
