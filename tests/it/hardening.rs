@@ -449,6 +449,8 @@ fn configs_that_must_be_refused_name_their_key() {
     assert!(e.contains("drives[0].control.kp"), "{e}");
     let e = refused(&format!("{DRIVE}[drives.control]\nki = 1e308\n"));
     assert!(e.contains("drives[0].control.ki"), "{e}");
+    let e = refused(&format!("{DRIVE}[drives.control]\nramp_hz_per_s = 1e300\n"));
+    assert!(e.contains("drives[0].control.ramp_hz_per_s"), "{e}");
 
     let file = tempfile::NamedTempFile::new().expect("tmp");
     let e = refused(&format!("[recording]\ndir = {:?}\n{DRIVE}", file.path().display().to_string()));

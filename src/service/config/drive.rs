@@ -118,6 +118,12 @@ pub(super) fn validate_control(c: &RawControl, key: &dyn Fn(&str) -> String) -> 
         return Err(KeyError::new(key("control.min_hz"), format!("{min_hz} is above control.max_hz = {max_hz}")));
     }
     let ramp = positive(&key("control.ramp_hz_per_s"), c.ramp_hz_per_s)?;
+    if ramp > super::MAX_RAMP_HZ_PER_S {
+        return Err(KeyError::new(
+            key("control.ramp_hz_per_s"),
+            format!("must be ≤ {} Hz/s (0 to 50 Hz in 50 ms), got {ramp}: that is no ramp", super::MAX_RAMP_HZ_PER_S),
+        ));
+    }
     let kp = nonneg(&key("control.kp"), c.kp)?;
     if kp > MAX_KP_HZ_PER_RAD_S {
         return Err(KeyError::new(

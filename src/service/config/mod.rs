@@ -355,6 +355,9 @@ fn positive(key: &str, v: f64) -> Result<f64, Invalid> {
     }
 }
 
+/// The steepest setpoint ramp accepted (Hz/s): 1e300 was taken, which is no ramp at all.
+pub const MAX_RAMP_HZ_PER_S: f64 = 1000.0;
+
 /// The largest PI gains accepted: 50 and 170 times the defaults, far beyond any tuning that regulates.
 pub const MAX_KP_HZ_PER_RAD_S: f64 = 10.0;
 pub const MAX_KI_HZ_PER_RAD: f64 = 100.0;
