@@ -391,13 +391,15 @@ impl Store {
         };
         let mut checks = std::collections::VecDeque::new();
         let mut lines = 0;
-        for (i, line) in std::io::BufReader::new(file).lines().enumerate() {
+        // bytes, not text: a line that is not UTF-8 (a disk error, an editor's encoding) is one bad line too; read
+        // as text it ended the load, and the whole history was lost
+        for (i, line) in std::io::BufReader::new(file).split(b'\n').enumerate() {
             let line = line?;
             lines = i + 1;
-            if line.trim().is_empty() {
+            if line.trim_ascii().is_empty() {
                 continue;
             }
-            match serde_json::from_str::<Check>(&line) {
+            match serde_json::from_slice::<Check>(&line) {
                 Ok(c) => {
                     checks.push_back(c);
                     if checks.len() > KEEP_CHECKS {
@@ -527,6 +529,12 @@ mod tests {
         let a = check_with(60.0, None);
         let b = check_with(120.0, Some(0.03));
         store.append(&a).expect("append");
+        // a line that is not UTF-8 (it cost the whole history: 0 of 5 checks came back)
+        std::fs::OpenOptions::new()
+            .append(true)
+            .open(store.path())
+            .and_then(|mut f| f.write_all(b"{\"t_s\": 90.0, \"note\": \"\xff\xfe\"}\n"))
+            .expect("a Latin-1 line");
         store.append(&b).expect("append");
         std::fs::OpenOptions::new()
             .append(true)
@@ -535,7 +543,7 @@ mod tests {
             .expect("cut line");
         let (back, lines) = store.load_counting().expect("loads");
         assert_eq!(back, vec![a.clone(), b.clone()]);
-        assert_eq!(lines, 3, "the cut line counts");
+        assert_eq!(lines, 4, "the bad and the cut line count");
         store.rewrite(back.iter().skip(1)).expect("rewrite");
         assert_eq!(store.load_counting().expect("loads"), (vec![b], 1), "rewritten with what was given");
         store.rewrite([a.clone(), check_with(120.0, Some(0.03))].iter()).expect("rewrite");
