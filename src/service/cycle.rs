@@ -16,7 +16,9 @@ use std::time::Duration;
 use tokio::time::Instant;
 
 use super::config::DriveSettings;
-use super::freshness::{CounterCheck, CounterVerdict, FrozenSpeed, Rejected, ValidRanges, implausible_jump};
+use super::freshness::{
+    CounterCheck, CounterVerdict, FrozenSpeed, Rejected, SpeedMatch, ValidRanges, implausible_jump,
+};
 use super::owner::{Echo, Finding};
 use super::state::{Commands, DriveStatus, Measured, Point};
 use crate::control::{Inputs, Mode, SpeedLaw};
@@ -152,6 +154,10 @@ pub struct DriveCycle {
     echo: Echo,
     /// The speed frozen while the drive's frequency moves, or showing no turn while the drive runs: rejected.
     frozen: FrozenSpeed,
+    /// The speed against the drive's frequency through the model (writing modes).
+    speed_match: SpeedMatch,
+    /// The model's pump and motor, for that check.
+    feed_forward: crate::control::FeedForward,
     pending: Option<Pending>,
     status: DriveStatus,
     /// The drive does not follow its setpoints (the law's verdict), for the alarm.
@@ -193,6 +199,8 @@ impl DriveCycle {
             previous_watchdog: None,
             echo: Echo::default(),
             frozen: FrozenSpeed::default(),
+            speed_match: SpeedMatch::default(),
+            feed_forward: settings.feed_forward,
             pending: None,
             status: DriveStatus::default(),
             not_following: false,
@@ -261,10 +269,18 @@ impl DriveCycle {
         if let Some(r) = self.frozen.observe(sample.measured.omega_rad_s, sample.measured.f_drive_hz, now.into_std()) {
             return nothing(Verdict::Rejected(r));
         }
+        if writing {
+            let m = &sample.measured;
+            let dp_pa = (m.p_in_bar - m.p_out_bar) * crate::units::PA_PER_BAR;
+            let expected = self.feed_forward.omega_at_dp(m.f_drive_hz, dp_pa);
+            if let Some(r) = self.speed_match.observe(m.omega_rad_s, expected, m.f_drive_hz, now.into_std()) {
+                return nothing(Verdict::Rejected(r));
+            }
+        }
         self.last_valid = Some((now, sample.measured));
-        if self.frozen.showing_no_turn() {
-            // a speed of 0 (or against the drive) while the drive runs: held back, not written from, until the
-            // motor turns or, after a second, the samples are rejected
+        if self.frozen.showing_no_turn() || self.speed_match.mismatched() {
+            // a speed of 0 (or against the drive) while the drive runs, or one the drive's frequency cannot give:
+            // held back, not written from, until it fits again or, after a second, the samples are rejected
             return nothing(Verdict::Stale);
         }
         // timely: the reply came within stale_ms, and so did this sample after the one before; else readiness

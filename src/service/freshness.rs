@@ -32,6 +32,12 @@ pub enum Rejected {
          {held_s:.1} s: a broken tachometer (wire, coupling, sign) or a stalled motor"
     )]
     NoTurn { entry: &'static str, value: f64, f_drive_hz: f64, held_s: f64 },
+    #[error(
+        "{entry} reads {value:.1} rad/s while the drive runs at {f_drive_hz:.1} Hz, where the model's pump and \
+         motor give {expected:.1} rad/s, for {held_s:.1} s: a tachometer or frequency read-back with the wrong \
+         scale (a slipping coupling, a changed unit), or a model whose displacements or pole pairs are wrong"
+    )]
+    Mismatch { entry: &'static str, value: f64, expected: f64, f_drive_hz: f64, held_s: f64 },
 }
 
 /// How far the drive's frequency may move (Hz) while the speed reads the very same non-zero value: 2 Hz is
@@ -90,6 +96,56 @@ impl FrozenSpeed {
                 None
             }
         }
+    }
+}
+
+/// How far the measured speed may lie from the one the drive's frequency gives through the model's pump and motor
+/// (with its leakage at the measured pressure difference): this share of it plus [`MISMATCH_RAD_S`]. A hidden
+/// leak, a motor's slip and the speed's lag behind a 20 Hz/s ramp stay well inside; a tachometer at half or twice
+/// the truth (a slipping coupling, a wrong scale) or a frequency read-back at twice it does not.
+pub const MISMATCH_SHARE: f64 = 0.35;
+pub const MISMATCH_RAD_S: f64 = 3.0;
+/// How long (s) the speed may lie outside that band, every sample, before its samples are refused; from the first
+/// such sample nothing is written from them (the speed regulator on a tachometer at half ran the drive to max_hz).
+pub const MISMATCH_S: f64 = 1.0;
+
+/// The measured speed against the speed the drive's frequency gives (see [`MISMATCH_SHARE`]); for the writing
+/// modes, where a regulator acts on them.
+#[derive(Debug, Default)]
+pub struct SpeedMatch {
+    since: Option<std::time::Instant>,
+}
+
+impl SpeedMatch {
+    /// The last sample lay outside the band, not yet for [`MISMATCH_S`]: nothing may be written from it.
+    pub fn mismatched(&self) -> bool {
+        self.since.is_some()
+    }
+
+    /// The verdict on one sample: `expected_rad_s` is the speed the drive's frequency `f_drive_hz` gives. Only
+    /// while the drive runs at [`NO_TURN_HZ`] or more (below, a motor breaking away or a start proves nothing).
+    pub fn observe(
+        &mut self,
+        omega_rad_s: f64,
+        expected_rad_s: f64,
+        f_drive_hz: f64,
+        at: std::time::Instant,
+    ) -> Option<Rejected> {
+        let off = f_drive_hz.abs() >= NO_TURN_HZ
+            && expected_rad_s.is_finite()
+            && (omega_rad_s - expected_rad_s).abs() > MISMATCH_SHARE * expected_rad_s.abs() + MISMATCH_RAD_S;
+        if !off {
+            self.since = None;
+            return None;
+        }
+        let held_s = at.saturating_duration_since(*self.since.get_or_insert(at)).as_secs_f64();
+        (held_s > MISMATCH_S).then_some(Rejected::Mismatch {
+            entry: "shaft_speed_rpm",
+            value: omega_rad_s,
+            expected: expected_rad_s,
+            f_drive_hz,
+            held_s,
+        })
     }
 }
 

@@ -239,7 +239,7 @@ async fn a_stop_during_the_reconnect_back_off_still_withdraws_run() {
 /// drive ready throughout. Now its samples are rejected as a frozen sensor: stale, nothing written, not ready.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_frozen_tachometer_is_rejected_and_the_setpoint_does_not_climb() {
-    tachometer_reading_is_rejected(20.0, "frozen").await;
+    tachometer_reading_is_rejected(|f| f.speed_override_rad_s = Some(20.0), "frozen").await;
 }
 
 /// A tachometer that reads 0 (a broken wire, a PLC substituting 0) or against the drive (a reversed sign) while the
@@ -247,15 +247,24 @@ async fn a_frozen_tachometer_is_rejected_and_the_setpoint_does_not_climb() {
 /// rejected after a second of no turn: stale, nothing written, not ready.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_tachometer_that_shows_no_turn_is_rejected_and_the_setpoint_does_not_climb() {
-    tachometer_reading_is_rejected(0.0, "stalled motor").await;
-    tachometer_reading_is_rejected(-30.0, "stalled motor").await;
+    tachometer_reading_is_rejected(|f| f.speed_override_rad_s = Some(0.0), "stalled motor").await;
+    tachometer_reading_is_rejected(|f| f.speed_override_rad_s = Some(-30.0), "stalled motor").await;
 }
 
-async fn tachometer_reading_is_rejected(reading_rad_s: f64, said: &str) {
+/// A tachometer that reads half the speed (a slipping coupling, a wrong scale) while the drive runs at 20 Hz: the
+/// speed regulator ran the drive to max_hz, 76 rad/s against a 30 rad/s target, ready throughout. Now a speed the
+/// drive's frequency cannot give through the model's pump and motor is held back at once and refused after a
+/// second: nothing written from it, not ready.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tachometer_at_half_the_speed_is_rejected_and_the_setpoint_does_not_climb() {
+    tachometer_reading_is_rejected(|f| f.speed_scale = Some(0.5), "wrong scale").await;
+}
+
+async fn tachometer_reading_is_rejected(fault: impl FnOnce(&mut hydrolens::modbus::simulator::Faults), said: &str) {
     let run = async {
         let Regulating { sim, sim_stop, s, _dir, _task } = Regulating::start().await;
         let hz_before = sim.lock().truth().f_set_hz;
-        sim.lock().faults.speed_override_rad_s = Some(reading_rad_s);
+        fault(&mut sim.lock().faults);
         let rejected = wait_for(Duration::from_secs(10), || async {
             s.drive_status().await["link"]["last_error"].as_str().is_some_and(|e| e.contains(said))
         })

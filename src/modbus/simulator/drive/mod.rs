@@ -30,6 +30,8 @@ pub struct Faults {
     pub local_hz: Option<f64>,
     /// Report this shaft speed (rad/s) instead of the measured one: a frozen tachometer.
     pub speed_override_rad_s: Option<f64>,
+    /// Report the shaft speed times this: a tachometer on a slipping coupling, or read with the wrong scale.
+    pub speed_scale: Option<f64>,
 }
 
 /// Efficiency of the simulated induction motor, copper and iron (its slip is the plant's `motor_slip`): the drive
@@ -241,7 +243,11 @@ impl DriveSim {
             (self.map.outlet_pressure_bar, self.noise.pressure_reading(back_bar)),
             (
                 self.map.shaft_speed_rpm,
-                rad_s_to_rpm(self.faults.speed_override_rad_s.unwrap_or(s.omega_rad_s + self.noise.speed())),
+                rad_s_to_rpm(
+                    self.faults
+                        .speed_override_rad_s
+                        .unwrap_or(self.faults.speed_scale.unwrap_or(1.0) * s.omega_rad_s + self.noise.speed()),
+                ),
             ),
             (self.map.drive_frequency_hz, s.f_hz),
             (self.map.status_word, f64::from(self.status_word())),
