@@ -49,8 +49,9 @@ pub fn start(listener: TcpListener, settings: &Settings, shutdown: CancellationT
         None => (None, None),
     };
     let http_metrics = http::HttpMetrics::register(&mut service.state.registry());
-    let state =
-        AppState::new(service.state.clone(), &settings.http, http_metrics, shutdown.clone()).with_mqtt(mqtt_health);
+    let state = AppState::new(service.state.clone(), &settings.http, http_metrics, shutdown.clone())
+        .with_mqtt(mqtt_health)
+        .listening_on(addr);
     let limits = ConnLimits::from(&settings.http);
     // on the runtime's (lower-priority) workers, not on the thread that started the poll loops
     let http = tokio::spawn(http::serve_with(listener, state, limits));

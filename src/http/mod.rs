@@ -52,6 +52,8 @@ pub struct AppState {
     pub metrics: HttpMetrics,
     /// The MQTT publisher's health, when one runs beside this outlet ([`AppState::with_mqtt`]).
     pub mqtt: Option<Arc<crate::mqtt::MqttHealth>>,
+    /// Served on a loopback address: only requests naming a loopback host are answered ([`loopback_host`]).
+    pub loopback_only: bool,
 }
 
 impl AppState {
@@ -73,7 +75,14 @@ impl AppState {
             auth: Default::default(),
             event_streams: Arc::new(tokio::sync::Semaphore::new(http.max_event_streams)),
             mqtt: None,
+            loopback_only: false,
         }
+    }
+
+    /// The same, answering only requests whose `Host` names a loopback host where `listening` is a loopback address
+    /// (see [`loopback_host`]).
+    pub fn listening_on(self, listening: std::net::SocketAddr) -> AppState {
+        AppState { loopback_only: listening.ip().is_loopback(), ..self }
     }
 
     /// The same, reporting the MQTT publisher's health in `/api/status`.
@@ -192,7 +201,35 @@ pub fn router(state: AppState) -> Router {
         .route("/readyz", get(readyz))
         .fallback(|| async { ApiError::not_found("no such route") })
         .layer(DefaultBodyLimit::max(limit))
+        .layer(axum::middleware::from_fn_with_state(state.clone(), loopback_host))
         .with_state(state)
+}
+
+/// On a loopback address, a request whose `Host` is not a loopback name (`localhost`, `127.x.x.x`, `[::1]`, any
+/// port) is refused with 421: a web page the operator opens elsewhere can point its own name at 127.0.0.1 (DNS
+/// rebinding) and read the status and the recordings through the operator's browser; its requests still name the
+/// page's host. A request without `Host` (HTTP/1.0) is answered. Beyond loopback the firewall and the token decide.
+async fn loopback_host(
+    State(s): State<AppState>,
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let host = request.headers().get(header::HOST).map(|h| h.to_str().unwrap_or("\u{fffd}").to_owned());
+    let named = |h: &str| {
+        let name = match h.strip_prefix('[') {
+            Some(v6) => v6.split(']').next().unwrap_or(""),
+            None => h.rsplit_once(':').map_or(h, |(name, _)| name),
+        };
+        name.eq_ignore_ascii_case("localhost") || name.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_loopback())
+    };
+    match host {
+        Some(h) if s.loopback_only && !named(&h) => ApiError::new(
+            StatusCode::MISDIRECTED_REQUEST,
+            format!("this service listens on loopback and answers requests for a loopback host only, not {h:?}"),
+        )
+        .into_response(),
+        _ => next.run(request).await,
+    }
 }
 
 /// Serves the router on an already-bound listener until `state.shutdown` fires, within the default

@@ -51,7 +51,7 @@ async fn open(addr: std::net::SocketAddr, request: &str) -> Option<(u16, TcpStre
     tokio::time::timeout(Duration::from_secs(5), go).await.ok().flatten()
 }
 
-const EVENTS: &str = "GET /api/events HTTP/1.1\r\nHost: t\r\nAccept: text/event-stream\r\n\r\n";
+const EVENTS: &str = "GET /api/events HTTP/1.1\r\nHost: 127.0.0.1\r\nAccept: text/event-stream\r\n\r\n";
 
 /// A `/healthz` and a target POST, each on a new connection, 5 s at most: their codes and times.
 async fn operator(url: &str) -> [(u16, Duration); 2] {
@@ -123,8 +123,8 @@ async fn with_every_connection_held_the_control_and_health_routes_keep_a_reserve
         held.push(c);
     }
     let [(health, health_took), (target, target_took)] = operator(&s.url).await;
-    let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: t\r\n\r\n").await.map(|(c, _)| c);
-    let ready = open(s.addr, "GET /readyz HTTP/1.1\r\nHost: t\r\n\r\n").await.map(|(c, _)| c);
+    let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await.map(|(c, _)| c);
+    let ready = open(s.addr, "GET /readyz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await.map(|(c, _)| c);
     eprintln!(
         "16 of 16 connections held: /healthz {health} in {health_took:?}, target POST {target} in \
          {target_took:?}, /readyz {ready:?}, /api/status {status:?}"
@@ -147,7 +147,7 @@ async fn twelve_slow_downloads_of_a_64_mb_recording_hold_a_small_buffer_each() {
     }
     std::fs::write(dir.path().join("rec").join("pump1-1.csv"), &text).expect("a large recording");
     let rss_before = s.rss_mb();
-    let get = "GET /api/recordings/pump1-1.csv HTTP/1.1\r\nHost: t\r\n\r\n";
+    let get = "GET /api/recordings/pump1-1.csv HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n";
     let mut readers = Vec::new();
     for _ in 0..12 {
         let (code, mut c) = open(s.addr, get).await.expect("a download starts");
@@ -209,7 +209,7 @@ async fn a_client_that_stops_reading_is_closed() {
     let text = "t_s\n".to_string() + &"0.001\n".repeat(4 << 20);
     std::fs::write(dir.path().join("rec").join("pump1-2.csv"), &text).expect("a large recording");
     let (code, mut c) =
-        open(s.addr, "GET /api/recordings/pump1-2.csv HTTP/1.1\r\nHost: t\r\n\r\n").await.expect("a download");
+        open(s.addr, "GET /api/recordings/pump1-2.csv HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await.expect("a download");
     assert_eq!(code, 200);
     // reads nothing until the service has given up on it (bounded), then finds the connection closed early
     let closed = wait_for(Duration::from_secs(10), || async {
@@ -242,20 +242,20 @@ async fn one_address_holds_at_most_its_share_and_then_reaches_only_the_reserve()
     // four kept-alive connections that each carried a request: a client's, not to be closed for a newer one
     let mut held = Vec::new();
     for _ in 0..4 {
-        let (code, stream) = open(s.addr, "GET /healthz HTTP/1.1\r\nHost: t\r\n\r\n").await.expect("served");
+        let (code, stream) = open(s.addr, "GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await.expect("served");
         assert_eq!(code, 200);
         held.push(stream);
     }
     // all four taken by the server (the gauge counts them and the connection that asks)
     assert!(connections_reach(&s.url, 5.0).await, "the four connections are taken by the server");
-    let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: t\r\n\r\n").await.map(|(c, _)| c);
+    let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await.map(|(c, _)| c);
     let [(health, _), (target, _)] = operator(&s.url).await;
     assert_eq!(status, Some(503), "a fifth connection from the address is a reserved one");
     assert_eq!((health, target), (200, 200));
     drop(held);
     let mut fine = None;
     for _ in 0..100 {
-        fine = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: t\r\n\r\n").await.map(|(c, _)| c);
+        fine = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await.map(|(c, _)| c);
         if fine == Some(200) {
             break;
         }
@@ -277,7 +277,7 @@ async fn connections_held_half_sent_give_way_to_the_operator_on_the_same_address
     let mut held = Vec::new();
     for _ in 0..40 {
         let mut c = TcpStream::connect(s.addr).await.expect("connect");
-        c.write_all(b"GET /api/status HTTP/1.1\r\nHost: t\r\n").await.expect("half a request");
+        c.write_all(b"GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n").await.expect("half a request");
         held.push(c);
     }
     assert!(connections_reach(&s.url, 9.0).await, "half-sent connections are taken by the server");
@@ -286,7 +286,7 @@ async fn connections_held_half_sent_give_way_to_the_operator_on_the_same_address
         assert_eq!((health, target), (200, 200), "the operator on the flooded address");
     }
     // a full request on a new connection too (not only the reserve's routes)
-    let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: t\r\n\r\n").await.map(|(c, _)| c);
+    let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await.map(|(c, _)| c);
     assert_eq!(status, Some(200));
     let m = s.metrics().await;
     assert!(metric(&m, "hydrolens_http_refused_total{reason=\"evicted\"}").unwrap_or(0.0) >= 1.0, "{m}");

@@ -275,20 +275,20 @@ async fn idle_and_half_sent_requests_are_closed() {
         let connect = || TcpStream::connect(addr.clone());
         let mut idle = connect().await.expect("connect");
         let mut partial = connect().await.expect("connect");
-        partial.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n").await.expect("write");
+        partial.write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n").await.expect("write");
         let mut no_body = connect().await.expect("connect");
         no_body
             .write_all(
-                b"POST /api/drives/pump1/target HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+                b"POST /api/drives/pump1/target HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n\
                   Content-Length: 100\r\nAuthorization: Bearer test-token-7f3a\r\n\r\n{",
             )
             .await
             .expect("write");
         let mut kept_alive = connect().await.expect("connect");
-        kept_alive.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n").await.expect("write");
+        kept_alive.write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await.expect("write");
         let mut trickle = connect().await.expect("connect");
         let trickler = tokio::spawn(async move {
-            let _ = trickle.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n").await;
+            let _ = trickle.write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n").await;
             for _ in 0..100 {
                 tokio::time::sleep(Duration::from_millis(50)).await;
                 if trickle.write_all(b"X").await.is_err() {
@@ -327,7 +327,7 @@ async fn concurrent_connections_are_bounded() {
             .await
             .expect("all taken by the server");
         let mut next = TcpStream::connect(&addr).await.expect("the kernel queues it");
-        next.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").await.expect("write");
+        next.write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n").await.expect("write");
         let mut buf = [0u8; 256];
         let early = tokio::time::timeout(Duration::from_millis(500), next.read(&mut buf)).await;
         assert!(early.is_err(), "a connection beyond the limit and the reserve is served: {early:?}");

@@ -243,3 +243,34 @@ async fn the_snapshot_carries_each_value_once_and_the_history_the_recording_colu
     };
     tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
+
+/// On a loopback address only requests naming a loopback host are answered: a web page elsewhere can point its own
+/// name at 127.0.0.1 (DNS rebinding) and read the status and the recordings through the operator's browser; its
+/// requests still name the page's host, and get 421. Over real TCP to the service as `serve` starts it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn on_loopback_only_requests_for_a_loopback_host_are_answered() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let run = async {
+        let stack = Stack::start(5.0, 10, "").await;
+        let addr = stack.url.trim_start_matches("http://").to_string();
+        for (host, code) in [
+            ("evil.example", "421"),
+            ("evil.example:8080", "421"),
+            ("127.0.0.1.evil.example", "421"),
+            ("localhost:8080", "200"),
+            ("LOCALHOST", "200"),
+            ("127.0.0.1", "200"),
+            ("[::1]:8080", "200"),
+        ] {
+            let mut c = tokio::net::TcpStream::connect(&addr).await.expect("connects");
+            let request = format!("GET /api/status HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n");
+            c.write_all(request.as_bytes()).await.expect("write");
+            let mut reply = String::new();
+            c.read_to_string(&mut reply).await.expect("read");
+            let status = reply.split_whitespace().nth(1).unwrap_or("");
+            assert_eq!(status, code, "Host: {host}: {reply}");
+        }
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
+}
