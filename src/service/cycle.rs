@@ -296,6 +296,13 @@ impl DriveCycle {
         // the first fresh cycle, or the first after a gap (longer than the data may age: a PLC that refreshes its
         // registers every few polls is no gap): the setpoint ramps from what the drive runs at, one poll's step
         let resumed = first || dt > self.stale_after.min(RESUME_AFTER).max(2 * self.poll);
+        // a drive this service sent RUN that is not running after a stale stretch (its own watchdog stopped it, or
+        // it lost power before it showed running, its counter moving on) is not started again unasked either: a
+        // restarted simulator that had not yet shown running got RUN again under load
+        let running = self.status.ready && self.status.running;
+        if writing && !first && dt > self.stale_after && self.run_sent && !running && self.reset.is_none() {
+            self.trip_latched = true;
+        }
         self.last_fresh_at = Some(now);
         let m = &sample.measured;
         let torque = self.motor_m3_rad * (m.p_in_bar - m.p_out_bar) * crate::units::PA_PER_BAR;
@@ -846,6 +853,18 @@ mod tests {
             assert!(!c.tripped(), "{what}: a reset re-arms it");
             assert_eq!(again.iter().filter_map(written).next_back().map(|w| w.1), Some(control::RUN), "{what}");
         }
+        // sent RUN, then a power cycle before it showed running: back ready, not running, its counter moving on,
+        // after a stale stretch (no sample for 0.5 s)
+        let (mut c, t0) = cycle("mode = \"manual\"\nfixed_hz = 20.0\nramp_hz_per_s = 100.0");
+        let starting = run(&mut c, t0, 10, 2, 30.0, ready);
+        assert!(starting.iter().filter_map(written).all(|w| w.1 == control::RUN), "RUN to a ready drive");
+        let back = run(&mut c, t0, 62, 5, 30.0, ready);
+        assert!(c.tripped(), "latched after the stale stretch");
+        assert!(back.iter().filter_map(written).all(|w| w.1 == 0), "no RUN from the service itself: {back:?}");
+        // while a drive that is slow to show running, with fresh data throughout, is still sent RUN
+        let (mut c, t0) = cycle("mode = \"manual\"\nfixed_hz = 20.0\nramp_hz_per_s = 100.0");
+        let slow = run(&mut c, t0, 10, 50, 30.0, ready);
+        assert!(!c.tripped() && slow.iter().filter_map(written).all(|w| w.1 == control::RUN));
     }
 
     /// Another master's watchdog values in the read-back: once found, the cycle writes nothing (no setpoint, no
