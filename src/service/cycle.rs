@@ -269,6 +269,9 @@ impl DriveCycle {
         if let Some(r) = self.frozen.observe(sample.measured.omega_rad_s, sample.measured.f_drive_hz, now.into_std()) {
             return nothing(Verdict::Rejected(r));
         }
+        if let Some(r) = self.frozen.observe_inlet(sample.measured.p_in_bar, sample.measured.f_drive_hz) {
+            return nothing(Verdict::Rejected(r));
+        }
         if writing {
             let m = &sample.measured;
             let dp_pa = (m.p_in_bar - m.p_out_bar) * crate::units::PA_PER_BAR;

@@ -57,7 +57,10 @@ pub const NO_TURN_S: f64 = 1.0;
 #[derive(Debug, Default)]
 pub struct FrozenSpeed {
     /// The speed held, and the lowest and highest drive frequency seen while it held.
-    held: Option<(f64, f64, f64)>,
+    held: Frozen,
+    /// The inlet pressure likewise: a pressure stuck inside its range (350 bar) read as a load of 175 N·m, and the
+    /// speed law's feed-forward kicked the setpoint up 10 Hz (35 % overspeed).
+    inlet: Frozen,
     /// Since when the speed has read no turn while the drive runs.
     no_turn_since: Option<std::time::Instant>,
 }
@@ -81,18 +84,30 @@ impl FrozenSpeed {
                 return Some(Rejected::NoTurn { entry: "shaft_speed_rpm", value: omega_rad_s, f_drive_hz, held_s });
             }
         }
-        match &mut self.held {
-            Some((w, lo, hi)) if *w == omega_rad_s && omega_rad_s != 0.0 => {
+        self.held.observe("shaft_speed_rpm", omega_rad_s, f_drive_hz)
+    }
+
+    /// The verdict on one sample's inlet pressure (bar): frozen while the drive's frequency moves.
+    pub fn observe_inlet(&mut self, p_in_bar: f64, f_drive_hz: f64) -> Option<Rejected> {
+        self.inlet.observe("inlet_pressure_bar", p_in_bar, f_drive_hz)
+    }
+}
+
+/// One value held bit for bit, and the lowest and highest drive frequency seen while it held.
+#[derive(Debug, Default)]
+struct Frozen(Option<(f64, f64, f64)>);
+
+impl Frozen {
+    /// Frozen once the drive's frequency moved more than [`FROZEN_SPEED_HZ`] while `value` (not 0) held.
+    fn observe(&mut self, entry: &'static str, value: f64, f_drive_hz: f64) -> Option<Rejected> {
+        match &mut self.0 {
+            Some((w, lo, hi)) if *w == value && value != 0.0 => {
                 (*lo, *hi) = (lo.min(f_drive_hz), hi.max(f_drive_hz));
                 let moved_hz = *hi - *lo;
-                (moved_hz > FROZEN_SPEED_HZ).then_some(Rejected::Frozen {
-                    entry: "shaft_speed_rpm",
-                    value: omega_rad_s,
-                    moved_hz,
-                })
+                (moved_hz > FROZEN_SPEED_HZ).then_some(Rejected::Frozen { entry, value, moved_hz })
             }
             _ => {
-                self.held = Some((omega_rad_s, f_drive_hz, f_drive_hz));
+                self.0 = Some((value, f_drive_hz, f_drive_hz));
                 None
             }
         }

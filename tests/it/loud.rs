@@ -260,6 +260,14 @@ async fn a_tachometer_at_half_the_speed_is_rejected_and_the_setpoint_does_not_cl
     tachometer_reading_is_rejected(|f| f.speed_scale = Some(0.5), "wrong scale").await;
 }
 
+/// An inlet pressure stuck inside its range (a sensor or PLC value frozen at 150 bar) under the speed regulator:
+/// read as a load of about 75 N·m, the feed-forward kicked the setpoint up (a reviewer's 350 bar: 10 Hz, 35 %
+/// overspeed). A pressure that holds the very same value while the drive's frequency moves 2 Hz is a frozen sensor.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_inlet_pressure_stuck_inside_its_range_is_rejected_and_the_setpoint_does_not_climb() {
+    tachometer_reading_is_rejected(|f| f.inlet_pressure_override_bar = Some(150.0), "inlet_pressure_bar stuck").await;
+}
+
 async fn tachometer_reading_is_rejected(fault: impl FnOnce(&mut hydrolens::modbus::simulator::Faults), said: &str) {
     let run = async {
         let Regulating { sim, sim_stop, s, _dir, _task } = Regulating::start().await;
