@@ -537,7 +537,8 @@ mod tests {
         let measured = Measured {
             t_s: f64::NAN,
             f_set_hz: f64::NAN,
-            p_in_bar: 40.0,
+            // a live sensor: it moves a quantum or two (one value held while the drive ramps 2 Hz is frozen)
+            p_in_bar: 40.0 + 0.01 * (counter % 3) as f64,
             p_out_bar: 5.0,
             omega_rad_s,
             f_drive_hz,
