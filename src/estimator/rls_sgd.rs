@@ -46,6 +46,8 @@ pub struct RlsSgd {
     tracker: Kalman,
     /// The last measured speed and torque, both present, for the window integrals.
     last_pair: Option<(f64, f64)>,
+    /// Rows since it with a value missing (at most [`BRIDGED_ROWS`]), and their time: bridged by the next pair.
+    bridged: (u8, f64),
     /// Two window sequences staggered by half a window, so that every speed change lies well inside one of them.
     windows: [Window; 2],
     rls: WindowRls,
@@ -114,12 +116,18 @@ const IDENTIFIED_HOLD_Z: f64 = 0.0;
 /// the hint, 890 holds for 6 more new-load runs doing harm (fans, before the speed test could see them).
 const NOMINAL_REJECTED_Z: f64 = 3.0;
 
+/// Rows in a row with a speed or torque missing that the window integrals bridge (the next complete pair's trapezoid
+/// spans them). Each broke both windows before: one empty pressure field a second (60 of 60 001 rows) left every
+/// 1.5 s window broken, nothing was learnt all run, and the reason said was too little excitation.
+const BRIDGED_ROWS: u8 = 2;
+
 impl RlsSgd {
     pub fn new(s: Resolved) -> RlsSgd {
         let mut est = RlsSgd {
             s,
             tracker: Kalman::new(s),
             last_pair: None,
+            bridged: (0, 0.0),
             windows: [Window::default(), Window::default()],
             rls: WindowRls::new(s),
             periodic: PeriodicLoad::default(),
@@ -172,9 +180,18 @@ impl RlsSgd {
     /// Adds the sample to both staggered windows, closing and learning from each that is complete.
     fn integrate(&mut self, c: &Checked) {
         let pair = c.omega_rad_s.zip(c.torque_nm);
-        let (Some(dt), Some((w1, t1)), Some((w0, t0))) = (c.dt_s, pair, self.last_pair) else {
-            // A missing value or a gap breaks the windows: the first restarts at the next complete pair, the
-            // second half a window later.
+        if let (Some(dt), None, Some(_)) = (c.dt_s, pair, self.last_pair)
+            && self.bridged.0 < BRIDGED_ROWS
+        {
+            // a value missing here and there: the next complete pair's integrals span the row
+            self.bridged = (self.bridged.0 + 1, self.bridged.1 + dt);
+            return;
+        }
+        let dt = c.dt_s.map(|dt| dt + self.bridged.1);
+        self.bridged = (0, 0.0);
+        let (Some(dt), Some((w1, t1)), Some((w0, t0))) = (dt, pair, self.last_pair) else {
+            // More missing values in a row, or a gap, break the windows: the first restarts at the next complete
+            // pair, the second half a window later.
             for w in &mut self.windows {
                 w.rows.clear();
             }

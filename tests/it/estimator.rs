@@ -69,6 +69,25 @@ fn rls_sgd_meets_the_targets_on_the_test_stand() {
     assert_rls_targets(&s, "brake steps", 0.10);
 }
 
+/// One empty pressure or speed field a second (60 of 60 001 rows, a logger's dropped value): each broke both RLS
+/// windows, so no 1.5 s window was ever whole, nothing was learnt all run, and the reason said was too little
+/// excitation (T̂_L 4.28 N·m from J ×2, B ×3, as the Kalman filter on that wrong model). One or two missing values
+/// in a row are bridged now: the same targets as on the whole recording.
+#[test]
+fn a_value_missing_here_and_there_does_not_stop_the_learning() {
+    for column in ["p_in_bar", "omega_rad_s"] {
+        let mut rec = test_stand(LoadSpec::Recorded, 60.0);
+        let mut values = rec.column(column).expect("column").to_vec();
+        for v in values.iter_mut().skip(500).step_by(1000) {
+            *v = f64::NAN;
+        }
+        rec.set_column(column, values);
+        let s = score(&rec, Method::RlsSgd, 2.0, 3.0);
+        assert!(s.last.inertia_identified > 0.0, "{column}: J {:?}", s.last);
+        assert_rls_targets(&s, column, 0.10);
+    }
+}
+
 #[test]
 fn kalman_meets_the_targets_on_the_test_stand() {
     let rec = test_stand(LoadSpec::Recorded, 60.0);
