@@ -74,13 +74,17 @@ impl FeedForward {
     /// The speed (rad/s) a frequency gives in steady state at the pressure difference `dp_pa` across the motor:
     /// the pump's flow less the leakage there, through the motor.
     pub fn omega_at_dp(&self, hz: f64, dp_pa: f64) -> f64 {
-        let flow = hz * 2.0 * PI * self.pump_m3_rad / self.pole_pairs;
-        (flow - hz.signum() * self.leakage_si * dp_pa.abs()) / self.motor_m3_rad
+        (self.pump_flow(hz) - hz.signum() * self.leakage_si * dp_pa.abs()) / self.motor_m3_rad
+    }
+
+    /// The pump's flow (m³/s) at the drive frequency `hz`.
+    fn pump_flow(&self, hz: f64) -> f64 {
+        hz * 2.0 * PI * self.pump_m3_rad / self.pole_pairs
     }
 
     /// The speed (rad/s) a frequency gives with no load: the inverse of [`FeedForward::hz`] at zero load.
     pub fn omega_rad_s(&self, hz: f64) -> f64 {
-        let flow = hz * 2.0 * PI * self.pump_m3_rad / self.pole_pairs;
+        let flow = self.pump_flow(hz);
         flow / (self.motor_m3_rad + self.leakage_si * self.viscous_nm_s_rad / self.motor_m3_rad)
     }
 }

@@ -214,7 +214,6 @@ async fn loopback_host(
     request: axum::extract::Request,
     next: axum::middleware::Next,
 ) -> Response {
-    let host = request.headers().get(header::HOST).map(|h| h.to_str().unwrap_or("\u{fffd}").to_owned());
     let named = |h: &str| {
         let name = match h.strip_prefix('[') {
             Some(v6) => v6.split(']').next().unwrap_or(""),
@@ -222,13 +221,14 @@ async fn loopback_host(
         };
         name.eq_ignore_ascii_case("localhost") || name.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_loopback())
     };
-    match host {
-        Some(h) if s.loopback_only && !named(&h) => ApiError::new(
-            StatusCode::MISDIRECTED_REQUEST,
-            format!("this service listens on loopback and answers requests for a loopback host only, not {h:?}"),
-        )
-        .into_response(),
-        _ => next.run(request).await,
+    let refused = (request.headers().get(header::HOST))
+        .filter(|_| s.loopback_only)
+        .map(|h| h.to_str().unwrap_or("\u{fffd}"))
+        .filter(|h| !named(h))
+        .map(|h| format!("this service listens on loopback and answers requests for a loopback host only, not {h:?}"));
+    match refused {
+        Some(why) => ApiError::new(StatusCode::MISDIRECTED_REQUEST, why).into_response(),
+        None => next.run(request).await,
     }
 }
 

@@ -116,8 +116,6 @@ pub struct DriveCycle {
     poll: Duration,
     stale_after: Duration,
     watchdog_every: Duration,
-    /// D_m (m³/rad): the drive torque from the pressure difference.
-    motor_m3_rad: f64,
     started: Instant,
     estimator: Box<dyn Estimator>,
     law: SpeedLaw,
@@ -154,10 +152,8 @@ pub struct DriveCycle {
     echo: Echo,
     /// The speed frozen while the drive's frequency moves, or showing no turn while the drive runs: rejected.
     frozen: FrozenSpeed,
-    /// The speed against the drive's frequency through the model (writing modes).
+    /// The speed against the drive's frequency through the model's pump and motor (writing modes).
     speed_match: SpeedMatch,
-    /// The model's pump and motor, for that check.
-    feed_forward: crate::control::FeedForward,
     pending: Option<Pending>,
     status: DriveStatus,
     /// The drive does not follow its setpoints (the law's verdict), for the alarm.
@@ -179,7 +175,6 @@ impl DriveCycle {
             poll: settings.poll,
             stale_after: settings.stale_after,
             watchdog_every: settings.watchdog_every,
-            motor_m3_rad: settings.feed_forward.motor_m3_rad,
             started,
             estimator,
             law,
@@ -200,7 +195,6 @@ impl DriveCycle {
             echo: Echo::default(),
             frozen: FrozenSpeed::default(),
             speed_match: SpeedMatch::default(),
-            feed_forward: settings.feed_forward,
             pending: None,
             status: DriveStatus::default(),
             not_following: false,
@@ -272,10 +266,12 @@ impl DriveCycle {
         if let Some(r) = self.frozen.observe_inlet(sample.measured.p_in_bar, sample.measured.f_drive_hz) {
             return nothing(Verdict::Rejected(r));
         }
+        let m = &sample.measured;
+        // the model's pump and motor (the law's): the speed the frequency gives, the torque from Δp
+        let plant = self.law.feed_forward;
+        let dp_pa = (m.p_in_bar - m.p_out_bar) * crate::units::PA_PER_BAR;
         if writing {
-            let m = &sample.measured;
-            let dp_pa = (m.p_in_bar - m.p_out_bar) * crate::units::PA_PER_BAR;
-            let expected = self.feed_forward.omega_at_dp(m.f_drive_hz, dp_pa);
+            let expected = plant.omega_at_dp(m.f_drive_hz, dp_pa);
             if let Some(r) = self.speed_match.observe(m.omega_rad_s, expected, m.f_drive_hz, now.into_std()) {
                 return nothing(Verdict::Rejected(r));
             }
@@ -307,8 +303,7 @@ impl DriveCycle {
             self.trip_latched = true;
         }
         self.last_fresh_at = Some(now);
-        let m = &sample.measured;
-        let torque = self.motor_m3_rad * (m.p_in_bar - m.p_out_bar) * crate::units::PA_PER_BAR;
+        let torque = plant.motor_m3_rad * dp_pa;
         let est = self.estimator.update(&Measurement {
             dt_s: dt.as_secs_f64(),
             omega_rad_s: m.omega_rad_s,
@@ -327,7 +322,7 @@ impl DriveCycle {
                 omega_hat_rad_s: est.omega_hat_rad_s,
                 load_hat_nm: est.load_hat_nm,
                 drive_hz: m.f_drive_hz,
-                drive_running: self.status.ready && self.status.running,
+                drive_running: running,
                 resumed,
             })
         };
