@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 
 use crate::recording::{LostFile, RotatingWriter, drive_file_key, gz, holds_no_rows};
 
-use super::retention::{Retention, prune};
+use super::retention::{Retention, WallClock, prune};
 use super::state::{COLUMNS, Point, RecordingHealth};
 
 /// How often buffered rows reach the file.
@@ -79,6 +79,8 @@ struct Keeper {
     drive: String,
     compress: bool,
     retention: Retention,
+    /// Whether the wall clock can still age files (not once stepped while the service ran).
+    clock: WallClock,
     open: Option<PathBuf>,
     to_compress: Vec<PathBuf>,
     health: Arc<Health>,
@@ -116,7 +118,8 @@ impl Keeper {
         }
         self.to_compress = failed;
         if !self.retention.is_off() {
-            match prune(&self.dir, &self.drive, self.open.as_deref(), self.retention) {
+            let ages_trusted = self.clock.trusted();
+            match prune(&self.dir, &self.drive, self.open.as_deref(), self.retention, ages_trusted) {
                 Ok(n) => {
                     self.health.files_deleted.fetch_add(n, Ordering::Relaxed);
                 }
@@ -444,6 +447,7 @@ impl Recorder {
             drive: drive.to_string(),
             compress,
             retention,
+            clock: WallClock::default(),
             open: None,
             to_compress: if compress { found } else { Vec::new() },
             health: health.clone(),
@@ -597,6 +601,7 @@ mod tests {
             drive: "pump1".into(),
             compress: true,
             retention: Retention::default(),
+            clock: WallClock::default(),
             open: None,
             to_compress: vec![empty.clone(), header.clone(), good.clone()],
             health: Arc::new(Health::default()),
