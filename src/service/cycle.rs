@@ -24,6 +24,7 @@ use super::state::{Commands, DriveStatus, Measured, Point};
 use crate::control::{Inputs, Mode, SpeedLaw};
 use crate::estimator::{Estimate, Estimator, Measurement};
 use crate::modbus::map::{MapError, RegisterMap, Sample, control, plan_writes, status};
+use std::collections::VecDeque;
 
 /// The state bits of a status word.
 pub fn drive_status(word: u16) -> DriveStatus {
@@ -100,6 +101,10 @@ struct ResetRequest {
 /// still passes it on.
 pub const RESET_LAPSES_AFTER: Duration = Duration::from_secs(1);
 
+/// Our confirmed watchdog values before the last that a read-back may still show and be ours (a gateway's cache, a
+/// late write): 1.6 s of values at the default `watchdog_ms` of 100.
+const RECENT_WATCHDOGS: usize = 16;
+
 /// What a confirmed write did.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Confirmed {
@@ -146,8 +151,8 @@ pub struct DriveCycle {
     /// The watchdog value of the last write the drive confirmed; None before one, and after a failed write (the
     /// device may or may not hold it).
     confirmed_watchdog: Option<u16>,
-    /// The confirmed watchdog value before the last one.
-    previous_watchdog: Option<u16>,
+    /// The confirmed watchdog values before the last one, newest last (at most [`RECENT_WATCHDOGS`]).
+    recent_watchdogs: VecDeque<u16>,
     /// Whether another master writes the drive (see [`super::owner`]); once found, nothing is written until a reset.
     echo: Echo,
     /// The speed frozen while the drive's frequency moves, or showing no turn while the drive runs: rejected.
@@ -191,7 +196,7 @@ impl DriveCycle {
             hz_range: (settings.limits.min_hz, settings.limits.max_hz),
             commanded: false,
             confirmed_watchdog: None,
-            previous_watchdog: None,
+            recent_watchdogs: VecDeque::with_capacity(RECENT_WATCHDOGS + 1),
             echo: Echo::default(),
             frozen: FrozenSpeed::default(),
             speed_match: SpeedMatch::default(),
@@ -376,8 +381,11 @@ impl DriveCycle {
         if p.watchdog_at.is_some() {
             self.last_watchdog_at = p.watchdog_at;
         }
-        if self.confirmed_watchdog != Some(p.watchdog) {
-            self.previous_watchdog = self.confirmed_watchdog;
+        if let Some(before) = self.confirmed_watchdog.filter(|&w| w != p.watchdog) {
+            self.recent_watchdogs.push_back(before);
+            if self.recent_watchdogs.len() > RECENT_WATCHDOGS {
+                self.recent_watchdogs.pop_front();
+            }
         }
         self.watchdog = p.watchdog;
         self.confirmed_watchdog = Some(p.watchdog);
@@ -389,6 +397,15 @@ impl DriveCycle {
             r.sent = true;
         }
         Some(Confirmed { setpoint_hz: p.setpoint_hz, reset_sent })
+    }
+
+    /// Where the watchdog counts from (the first write carries the next value): the service starts it at a value of
+    /// its own, so that two masters started together do not count in step, each taking the other's values for its
+    /// own recent ones ([`RECENT_WATCHDOGS`]).
+    pub fn start_watchdog_at(&mut self, value: u16) {
+        if self.confirmed_watchdog.is_none() {
+            self.watchdog = value;
+        }
     }
 
     /// The next watchdog value: counting up, and from 1 again where the register cannot hold the next one (a PLC's
@@ -414,9 +431,10 @@ impl DriveCycle {
         let Some(read) = read else { return self.echo.refused() };
         let encode = |w: u16| self.registers.watchdog.encode(f64::from(w)).ok();
         let ours = encode(self.confirmed_watchdog?)?;
-        // our value before the last is ours too: a gateway that answers reads from a cache it refreshes every few
-        // polls shows it for a while (a reviewer's 20 ms cache was found "another master" within 5 s)
-        let lagging = self.previous_watchdog.and_then(encode).is_some_and(|p| p == read);
+        // our recent values are ours too: a gateway that answers reads from a cache it refreshes every few polls, or
+        // passes writes on late, shows them for a while (a reviewer's 20 ms cache was found "another master" within
+        // 5 s, and one six values behind too)
+        let lagging = self.recent_watchdogs.iter().any(|&p| encode(p).is_some_and(|p| p == read));
         let finding = self.echo.observe(now, read, if lagging { read } else { &ours });
         if self.echo.found() {
             // the drive is the other master's now: its stopping is no trip of ours, and a clean stop leaves it be
@@ -779,13 +797,45 @@ mod tests {
         for _ in 0..30 {
             let at = t0 + MS * (10 * k as u32);
             if c.echo_due(at).is_some() {
-                let behind = c.previous_watchdog.or(c.confirmed_watchdog).expect("written");
+                let behind = c.recent_watchdogs.back().copied().or(c.confirmed_watchdog).expect("written");
                 assert_eq!(c.echo_read(at, Some(&[behind])), None);
             }
             run(&mut c, t0, k, 20, 30.0, 3);
             k += 20;
         }
         assert!(!c.another_master());
+    }
+
+    /// A gateway that passes writes on late shows our value from several writes back: ours, not another master's.
+    #[test]
+    fn a_read_back_six_values_behind_is_ours() {
+        let (mut c, t0) = cycle("mode = \"manual\"\nfixed_hz = 40.0\nramp_hz_per_s = 100.0");
+        let mut ours: Vec<u16> = Vec::new();
+        let mut k = 0;
+        for _ in 0..60 {
+            let at = t0 + MS * (10 * k as u32);
+            if let Some(w) = c.confirmed_watchdog.filter(|w| ours.last() != Some(w)) {
+                ours.push(w);
+            }
+            if c.echo_due(at).is_some() {
+                let behind = ours[ours.len().saturating_sub(7)];
+                assert_eq!(c.echo_read(at, Some(&[behind])), None);
+            }
+            run(&mut c, t0, k, 20, 30.0, 3);
+            k += 20;
+        }
+        assert!(ours.len() > 20, "{} values", ours.len());
+        assert!(!c.another_master());
+    }
+
+    /// The watchdog starts where the service says, and counts on from there.
+    #[test]
+    fn the_watchdog_starts_where_it_is_told() {
+        let (mut c, t0) = cycle("mode = \"manual\"\nfixed_hz = 20.0");
+        c.start_watchdog_at(20_000);
+        let steps = run(&mut c, t0, 0, 12, 30.0, 3);
+        let dog: Vec<u16> = steps.iter().filter_map(|s| written(s).map(|w| w.2)).collect();
+        assert_eq!(dog, vec![20_001, 20_002]);
     }
 
     /// An `i16` watchdog (a PLC's INT) counts up to 32767 and then from 1 again: every write failed to encode from

@@ -68,6 +68,15 @@ const STAGGER_SPAN: std::time::Duration = std::time::Duration::from_millis(10);
 /// How often the jitter percentiles are recomputed (each is a pass over the 1000-period window).
 const STATS_EVERY: std::time::Duration = std::time::Duration::from_millis(50);
 
+/// A watchdog start of this process's own (from the clock's nanoseconds and the process id, spread by a
+/// multiplicative hash), below 32 000 so that any watchdog register holds it: two masters started together then
+/// count far apart, and each sees the other's values as foreign.
+fn watchdog_start() -> u16 {
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
+    let mixed = (nanos ^ std::process::id().rotate_left(16)).wrapping_mul(0x9E37_79B1);
+    u16::try_from((mixed >> 16) % 32_000).unwrap_or(0)
+}
+
 impl DriveLoop {
     /// `client` is the drive's connection: its own (Modbus TCP) or its turn on a shared RTU line
     /// ([`crate::modbus::bus::Bus::handle`]).
@@ -79,10 +88,12 @@ impl DriveLoop {
         recorder: Option<Recorder>,
         started: Instant,
     ) -> DriveLoop {
+        let mut cycle = DriveCycle::new(&settings, estimator, started);
+        cycle.start_watchdog_at(watchdog_start());
         DriveLoop {
             plan: read_plan(&settings.registers),
             timing: LoopTiming::new(settings.poll),
-            cycle: DriveCycle::new(&settings, estimator, started),
+            cycle,
             client,
             state,
             recorder,
@@ -301,8 +312,8 @@ impl DriveLoop {
         match finding {
             Some(Finding::AnotherMaster { read, ours }) => tracing::warn!(drive = %name, register = address,
                 read = ?read, ours = ?ours,
-                "another master writes this drive (its watchdog register holds values this service never wrote): \
-                 this service stands back and writes nothing, not even a stop, so the two do not fight; the \
+                "another master writes this drive, or the drive no longer takes this service's writes (its \
+                 watchdog register holds values this service did not write lately): this service stands back and writes nothing, not even a stop, so the two do not fight; the \
                  drive's own watchdog stops it if the other master does not feed it; POST \
                  /api/drives/<name>/reset writes again"),
             Some(Finding::Unavailable(why)) => tracing::warn!(drive = %name, register = address,
