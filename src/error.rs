@@ -51,12 +51,17 @@ pub fn read_small_file(path: &std::path::Path) -> std::io::Result<Vec<u8>> {
     Ok(bytes)
 }
 
-/// [`read_small_file`], as UTF-8 text.
+/// [`read_small_file`], as UTF-8 text. A byte that is not names its line and column (counted in characters, 1-based)
+/// and the byte offset: a Latin-1 `é` in a comment was said as "byte 24" only.
 pub fn read_text_file(path: &std::path::Path) -> std::io::Result<String> {
     String::from_utf8(read_small_file(path)?).map_err(|e| {
+        let at = e.utf8_error().valid_up_to();
+        let before = String::from_utf8_lossy(&e.as_bytes()[..at]);
+        let line = before.matches('\n').count() + 1;
+        let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
         std::io::Error::new(
             std::io::ErrorKind::InvalidData,
-            format!("not UTF-8 text (byte {})", e.utf8_error().valid_up_to()),
+            format!("not UTF-8 text at line {line}, column {column} (byte {at}; save the file as UTF-8)"),
         )
     })
 }
@@ -74,7 +79,11 @@ mod tests {
         let path = dir.path().join("m.toml");
         std::fs::write(&path, b"a = 1\n\xff").expect("write");
         let err = read_text_file(&path).expect_err("not UTF-8");
-        assert!(err.to_string().contains("byte 6"), "{err}");
+        assert!(err.to_string().contains("line 2, column 1 (byte 6"), "{err}");
+        std::fs::write(&path, "a = 1 # r\u{e9}\nb = \"".bytes().chain(*b"p\xe9\"\n").collect::<Vec<u8>>())
+            .expect("write");
+        let err = read_text_file(&path).expect_err("Latin-1");
+        assert!(err.to_string().contains("line 2, column 7"), "{err}");
         std::fs::write(&path, "a = 1\n").expect("write");
         assert_eq!(read_text_file(&path).expect("read"), "a = 1\n");
     }
