@@ -9,8 +9,6 @@ use std::fs::File;
 use std::io::{BufReader, Chain, Cursor, Read, Seek, SeekFrom, Take};
 use std::path::Path;
 
-use flate2::bufread::MultiGzDecoder;
-
 use super::RecordingError;
 use super::gz::{self, WholeLines};
 
@@ -19,10 +17,10 @@ pub struct RecordingFile(Text);
 
 enum Text {
     Plain(Take<File>),
-    Gzip(Box<WholeLines<MultiGzDecoder<BufReader<File>>>>),
+    Gzip(Box<WholeLines<gz::Members<BufReader<File>>>>),
     /// From a pipe, plain or compressed: whole lines as they come.
     Stream(Box<WholeLines<Piped>>),
-    GzipStream(Box<WholeLines<MultiGzDecoder<BufReader<Piped>>>>),
+    GzipStream(Box<WholeLines<gz::Members<BufReader<Piped>>>>),
 }
 
 /// A pipe's first bytes (read to tell gzip) put back in front of the rest.

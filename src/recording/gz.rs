@@ -8,7 +8,7 @@ use std::io::{BufRead, BufWriter, ErrorKind, Read};
 use std::path::{Path, PathBuf};
 
 use flate2::Compression;
-use flate2::bufread::MultiGzDecoder;
+use flate2::bufread::GzDecoder;
 use flate2::write::GzEncoder;
 
 /// The first two bytes of every gzip stream (RFC 1952).
@@ -67,8 +67,55 @@ pub fn starts_gzip(head: &[u8]) -> bool {
 /// The text of a compressed recording, up to its last newline: a last line cut mid-row, or a gzip stream cut
 /// short (the process died, or the disk filled, while it was written), is dropped with a warning. Corrupt data is
 /// an error of kind `InvalidData` naming the line it follows.
-pub fn decoder<R: BufRead>(input: R, origin: &str) -> WholeLines<MultiGzDecoder<R>> {
-    WholeLines::new(MultiGzDecoder::new(input), origin)
+pub fn decoder<R: BufRead>(input: R, origin: &str) -> WholeLines<Members<R>> {
+    WholeLines::new(Members { member: Some(GzDecoder::new(input)), origin: origin.to_string() }, origin)
+}
+
+/// The members of a gzip file one after the other (as `gzip -d` reads them), and what may follow the last: zero
+/// bytes (the block padding of a tape, `dd` or a transfer tool) end the data, as `gzip` takes them; anything else
+/// after them is corrupt data. A file padded so was refused as "invalid gzip header".
+pub struct Members<R: BufRead> {
+    /// The member being read; None once the data have ended.
+    member: Option<GzDecoder<R>>,
+    origin: String,
+}
+
+impl<R: BufRead> Read for Members<R> {
+    fn read(&mut self, out: &mut [u8]) -> std::io::Result<usize> {
+        loop {
+            let Some(member) = self.member.as_mut() else { return Ok(0) };
+            let n = member.read(out)?;
+            if n > 0 || out.is_empty() {
+                return Ok(n);
+            }
+            // the member ended: another one follows, or the end, or padding
+            let mut rest = self.member.take().map(GzDecoder::into_inner).expect("a member was read");
+            if rest.fill_buf()?.first().is_some_and(|&b| b != 0) {
+                self.member = Some(GzDecoder::new(rest));
+                continue;
+            }
+            let mut zeros: u64 = 0;
+            loop {
+                let buf = rest.fill_buf()?;
+                if buf.is_empty() {
+                    if zeros > 0 {
+                        tracing::info!(recording = %self.origin, zero_bytes = zeros,
+                            "zero bytes after the compressed data (block padding): ignored, as gzip does");
+                    }
+                    return Ok(0);
+                }
+                let k = buf.iter().take_while(|&&b| b == 0).count();
+                if k == 0 {
+                    return Err(std::io::Error::new(
+                        ErrorKind::InvalidData,
+                        format!("data after the compressed stream's end and {zeros} zero bytes of padding"),
+                    ));
+                }
+                rest.consume(k);
+                zeros += k as u64;
+            }
+        }
+    }
 }
 
 /// Hands out the text of `inner` a whole line at a time (see [`decoder`]). A line longer than
@@ -201,7 +248,7 @@ mod tests {
 
     fn read_all(bytes: Vec<u8>) -> std::io::Result<String> {
         let mut s = String::new();
-        WholeLines::new(MultiGzDecoder::new(bytes.as_slice()), "t").read_to_string(&mut s)?;
+        decoder(bytes.as_slice(), "t").read_to_string(&mut s)?;
         Ok(s)
     }
 
@@ -235,6 +282,23 @@ mod tests {
     }
 
     #[test]
+    fn members_follow_each_other_and_zero_padding_ends_the_data() {
+        let mut two = gzip(b"t_s,x\n0,1\n");
+        two.extend(gzip(b"1,2\n"));
+        assert_eq!(read_all(two.clone()).expect("two members"), "t_s,x\n0,1\n1,2\n");
+        // a tape's or dd's block padding: gzip takes it (\"trailing zero bytes ignored\"); it was refused here
+        let mut padded = two.clone();
+        padded.extend([0u8; 512]);
+        assert_eq!(read_all(padded).expect("padded"), "t_s,x\n0,1\n1,2\n");
+        let mut bad = two;
+        bad.extend([0u8; 10]);
+        bad.extend(b"rubbish");
+        let e = read_all(bad).expect_err("data after the padding");
+        assert_eq!(e.kind(), ErrorKind::InvalidData, "{e}");
+        assert!(e.to_string().contains("10 zero bytes"), "{e}");
+    }
+
+    #[test]
     fn corrupt_data_is_invalid_data() {
         let text: String = (0..20_000).map(|k| format!("{k},{}\n", k * 7)).collect();
         let mut bytes = gzip(text.as_bytes());
@@ -256,7 +320,7 @@ mod tests {
         assert_eq!(gz, dir.path().join("pump1-1.csv.gz"));
         assert!(!plain.exists() && !temp_path(&plain).exists());
         let mut s = String::new();
-        MultiGzDecoder::new(std::io::BufReader::new(File::open(&gz).expect("open")))
+        flate2::bufread::MultiGzDecoder::new(std::io::BufReader::new(File::open(&gz).expect("open")))
             .read_to_string(&mut s)
             .expect("gunzip");
         assert_eq!(s, "t_s,a\n1,2\n");
