@@ -295,23 +295,15 @@ impl RlsSgd {
         let ((_, viscous_var), _) = self.combined;
         let ((b, j), sds) = self.credible();
         let fit = self.verdicts((b, j), (sds.0, viscous_var.sqrt()));
-        let (mut inertia, mut viscous) = self.verdicts((b, j), sds);
+        let (inertia, mut viscous) = self.verdicts((b, j), sds);
         // a B the data give away from the model's is friction or a load that follows the speed: never called
         // friction (identified), only their sum
         let b0 = self.nominal_parameters().1;
         if viscous == Identification::Identified && (b - b0).abs() > 2.0 * sds.1 {
             viscous = Identification::FrictionOrLoad;
         }
-        let ok = self.standing(fit, sds.0);
-        let (j_stands, b_stands) = self.backed(ok, sds.0);
-        // known, but near the nominal without predicting better: the nominal stands, as the data allow
-        if ok.0 && !j_stands && inertia == Identification::Identified {
-            inertia = Identification::NominalPredictsAsWell;
-        }
-        if ok.1 && !b_stands && matches!(viscous, Identification::Identified | Identification::FrictionOrLoad) {
-            viscous = Identification::NominalPredictsAsWell;
-        }
-        (((inertia, viscous), (j_stands, b_stands)), sds)
+        let backed = self.backed(self.standing(fit, sds.0), sds.0);
+        (((inertia, viscous), backed), sds)
     }
 
     /// Why an identified J is not called the inertia, if it is not: J is the inertia only where the windows of
@@ -351,28 +343,32 @@ impl RlsSgd {
     fn verdicts(&self, (b, j): (f64, f64), (j_sd, b_sd): (f64, f64)) -> (Identification, Identification) {
         let (j0, b0) = self.nominal_parameters();
         let in_force = self.validation.in_force;
-        let ((was_j, was_b), _) = self.judged;
+        let ((was_j, was_b), (stood_j, stood_b)) = self.judged;
         // a parameter identified at the last judgement (B also as friction or load: the same evidence, only away
-        // from the model's) is held to the looser bounds (`IDENTIFIED_HOLD_*`)
-        let held = |was: Identification| matches!(was, Identification::Identified | Identification::FrictionOrLoad);
-        let known = |sd: f64, x: f64, limit: f64, was: Identification| {
-            sd <= limit * x.abs() * if held(was) { IDENTIFIED_HOLD_SD_FACTOR } else { 1.0 }
+        // from the model's) that stood is held to the looser bounds (`IDENTIFIED_HOLD_*`); one the windows did not
+        // back ([`Self::backed`]) is not, or a chirp's B, held at z ≥ 0, stood +57 % once it left 2 sd
+        let held = |was: Identification, stood: bool| {
+            stood && matches!(was, Identification::Identified | Identification::FrictionOrLoad)
+        };
+        let (held_j, held_b) = (held(was_j, stood_j), held(was_b, stood_b));
+        let known = |sd: f64, x: f64, limit: f64, held: bool| {
+            sd <= limit * x.abs() * if held { IDENTIFIED_HOLD_SD_FACTOR } else { 1.0 }
         };
         // identified needs evidence: the windows said the adapted values predict better, or they agree with the
         // nominal ones (then neither can beat the other)
-        let earned = |x: f64, x0: f64, sd: f64, was: Identification| {
-            let z = if held(was) { IDENTIFIED_HOLD_Z } else { IDENTIFIED_Z };
+        let earned = |x: f64, x0: f64, sd: f64, held: bool| {
+            let z = if held { IDENTIFIED_HOLD_Z } else { IDENTIFIED_Z };
             self.validation.z() >= z || (x - x0).abs() <= 2.0 * sd
         };
-        let inertia = match (in_force, known(j_sd, j, INERTIA_IDENTIFIED_SD, was_j), earned(j, j0, j_sd, was_j)) {
+        let inertia = match (in_force, known(j_sd, j, INERTIA_IDENTIFIED_SD, held_j), earned(j, j0, j_sd, held_j)) {
             (true, true, true) => Identification::Identified,
             (false, true, _) => Identification::NominalPredictsAsWell,
             _ => Identification::TooLittleExcitation,
         };
         // B comes with J from the same windows: never identified where J is not
         let j_known = inertia == Identification::Identified;
-        let b_known = known(b_sd, b, VISCOUS_IDENTIFIED_SD, was_b);
-        let viscous = match (self.load_follows_speed(), in_force, b_known, earned(b, b0, b_sd, was_b)) {
+        let b_known = known(b_sd, b, VISCOUS_IDENTIFIED_SD, held_b);
+        let viscous = match (self.load_follows_speed(), in_force, b_known, earned(b, b0, b_sd, held_b)) {
             (true, _, _, _) => Identification::LoadFollowsSpeed,
             (false, true, true, true) if j_known => Identification::Identified,
             (false, false, true, _) => Identification::NominalPredictsAsWell,
@@ -484,6 +480,15 @@ impl Estimator for RlsSgd {
                 viscous = why;
             }
         }
+        // known, but near the nominal without the windows' backing ([`Self::backed`]): the nominal stands, said so
+        // (after the reasons above, which say more of why the data cannot tell)
+        let known = |why: Identification| matches!(why, Identification::Identified | Identification::FrictionOrLoad);
+        if known(inertia) && !j_stands {
+            inertia = Identification::NominalPredictsAsWell;
+        }
+        if known(viscous) && !b_stands {
+            viscous = Identification::NominalPredictsAsWell;
+        }
         // the load as tracked on the values that stand: the adapted tracker where both do, else the fallback one
         // (the nominal B, and J where it is not earned)
         let fast = if b_stands { self.tracker.estimate() } else { self.fallback.estimate() };
@@ -491,14 +496,8 @@ impl Estimator for RlsSgd {
         let prior_j_sd = self.s.inertia_prior_sd * j0;
         let prior_b_sd = self.s.viscous_prior_sd * b0.max(self.s.viscous_bounds_nm_s_rad[1] / 5.0);
         let (credible_j_sd, credible_b_sd) = self.credible_sd;
-        // the nominal where the data agree with it: as sure as the data, widened by how far their value lies from it
-        let nominal_sd = |x: f64, x0: f64, sd: f64, prior: f64, why: Identification| {
-            if why == Identification::NominalPredictsAsWell { prior.min(sd + (x - x0).abs()) } else { prior }
-        };
-        let (j, j_sd) =
-            if j_stands { (j, credible_j_sd) } else { (j0, nominal_sd(j, j0, credible_j_sd, prior_j_sd, inertia)) };
-        let (b, b_sd) =
-            if b_stands { (b, credible_b_sd) } else { (b0, nominal_sd(b, b0, credible_b_sd, prior_b_sd, viscous)) };
+        let (j, j_sd) = if j_stands { (j, credible_j_sd) } else { (j0, prior_j_sd) };
+        let (b, b_sd) = if b_stands { (b, credible_b_sd) } else { (b0, prior_b_sd) };
         Estimate {
             omega_hat_rad_s: fast.omega_hat_rad_s,
             load_hat_nm: fast.load_hat_nm,
