@@ -410,7 +410,7 @@ impl RlsSgd {
     /// Which of the values [`Self::standing`] lets stand are backed by the data: one within 2 sd of the nominal is
     /// no evidence against it, and stands only where the windows say it predicts better (`IDENTIFIED_Z`, held to
     /// `IDENTIFIED_HOLD_Z`). A chirp load on a correct model took B to +50 % at 1.5 sd, called identified at z −0.3:
-    /// T̂_L was 1.44× the nominal model's.
+    /// T̂_L was 1.46× the Kalman filter's on the same model (`estimator::a_chirp_load_on_a_correct_model_does_no_harm`).
     fn backed(&self, (j_ok, b_ok): (bool, bool), credible_j_sd: f64) -> (bool, bool) {
         let ((b, viscous_var), (j, _)) = self.combined;
         let (j0, b0) = self.nominal_parameters();
