@@ -483,10 +483,11 @@ impl Estimator for RlsSgd {
         // known, but near the nominal without the windows' backing ([`Self::backed`]): the nominal stands, said so
         // (after the reasons above, which say more of why the data cannot tell)
         let known = |why: Identification| matches!(why, Identification::Identified | Identification::FrictionOrLoad);
-        if known(inertia) && !j_stands {
+        let (j_known, b_known) = (known(inertia) && !j_stands, known(viscous) && !b_stands);
+        if j_known {
             inertia = Identification::NominalPredictsAsWell;
         }
-        if known(viscous) && !b_stands {
+        if b_known {
             viscous = Identification::NominalPredictsAsWell;
         }
         // the load as tracked on the values that stand: the adapted tracker where both do, else the fallback one
@@ -496,8 +497,15 @@ impl Estimator for RlsSgd {
         let prior_j_sd = self.s.inertia_prior_sd * j0;
         let prior_b_sd = self.s.viscous_prior_sd * b0.max(self.s.viscous_bounds_nm_s_rad[1] / 5.0);
         let (credible_j_sd, credible_b_sd) = self.credible_sd;
-        let (j, j_sd) = if j_stands { (j, credible_j_sd) } else { (j0, prior_j_sd) };
-        let (b, b_sd) = if b_stands { (b, credible_b_sd) } else { (b0, prior_b_sd) };
+        // the nominal where the data know the value and agree with it: as sure as they are, widened by how far their
+        // value lies from it (the truth within 2 sd of theirs is then within 2 of the nominal's)
+        let nominal_sd = |x: f64, x0: f64, sd: f64, prior: f64, known: bool| {
+            if known { prior.min(sd + (x - x0).abs()) } else { prior }
+        };
+        let (j, j_sd) =
+            if j_stands { (j, credible_j_sd) } else { (j0, nominal_sd(j, j0, credible_j_sd, prior_j_sd, j_known)) };
+        let (b, b_sd) =
+            if b_stands { (b, credible_b_sd) } else { (b0, nominal_sd(b, b0, credible_b_sd, prior_b_sd, b_known)) };
         Estimate {
             omega_hat_rad_s: fast.omega_hat_rad_s,
             load_hat_nm: fast.load_hat_nm,
