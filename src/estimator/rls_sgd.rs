@@ -116,6 +116,12 @@ const IDENTIFIED_HOLD_Z: f64 = 0.0;
 /// the hint, 890 holds for 6 more new-load runs doing harm (fans, before the speed test could see them).
 const NOMINAL_REJECTED_Z: f64 = 3.0;
 
+/// Whether the data set `x` (with standard deviation `sd`) apart from the nominal `x0`: more than 2 sd from it. Within
+/// that, neither can beat the other on the fit alone.
+fn apart(x: f64, x0: f64, sd: f64) -> bool {
+    (x - x0).abs() > 2.0 * sd
+}
+
 /// Rows in a row with a speed or torque missing that the window integrals bridge (the next complete pair's trapezoid
 /// spans them). Each broke both windows before: one empty pressure field a second (60 of 60 001 rows) left every
 /// 1.5 s window broken, nothing was learnt all run, and the reason said was too little excitation.
@@ -299,7 +305,7 @@ impl RlsSgd {
         // a B the data give away from the model's is friction or a load that follows the speed: never called
         // friction (identified), only their sum
         let b0 = self.nominal_parameters().1;
-        if viscous == Identification::Identified && (b - b0).abs() > 2.0 * sds.1 {
+        if viscous == Identification::Identified && apart(b, b0, sds.1) {
             viscous = Identification::FrictionOrLoad;
         }
         let backed = self.backed(self.standing(fit, sds.0), sds.0);
@@ -358,7 +364,7 @@ impl RlsSgd {
         // nominal ones (then neither can beat the other)
         let earned = |x: f64, x0: f64, sd: f64, held: bool| {
             let z = if held { IDENTIFIED_HOLD_Z } else { IDENTIFIED_Z };
-            self.validation.z() >= z || (x - x0).abs() <= 2.0 * sd
+            self.validation.z() >= z || !apart(x, x0, sd)
         };
         let inertia = match (in_force, known(j_sd, j, INERTIA_IDENTIFIED_SD, held_j), earned(j, j0, j_sd, held_j)) {
             (true, true, true) => Identification::Identified,
@@ -417,7 +423,7 @@ impl RlsSgd {
         let (_, (was_j, was_b)) = self.judged;
         let z = self.validation.z();
         let backed = |x: f64, x0: f64, sd: f64, was: bool| {
-            (x - x0).abs() > 2.0 * sd || z >= if was { IDENTIFIED_HOLD_Z } else { IDENTIFIED_Z }
+            apart(x, x0, sd) || z >= if was { IDENTIFIED_HOLD_Z } else { IDENTIFIED_Z }
         };
         (j_ok && backed(j, j0, credible_j_sd, was_j), b_ok && backed(b, b0, viscous_var.sqrt(), was_b))
     }
@@ -483,11 +489,11 @@ impl Estimator for RlsSgd {
         // known, but near the nominal without the windows' backing ([`Self::backed`]): the nominal stands, said so
         // (after the reasons above, which say more of why the data cannot tell)
         let known = |why: Identification| matches!(why, Identification::Identified | Identification::FrictionOrLoad);
-        let (j_known, b_known) = (known(inertia) && !j_stands, known(viscous) && !b_stands);
-        if j_known {
+        let (j_unbacked, b_unbacked) = (known(inertia) && !j_stands, known(viscous) && !b_stands);
+        if j_unbacked {
             inertia = Identification::NominalPredictsAsWell;
         }
-        if b_known {
+        if b_unbacked {
             viscous = Identification::NominalPredictsAsWell;
         }
         // the load as tracked on the values that stand: the adapted tracker where both do, else the fallback one
@@ -503,9 +509,9 @@ impl Estimator for RlsSgd {
             if known { prior.min(sd + (x - x0).abs()) } else { prior }
         };
         let (j, j_sd) =
-            if j_stands { (j, credible_j_sd) } else { (j0, nominal_sd(j, j0, credible_j_sd, prior_j_sd, j_known)) };
+            if j_stands { (j, credible_j_sd) } else { (j0, nominal_sd(j, j0, credible_j_sd, prior_j_sd, j_unbacked)) };
         let (b, b_sd) =
-            if b_stands { (b, credible_b_sd) } else { (b0, nominal_sd(b, b0, credible_b_sd, prior_b_sd, b_known)) };
+            if b_stands { (b, credible_b_sd) } else { (b0, nominal_sd(b, b0, credible_b_sd, prior_b_sd, b_unbacked)) };
         Estimate {
             omega_hat_rad_s: fast.omega_hat_rad_s,
             load_hat_nm: fast.load_hat_nm,

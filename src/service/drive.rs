@@ -313,9 +313,9 @@ impl DriveLoop {
             Some(Finding::AnotherMaster { read, ours }) => tracing::warn!(drive = %name, register = address,
                 read = ?read, ours = ?ours,
                 "another master writes this drive, or the drive no longer takes this service's writes (its \
-                 watchdog register holds values this service did not write lately): this service stands back and writes nothing, not even a stop, so the two do not fight; the \
-                 drive's own watchdog stops it if the other master does not feed it; POST \
-                 /api/drives/<name>/reset writes again"),
+                 watchdog register holds values this service did not write lately): this service stands back and \
+                 writes nothing, not even a stop, so the two do not fight; the drive's own watchdog stops it if the \
+                 other master does not feed it; POST /api/drives/<name>/reset writes again"),
             Some(Finding::Unavailable(why)) => tracing::warn!(drive = %name, register = address,
                 "{why}: another master writing this drive cannot be detected"),
             None => {}

@@ -118,7 +118,8 @@ impl Keeper {
         }
         self.to_compress = failed;
         if !self.retention.is_off() {
-            let ages_trusted = self.clock.trusted();
+            // the clock is judged only where files go for their age (its WARN says no age deletes)
+            let ages_trusted = self.retention.keep.is_none() || self.clock.trusted();
             match prune(&self.dir, &self.drive, self.open.as_deref(), self.retention, ages_trusted) {
                 Ok(n) => {
                     self.health.files_deleted.fetch_add(n, Ordering::Relaxed);
