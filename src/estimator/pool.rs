@@ -108,6 +108,14 @@ impl WindowPool {
         self.speed_slope().map(|s| (s.slope / s.se).abs() > SPEED_SLOPE_HOLD_Z)
     }
 
+    /// Whether a speed dependence that made up `distance` of B at the windows' mean speed would show as a hint: a
+    /// fan's local B is twice its torque over the speed, so its slope is that B over the speed, and it must lie
+    /// `SPEED_SLOPE_HOLD_Z` standard errors from zero. Where it would not, no hint is no evidence.
+    pub(super) fn would_show(&self, distance: f64) -> bool {
+        self.speed_slope()
+            .is_some_and(|s| (distance / s.mean_abs_speed.max(f64::MIN_POSITIVE)).abs() > SPEED_SLOPE_HOLD_Z * s.se)
+    }
+
     /// The weighted line of the windows' B on their mean speed (a meta-regression: each window weighted by its
     /// variance plus the between-window scatter about the line); `None` before `SPEED_SLOPE_WINDOWS` windows.
     fn speed_slope(&self) -> Option<SpeedSlope> {
@@ -143,7 +151,8 @@ impl WindowPool {
             about((slope, mean_b, mean_speed)).map(|(d2, v)| d2 / (v + tau2).max(1e-300)).sum::<f64>() / (n - 2) as f64;
         let se = (resid.max(1.0) / information).sqrt();
         let (lo, hi) = speeds.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
-        Some(SpeedSlope { slope, se, mean_b, speed_range: hi - lo })
+        let mean_abs_speed = speeds.iter().map(|x| x.abs()).sum::<f64>() / n as f64;
+        Some(SpeedSlope { slope, se, mean_b, mean_abs_speed, speed_range: hi - lo })
     }
 
     fn pool(&self) -> (f64, f64) {
@@ -224,6 +233,7 @@ struct SpeedSlope {
     slope: f64,
     se: f64,
     mean_b: f64,
+    mean_abs_speed: f64,
     speed_range: f64,
 }
 
@@ -306,6 +316,28 @@ mod tests {
         assert!(!friction.depends_on_speed(true), "once shown or not, friction shows no speed dependence");
         assert_eq!(friction.speed_hint(), Some(false));
         assert_eq!(pool(&|_, b_w, _| b_w).speed_hint(), Some(true));
+    }
+
+    /// No hint is evidence only where a fan would have shown one: windows of one friction (each off by up to its own
+    /// sd) at 30–32 rad/s show no hint, yet a fan that made up 0.05 N·m·s/rad there would not have shown one either;
+    /// the same windows spread over 5–60 rad/s would have shown it.
+    #[test]
+    fn no_hint_is_evidence_only_where_a_fan_would_show() {
+        let pattern = [0.9, -0.6, 0.3, -1.0, 0.5, -0.2, 0.8, -0.7];
+        let pool = |speed: &dyn Fn(usize) -> f64| {
+            let mut p = WindowPool::new(0.04, 0.01, [0.0, 0.5], 1.0);
+            for i in 0..16 {
+                p.add(0.04 + 0.01 * pattern[i % 8], 0.01f64.powi(2), speed(i));
+            }
+            p
+        };
+        let narrow = pool(&|i| 30.0 + (i % 3) as f64);
+        assert_eq!(narrow.speed_hint(), Some(false));
+        assert!(!narrow.would_show(0.05));
+        let wide = pool(&|i| 5.0 + 55.0 * ((i * 5) % 16) as f64 / 15.0);
+        assert_eq!(wide.speed_hint(), Some(false));
+        assert!(wide.would_show(0.05));
+        assert!(!wide.would_show(0.0), "no distance, nothing to show");
     }
 
     /// The windows' J against the way the speed went (+1 a speed-up, −1 a slow-down). One inertia, every window off
