@@ -474,20 +474,37 @@ fn a_j_the_windows_contradict_does_not_stand() {
 /// A B that the data set apart from a wrong nominal stands, and stays (docs/estimator.md, "What stands"): ramp loads
 /// of the reserve seeds, polled without loss. Seed 19004 at 2 ms starts from B ×2.14; from 1.5 s the windows give
 /// 0.029 ± 0.009 (true 0.04), 6 sd from the nominal 0.086, with the sign test for the adapted values, yet not known to
-/// 25 %: the nominal stood until 7.5 s and T̂_L was 1.46× the truth reference's. Seed 19022 at 1 ms: B, read as
-/// friction or load (away from the model's), fell back to the nominal for 3 s at one steady speed when a tied window
-/// took the sign test from 1 to 0, because the hold kept only B called friction (T̂_L 1.43×).
+/// 25 %: the nominal stood until 7.5 s and T̂_L was 1.46× the truth reference's. Seed 19022 at 1 ms (B ×0.31): B, read
+/// as friction or load (away from the model's), fell back to the nominal for 3 s at one steady speed when a tied
+/// window took the sign test from 1 to 0, because the hold kept only B called friction. Above the nominal, its B now
+/// waits for the speed test (a fan's slope would give it too): once it stands, it stays.
 #[test]
 fn a_b_the_data_set_apart_from_a_wrong_nominal_stands_and_stays() {
     use hydrolens::estimator::battery;
     use hydrolens::plant::scenario::{Family, Scenario};
     let settings = EstimatorSettings::default();
-    for (seed, poll_ms) in [(19004, 2), (19022, 1)] {
-        let s = Scenario::generate(Family::Ramp, seed, 60.0);
-        let r = battery::run(&s, poll_ms, 0.0, &settings, &settings);
-        eprintln!("{} ms {}: T̂_L {:.2}× the truth reference's", poll_ms, r.describe, r.load_ratio());
-        assert!(r.load_ratio() <= battery::LOAD_RMSE_FACTOR, "{poll_ms} ms seed {seed}: {:.2}×", r.load_ratio());
+    let s = Scenario::generate(Family::Ramp, 19004, 60.0);
+    let r = battery::run(&s, 2, 0.0, &settings, &settings);
+    eprintln!("2 ms {}: T̂_L {:.2}× the truth reference's", r.describe, r.load_ratio());
+    assert!(r.load_ratio() <= battery::LOAD_RMSE_FACTOR, "2 ms seed 19004: {:.2}×", r.load_ratio());
+    let truth = PlantModel::reference();
+    let s = Scenario::generate(Family::Ramp, 19022, 60.0);
+    let polled = battery::poll(&s, &truth, 1);
+    let nominal = battery::wrong_model(&s, &truth);
+    let b0 = nominal.motor.viscous_nm_s_rad;
+    let mut est = estimator::build(&EstimatorSettings { method: Method::RlsSgd, ..settings }, &nominal);
+    let (mut stood_at, mut back) = (None, Vec::new());
+    for (t, m) in polled.t_s.iter().zip(&polled.measurements) {
+        let stands = est.update(m).viscous_hat_nm_s_rad != b0;
+        match (stood_at, stands) {
+            (None, true) => stood_at = Some(*t),
+            (Some(_), false) => back.push(*t),
+            _ => {}
+        }
     }
+    eprintln!("1 ms {}: B stood from {stood_at:?} s", s.describe());
+    assert!(stood_at.is_some_and(|t| t < 15.0), "B of seed 19022 stood from {stood_at:?} s");
+    assert!(back.is_empty(), "B of seed 19022 fell back to the nominal at {:?} s", &back[..back.len().min(5)]);
 }
 
 /// A fan's B does not stand before it is earned while the windows hint that it moves with the speed
@@ -519,6 +536,29 @@ fn a_fans_b_does_not_stand_where_no_hint_is_no_evidence() {
         let s = Scenario::generate(Family::Centrifugal, seed, 60.0);
         let r = battery::run(&s, 10, battery::LOST_POLLS, &settings, &settings);
         eprintln!("{}: T̂_L {:.2}× the nominal filter's", r.describe, r.nominal_ratio());
+        assert!(r.nominal_ratio() <= battery::NOMINAL_RMSE_FACTOR, "seed {seed}: {:.2}×", r.nominal_ratio());
+    }
+}
+
+/// A B above the nominal does not stand before the speed test can look (docs/estimator.md, "What stands"): a fan's
+/// local slope makes the windows' B higher, and the sign test backs it (locally it predicts each window better), yet
+/// it is the load's. Fans at 2 % of polls lost, last seed 15015 at 2 ms (a correct B: the fan's B was called
+/// identified in the first seconds, T̂_L 2.2× the nominal model's) and tuned seed 8 at 10 ms (B ×2.2 at 8–14 s,
+/// 1.8×); a sine load, spare seed 17006 at 1 ms with every poll (its windows' nuisance missed the sine: B ×1.9 at
+/// 5–12 s, 1.75×).
+#[test]
+fn a_b_above_the_nominal_does_not_stand_before_the_speed_test_can_look() {
+    use hydrolens::estimator::battery;
+    use hydrolens::plant::scenario::{Family, Scenario};
+    let settings = EstimatorSettings::default();
+    for (family, seed, poll_ms, lost) in [
+        (Family::Centrifugal, 15015, 2, battery::LOST_POLLS),
+        (Family::Centrifugal, 8, 10, battery::LOST_POLLS),
+        (Family::Sine, 17006, 1, 0.0),
+    ] {
+        let s = Scenario::generate(family, seed, 60.0);
+        let r = battery::run(&s, poll_ms, lost, &settings, &settings);
+        eprintln!("{} ms {}: T̂_L {:.2}× the nominal filter's", poll_ms, r.describe, r.nominal_ratio());
         assert!(r.nominal_ratio() <= battery::NOMINAL_RMSE_FACTOR, "seed {seed}: {:.2}×", r.nominal_ratio());
     }
 }
