@@ -128,11 +128,16 @@ pub const MISMATCH_S: f64 = 1.0;
 /// modes, where a regulator acts on them.
 #[derive(Debug, Default)]
 pub struct SpeedMatch {
+    /// Since when the speed has lain outside the band (kept through returns into it shorter than [`MISMATCH_S`]).
     since: Option<std::time::Instant>,
+    /// Since when it has been back inside the band, while `since` stands.
+    back_since: Option<std::time::Instant>,
 }
 
 impl SpeedMatch {
-    /// The last sample lay outside the band, not yet for [`MISMATCH_S`]: nothing may be written from it.
+    /// The speed lay outside the band and has not been back in it for [`MISMATCH_S`]: nothing may be written from
+    /// it. A sample back in the band for less proves nothing: a tachometer at half the speed, its noise crossing the
+    /// band's edge one sample in thirty, was written from at each crossing, and the setpoint crept up 3.4 Hz in 2 s.
     pub fn mismatched(&self) -> bool {
         self.since.is_some()
     }
@@ -150,9 +155,15 @@ impl SpeedMatch {
             && expected_rad_s.is_finite()
             && (omega_rad_s - expected_rad_s).abs() > MISMATCH_SHARE * expected_rad_s.abs() + MISMATCH_RAD_S;
         if !off {
-            self.since = None;
+            if self.since.is_some() {
+                let back = *self.back_since.get_or_insert(at);
+                if at.saturating_duration_since(back).as_secs_f64() > MISMATCH_S {
+                    (self.since, self.back_since) = (None, None);
+                }
+            }
             return None;
         }
+        self.back_since = None;
         let held_s = at.saturating_duration_since(*self.since.get_or_insert(at)).as_secs_f64();
         (held_s > MISMATCH_S).then_some(Rejected::Mismatch {
             entry: "shaft_speed_rpm",
@@ -312,6 +323,25 @@ mod tests {
         }
         let mut slow = FrozenSpeed::default();
         assert!((0..500).all(|k| slow.observe(0.0, 4.5, at(k)).is_none()));
+    }
+
+    /// A speed off the band (half the expected) is held back at once and refused after [`MISMATCH_S`]; a sample
+    /// back in the band now and then (the noise crossing its edge) does not clear it, a second back in it does.
+    #[test]
+    fn a_speed_off_the_band_is_cleared_only_by_a_second_back_in_it() {
+        let t0 = std::time::Instant::now();
+        let at = |ms: u64| t0 + std::time::Duration::from_millis(ms);
+        let mut m = SpeedMatch::default();
+        assert_eq!(m.observe(15.0, 30.0, 20.0, at(0)), None);
+        assert!(m.mismatched(), "held back at once");
+        assert!(m.observe(15.0, 30.0, 20.0, at(1100)).is_some(), "refused after a second");
+        assert_eq!(m.observe(16.6, 30.0, 20.0, at(1110)), None, "inside the band");
+        assert!(m.mismatched(), "one sample back in the band proves nothing");
+        assert!(m.observe(15.0, 30.0, 20.0, at(1120)).is_some(), "off again: still refused");
+        for k in 0..=110 {
+            m.observe(29.0, 30.0, 20.0, at(1130 + 10 * k));
+        }
+        assert!(!m.mismatched(), "a second back in the band clears it");
     }
 
     #[test]
