@@ -275,6 +275,9 @@ pub(super) fn check_watchdog(
     Ok(())
 }
 
+/// The entries that are bits or a count: read and written as the drive gives them, never scaled.
+const BIT_FIELDS: [&str; 4] = ["status_word", "sample_counter", "control_word", "watchdog"];
+
 /// Applies `[drives.registers.<entry>]` overrides to the default map, checking entry names and tables.
 pub(super) fn apply_overrides(overrides: BTreeMap<String, RawRegister>, key: &str) -> Result<RegisterMap, Invalid> {
     let mut map = RegisterMap::default();
@@ -330,6 +333,24 @@ pub(super) fn apply_overrides(overrides: BTreeMap<String, RawRegister>, key: &st
                 format!("{key}.{name}.table"),
                 "must be \"holding\": the service writes it".into(),
             ));
+        }
+        // bit fields and counters are whole words as the drive gives them: a scale or offset moves their bits (RUN
+        // written as bit 1, a fault read as running), and a float is no word at all
+        if BIT_FIELDS.contains(&name) {
+            if spec.scale != 1.0 || spec.offset != 0.0 {
+                let (field, want, got) =
+                    if spec.scale != 1.0 { ("scale", 1, spec.scale) } else { ("offset", 0, spec.offset) };
+                return Err(KeyError::new(
+                    format!("{key}.{name}.{field}"),
+                    format!("must be {want}, got {got}: {name} is bits or a count, not a measurement"),
+                ));
+            }
+            if spec.kind == crate::modbus::map::ValueType::F32 {
+                return Err(KeyError::new(
+                    format!("{key}.{name}.type"),
+                    format!("must be a whole-number type (u16, i16, u32, i32): {name} is bits or a count"),
+                ));
+            }
         }
         if u32::from(spec.address) + u32::from(spec.kind.words()) > 65536 {
             return Err(KeyError::new(format!("{key}.{name}.address"), "runs past register 65535".into()));

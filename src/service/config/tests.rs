@@ -271,3 +271,21 @@ fn a_bad_estimator_table_in_a_drives_model_names_the_model_file() {
     assert!(e.contains("drives[0].estimator.model") && e.contains("badest.toml") && e.contains("lambda"), "{e}");
     assert!(!e.contains("the model file"), "{e}");
 }
+
+/// A reviewer's control word at `scale = 0.5` sent RUN as bit 1 (and setpoints kept climbing), a status word at
+/// `scale = 2` read the drive's ready as running, and a watchdog at `scale = 1e-9` failed every encode: bit fields
+/// and counters are refused any scale, offset or float, naming the key.
+#[test]
+fn bit_fields_and_counters_take_no_scale_offset_or_float() {
+    for entry in ["status_word", "sample_counter", "control_word", "watchdog"] {
+        let e = err(&format!("{MINIMAL}[drives.registers.{entry}]\nscale = 0.5\n"));
+        assert!(e.contains(&format!("drives[0].registers.{entry}.scale")) && e.contains("must be 1"), "{e}");
+        let e = err(&format!("{MINIMAL}[drives.registers.{entry}]\noffset = 2.0\n"));
+        assert!(e.contains(&format!("drives[0].registers.{entry}.offset")) && e.contains("must be 0"), "{e}");
+        let e = err(&format!("{MINIMAL}[drives.registers.{entry}]\naddress = 60\ntype = \"f32\"\n"));
+        assert!(e.contains(&format!("drives[0].registers.{entry}.type")), "{e}");
+    }
+    // as the drive gives them, in another type and place: accepted
+    let text = format!("{MINIMAL}[drives.registers.watchdog]\naddress = 20\ntype = \"i16\"\nscale = 1.0\n");
+    assert!(parse(&text, "t.toml", None).is_ok());
+}
