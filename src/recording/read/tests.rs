@@ -363,3 +363,21 @@ fn a_reader_with_a_row_cap_stops_past_it_naming_the_file() {
     let e = load_columns(&path, &["omega_rad_s"], 4999).expect_err("past the cap").to_string();
     assert!(e.contains("long.csv") && e.contains("more than 4999 rows"), "{e}");
 }
+
+/// A reviewer's 2 MB gzip of 2 GiB of line ends took 14 s to refuse ("no data rows"): blank lines were skipped past
+/// every cap. Now a recording may hold at most one blank line a row, plus [`MAX_EXTRA_BLANK_LINES`]: beyond, the line
+/// where it went past is named, before the header too.
+#[test]
+fn a_recording_of_blank_lines_is_refused_at_the_line_it_goes_past_the_cap() {
+    let blanks = |n: usize| "\n".repeat(n);
+    let e = parse_str(&format!("t_s,omega_rad_s\n{}0,1\n", blanks(1001))).expect_err("blank lines").to_string();
+    assert!(e.contains("line 1002") && e.contains("blank lines"), "{e}");
+    let e = parse_str(&blanks(2000)).expect_err("blank lines").to_string();
+    assert!(e.contains("line 1001") && e.contains("blank lines"), "{e}");
+    // a blank line after each row, and a thousand more: a recording
+    let mut text = format!("t_s,omega_rad_s\n{}", blanks(1000));
+    for k in 0..50 {
+        text.push_str(&format!("{k},1\n\r\n"));
+    }
+    assert_eq!(parse_str(&text).expect("a recording").t_s().len(), 50);
+}
