@@ -293,7 +293,7 @@ impl DriveCycle {
         // reviewer's replies 45 ms late at a 10 ms poll (stale_ms 50) were written from 54 times in 3.5 s while
         // `/readyz` said stale in 28 of 30 queries
         let limit = self.stale_after;
-        if !previous.is_some_and(|(at, _)| replied_at.saturating_duration_since(at) <= limit) {
+        if previous.is_none_or(|(at, _)| replied_at.saturating_duration_since(at) > limit) {
             return nothing(Verdict::Stale);
         }
         let first = self.last_fresh_at.is_none();
