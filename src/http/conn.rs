@@ -3,6 +3,8 @@
 //!   descriptors), and at most `max_connections_per_client` of them from one address;
 //! - an address beyond its share has its oldest connection that never carried a request (held open half-sent, as a
 //!   flood does) closed for the new one: the operator, who may share the flooder's address (a proxy, a NAT), gets in;
+//! - with every connection held, the oldest one of any address that never carried a request is closed for the new
+//!   one: a crowd spread over many addresses, each within its share, cannot keep the operator in the backlog;
 //! - [`RESERVED_CONNECTIONS`] more, kept for the operator: taken when the others are all held (or one address holds
 //!   its share of connections that all carried requests), and serving only the control routes, `/healthz` and
 //!   `/readyz`, one request each;
@@ -104,13 +106,16 @@ async fn reserve_gate(State(metrics): State<HttpMetrics>, req: Request, next: Ne
     next.run(req).await
 }
 
-/// Open connections per client address (IPv6 by its /64, as the token throttle keys them), oldest first.
+/// Open connections per client address (IPv6 by its /64, as the token throttle keys them), oldest first, and the
+/// number the next one gets (their age across addresses).
 #[derive(Debug, Default)]
-struct PerClient(Mutex<HashMap<IpAddr, Vec<Arc<Mark>>>>);
+struct PerClient(Mutex<HashMap<IpAddr, Vec<Arc<Mark>>>>, AtomicU64);
 
 /// One open connection, as its address's list holds it.
 #[derive(Debug, Default)]
 struct Mark {
+    /// Its number in the order the connections came (any address).
+    order: u64,
     /// A request came on it: it is a client's, not a connection held open half-sent.
     served: std::sync::atomic::AtomicBool,
     /// Cancelled to close it (evicted for a newer connection of its address).
@@ -122,7 +127,7 @@ impl PerClient {
     /// back.
     fn enter(self: &Arc<Self>, ip: IpAddr) -> (usize, ClientGuard) {
         let ip = super::throttle::key(ip);
-        let mark = Arc::new(Mark::default());
+        let mark = Arc::new(Mark { order: self.1.fetch_add(1, Ordering::Relaxed), ..Mark::default() });
         let mut m = self.0.lock().unwrap_or_else(|e| e.into_inner());
         let list = m.entry(ip).or_default();
         list.push(mark.clone());
@@ -141,6 +146,24 @@ impl PerClient {
                 })
                 .cloned()
         });
+        victim.is_some_and(|c| {
+            c.close.cancel();
+            true
+        })
+    }
+
+    /// Closes the oldest connection of any address that never carried a request, where every ordinary connection
+    /// is held: a crowd held open half-sent from many addresses, each within its share, is never past a share, and
+    /// held every connection (reconnecting as each timed out) while the operator's waited in the kernel's backlog.
+    /// False when every connection carried one (clients', such as dashboards' event streams).
+    fn evict_oldest_idle(&self) -> bool {
+        let m = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let victim = m
+            .values()
+            .flatten()
+            .filter(|c| !c.served.load(Ordering::Relaxed) && !c.close.is_cancelled())
+            .min_by_key(|c| c.order)
+            .cloned();
         victim.is_some_and(|c| {
             c.close.cancel();
             true
@@ -276,19 +299,12 @@ pub async fn serve_with(listener: tokio::net::TcpListener, state: AppState, limi
     let epoch = Instant::now();
     let mut last_accept_error: Option<Instant> = None;
     loop {
-        let slot = tokio::select! {
+        // accepted first, then given a slot: with every slot held, the oldest connection that never carried a
+        // request makes room for it ([`PerClient::evict_oldest_idle`]); else it waits for a slot or the reserve
+        // (one connection waits here, the rest in the kernel's backlog)
+        let (stream, peer) = tokio::select! {
             biased;
             () = shutdown.cancelled() => break,
-            p = open_slots.clone().acquire_owned() => match p {
-                Ok(p) => Slot { _permit: p, reserved: false },
-                Err(_) => break,
-            },
-            p = reserve.clone().acquire_owned() => match p {
-                Ok(p) => Slot { _permit: p, reserved: true },
-                Err(_) => break,
-            },
-        };
-        let (stream, peer) = tokio::select! {
             r = listener.accept() => match r {
                 Ok(x) => x,
                 Err(e) => {
@@ -301,7 +317,26 @@ pub async fn serve_with(listener: tokio::net::TcpListener, state: AppState, limi
                     continue;
                 }
             },
-            () = shutdown.cancelled() => break,
+        };
+        let slot = match open_slots.clone().try_acquire_owned() {
+            Ok(p) => Slot { _permit: p, reserved: false },
+            Err(_) => {
+                // (counted `evicted` by the connection closed)
+                let evicted = clients.evict_oldest_idle();
+                tokio::select! {
+                    biased;
+                    () = shutdown.cancelled() => break,
+                    p = open_slots.clone().acquire_owned() => match p {
+                        Ok(p) => Slot { _permit: p, reserved: false },
+                        Err(_) => break,
+                    },
+                    // the evicted connection's slot is the one to wait for, not the reserve
+                    p = reserve.clone().acquire_owned(), if !evicted => match p {
+                        Ok(p) => Slot { _permit: p, reserved: true },
+                        Err(_) => break,
+                    },
+                }
+            }
         };
         let Some((slot, client)) = admit(slot, &clients, peer.ip(), per_client, &reserve) else {
             metrics.refused.get_or_create(&ReasonLabel { reason: "per_client" }).inc();

@@ -292,3 +292,37 @@ async fn connections_held_half_sent_give_way_to_the_operator_on_the_same_address
     assert!(metric(&m, "hydrolens_http_refused_total{reason=\"evicted\"}").unwrap_or(0.0) >= 1.0, "{m}");
     drop(held);
 }
+
+/// A crowd spread over many addresses, each within its share, holding every connection half-sent (a reviewer's 700
+/// from twenty addresses, reconnecting as each timed out): the operator's connection waited in the kernel's backlog
+/// and `/healthz`, `/api/status` and the target POST timed out. Now, with every connection held, the oldest one that
+/// never carried a request is closed for the new one, and the operator is served on every route.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_crowd_from_many_addresses_gives_way_to_the_operator() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let s = Serve::start(dir.path(), "max_connections = 16\nmax_connections_per_client = 4\n");
+    // sixteen addresses, four connections each, holding half a request: the sixteen ordinary connections, the
+    // reserve's 32 and more in the backlog
+    let mut crowd = Vec::new();
+    for k in 0..64u8 {
+        let socket = tokio::net::TcpSocket::new_v4().expect("socket");
+        socket.bind(std::net::SocketAddr::from(([127, 0, 1, 1 + k / 4], 0))).expect("a loopback address");
+        let mut c = socket.connect(s.addr).await.expect("connect");
+        c.write_all(b"GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n").await.expect("half a request");
+        crowd.push(c);
+    }
+    for _ in 0..3 {
+        let t = Instant::now();
+        let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await.map(|(c, _)| c);
+        let took = t.elapsed();
+        let [(health, _), (target, _)] = operator(&s.url).await;
+        eprintln!(
+            "a crowd of 64 from 16 addresses: /api/status {status:?} in {took:?}, /healthz {health}, target {target}"
+        );
+        assert_eq!(status, Some(200), "an ordinary connection for the operator, on every route");
+        assert_eq!((health, target), (200, 200));
+    }
+    let m = s.metrics().await;
+    assert!(metric(&m, "hydrolens_http_refused_total{reason=\"evicted\"}").unwrap_or(0.0) >= 1.0, "{m}");
+    drop(crowd);
+}
