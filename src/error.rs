@@ -36,9 +36,15 @@ pub const TEXT_FILE_CAP: u64 = 1 << 20;
 /// to their end.
 pub fn read_small_file(path: &std::path::Path) -> std::io::Result<Vec<u8>> {
     use std::io::Read;
-    let file = std::fs::File::open(path)?;
+    let file = open_without_waiting(path)?;
     let mut bytes = Vec::new();
     file.take(TEXT_FILE_CAP + 1).read_to_end(&mut bytes)?;
+    if bytes.is_empty() && is_fifo(path) {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            "a named pipe with nothing written to it (no writer): nothing to read",
+        ));
+    }
     if bytes.len() as u64 > TEXT_FILE_CAP {
         return Err(std::io::Error::new(
             std::io::ErrorKind::InvalidData,
@@ -49,6 +55,39 @@ pub fn read_small_file(path: &std::path::Path) -> std::io::Result<Vec<u8>> {
         ));
     }
     Ok(bytes)
+}
+
+/// Opens `path` for reading without waiting for a writer: a named pipe nobody writes to blocked the open forever
+/// (`serve --config` on a FIFO hung). Opened non-blocking, then read blocking as any file is: a pipe with a writer
+/// (a shell's process substitution) is read whole, one without ends at once.
+fn open_without_waiting(path: &std::path::Path) -> std::io::Result<std::fs::File> {
+    #[cfg(target_os = "linux")]
+    {
+        use rustix::fs::OFlags;
+        use std::os::unix::fs::OpenOptionsExt;
+        let nonblock = i32::try_from(OFlags::NONBLOCK.bits()).unwrap_or(0);
+        let file = std::fs::OpenOptions::new().read(true).custom_flags(nonblock).open(path)?;
+        rustix::fs::fcntl_setfl(&file, rustix::fs::fcntl_getfl(&file)?.difference(OFlags::NONBLOCK))?;
+        Ok(file)
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        std::fs::File::open(path)
+    }
+}
+
+/// Whether `path` is a named pipe.
+fn is_fifo(path: &std::path::Path) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        std::fs::metadata(path).is_ok_and(|m| m.file_type().is_fifo())
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = path;
+        false
+    }
 }
 
 /// [`read_small_file`], as UTF-8 text. A byte that is not names its line and column (counted in characters, 1-based)
@@ -86,5 +125,27 @@ mod tests {
         assert!(err.to_string().contains("line 2, column 7"), "{err}");
         std::fs::write(&path, "a = 1\n").expect("write");
         assert_eq!(read_text_file(&path).expect("read"), "a = 1\n");
+    }
+
+    /// A named pipe nobody writes to hung `serve --config`, `simulate --model` and the rest at the open: now it is
+    /// bad input at once; one with a writer is read whole.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_named_pipe_without_a_writer_is_refused_at_once_and_one_with_a_writer_is_read() {
+        let dir = tempfile::tempdir().expect("dir");
+        let fifo = dir.path().join("m.toml");
+        rustix::fs::mkfifoat(rustix::fs::CWD, &fifo, rustix::fs::Mode::from_raw_mode(0o600)).expect("mkfifo");
+        let err = read_text_file(&fifo).expect_err("no writer");
+        assert!(unreadable_is_bad_input(&err) && err.to_string().contains("no writer"), "{err}");
+        // written to (a reader holds the pipe open meanwhile, so the writer's open does not wait and what it
+        // wrote stays in the pipe): read whole
+        let keeper = open_without_waiting(&fifo).expect("a reader");
+        std::io::Write::write_all(
+            &mut std::fs::OpenOptions::new().write(true).open(&fifo).expect("writer"),
+            b"a = 1\n",
+        )
+        .expect("write");
+        assert_eq!(read_text_file(&fifo).expect("read"), "a = 1\n");
+        drop(keeper);
     }
 }
