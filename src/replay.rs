@@ -5,7 +5,7 @@
 use crate::error::BadInput;
 use crate::estimator::{Estimate, Estimator, Measurement};
 use crate::plant::PlantModel;
-use crate::recording::Recording;
+use crate::recording::{Recording, position_step};
 use crate::units::{bar_to_pa, cm3_per_rev_to_m3_per_rad};
 
 /// Why a recording cannot be replayed: always bad input (the message names the column or key).
@@ -23,7 +23,8 @@ pub fn drive_torques(rec: &Recording, model: &PlantModel, model_origin: &str) ->
     Ok(p_in.iter().zip(p_out).map(|(a, b)| d * bar_to_pa(a - b)).collect())
 }
 
-/// Shaft speed per row: `omega_rad_s` when present, else the backward difference of `theta_rad`.
+/// Shaft speed per row: `omega_rad_s` when present, else the backward difference of `theta_rad` (a single-turn
+/// encoder's wraps taken out: [`position_step`]).
 pub fn speeds(rec: &Recording) -> Result<Vec<f64>, ReplayError> {
     if let Some(w) = rec.present("omega_rad_s") {
         return Ok(w.to_vec());
@@ -33,7 +34,7 @@ pub fn speeds(rec: &Recording) -> Result<Vec<f64>, ReplayError> {
     };
     let t = rec.t_s();
     Ok((0..theta.len())
-        .map(|k| if k == 0 { f64::NAN } else { (theta[k] - theta[k - 1]) / (t[k] - t[k - 1]) })
+        .map(|k| if k == 0 { f64::NAN } else { position_step(theta[k - 1], theta[k]) / (t[k] - t[k - 1]) })
         .collect())
 }
 
@@ -328,7 +329,7 @@ impl<'e> Replayer<'e> {
             let t = t_s[k];
             let omega_rad_s = match self.plan.speed {
                 SpeedFrom::ThetaColumn => {
-                    let w = (speed[k] - self.prev_theta_rad) / (t - self.prev_t_s);
+                    let w = position_step(self.prev_theta_rad, speed[k]) / (t - self.prev_t_s);
                     self.prev_theta_rad = speed[k];
                     w
                 }

@@ -128,6 +128,10 @@ impl<'a> Columns<'a> {
         let mut raw: Vec<(&'static str, Vec<f64>)> = Vec::new();
         for name in super::RECORDING_COLUMNS {
             let Some(c) = rec.present(name) else { continue };
+            // a single-turn encoder's position, its wraps taken out first (else each wrap is a spike, and a jump of
+            // a turn in the speed)
+            let unwrapped = (name == "theta_rad").then(|| crate::recording::unwrapped_positions(c));
+            let c = unwrapped.as_deref().unwrap_or(c);
             if SCREENED.contains(&name) {
                 let (c, taken) = without_spikes(c);
                 if let Some(&first) = taken.first() {
