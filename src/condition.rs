@@ -351,6 +351,9 @@ pub fn nominal_value(model: &PlantModel, effect: &str, parameter: &str) -> Optio
     }
 }
 
+/// The longest line of a condition history read: a check is a few kB.
+const MAX_CHECK_LINE_BYTES: usize = 1 << 16;
+
 /// A drive's checks as JSON lines beside its recordings: `<dir>/<drive>.condition.jsonl`.
 #[derive(Debug, Clone)]
 pub struct Store {
@@ -389,13 +392,28 @@ impl Store {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok((Vec::new(), 0)),
             Err(e) => return Err(e),
         };
+        use std::io::{BufRead, Read};
         let mut checks = std::collections::VecDeque::new();
         let mut lines = 0;
+        let mut reader = std::io::BufReader::new(file);
+        let mut line = Vec::new();
         // bytes, not text: a line that is not UTF-8 (a disk error, an editor's encoding) is one bad line too; read
-        // as text it ended the load, and the whole history was lost
-        for (i, line) in std::io::BufReader::new(file).split(b'\n').enumerate() {
-            let line = line?;
-            lines = i + 1;
+        // as text it ended the load, and the whole history was lost. A line is read to at most
+        // [`MAX_CHECK_LINE_BYTES`] and the rest of it skipped: 300 MB of NUL bytes were read in whole at start
+        loop {
+            line.clear();
+            let read = (&mut reader).take(MAX_CHECK_LINE_BYTES as u64 + 1).read_until(b'\n', &mut line)?;
+            if read == 0 {
+                break;
+            }
+            lines += 1;
+            let i = lines - 1;
+            if line.len() > MAX_CHECK_LINE_BYTES && line.last() != Some(&b'\n') {
+                let rest = reader.skip_until(b'\n')?;
+                tracing::warn!(file = %self.path.display(), line = i + 1, bytes = line.len() + rest,
+                    "condition history: line skipped, longer than any check");
+                continue;
+            }
             if line.trim_ascii().is_empty() {
                 continue;
             }
@@ -552,6 +570,24 @@ mod tests {
         let mut m = Monitor::new(leak_limit(0.02));
         back.into_iter().for_each(|c| m.push(c));
         assert_eq!(m.alarms().len(), 1);
+    }
+
+    /// A history of 300 MB of NUL bytes (one line) was read in whole at start: now a line is read to at most
+    /// [`MAX_CHECK_LINE_BYTES`], the rest skipped, and the checks around it kept.
+    #[test]
+    fn a_line_longer_than_any_check_is_skipped_without_holding_it() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let store = Store::new(dir.path(), "pump1");
+        let a = check_with(60.0, None);
+        store.append(&a).expect("append");
+        std::fs::OpenOptions::new()
+            .append(true)
+            .open(store.path())
+            .and_then(|mut f| f.write_all(&vec![0u8; 4 * MAX_CHECK_LINE_BYTES + 7]).and_then(|()| f.write_all(b"\n")))
+            .expect("a long line");
+        let b = check_with(120.0, Some(0.03));
+        store.append(&b).expect("append");
+        assert_eq!(store.load_counting().expect("loads"), (vec![a, b], 3));
     }
 
     #[test]
