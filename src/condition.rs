@@ -21,7 +21,7 @@ pub mod trend;
 
 use crate::error::KeyError;
 use std::collections::BTreeMap;
-use std::io::{BufRead, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};

@@ -290,9 +290,10 @@ pub async fn serve_with(listener: tokio::net::TcpListener, state: AppState, limi
     let max = connection_budget(limits.max_connections);
     let per_client = limits.max_connections_per_client.clamp(1, max);
     let metrics = state.metrics.clone();
-    let app = router(state).layer(axum::middleware::from_fn_with_state(metrics.clone(), reserve_gate)).layer(
-        tower_http::timeout::TimeoutLayer::with_status_code(StatusCode::REQUEST_TIMEOUT, limits.request_timeout),
-    );
+    let app = router(state)
+        .layer(axum::middleware::from_fn_with_state(metrics.clone(), reserve_gate))
+        .layer(tower_http::timeout::TimeoutLayer::with_status_code(StatusCode::REQUEST_TIMEOUT, limits.request_timeout))
+        .layer(axum::middleware::map_response(json_error_body));
     let open_slots = Arc::new(Semaphore::new(max));
     let reserve = Arc::new(Semaphore::new(RESERVED_CONNECTIONS));
     let clients = Arc::new(PerClient::default());
@@ -354,6 +355,26 @@ pub async fn serve_with(listener: tokio::net::TcpListener, state: AppState, limi
     };
     let _ = tokio::time::timeout(Duration::from_secs(6), wait).await;
     Ok(())
+}
+
+/// An error answered with no body (a method the route does not take: 405; a request past `request_timeout`: 408)
+/// gets the JSON every other error has, `{"error": …}`, naming the status: a client reads one shape of error.
+async fn json_error_body(response: Response) -> Response {
+    use axum::body::HttpBody;
+    let status = response.status();
+    if !(status.is_client_error() || status.is_server_error()) || response.body().size_hint().exact() != Some(0) {
+        return response;
+    }
+    let message = match status {
+        StatusCode::METHOD_NOT_ALLOWED => "this route does not take that method".to_string(),
+        StatusCode::REQUEST_TIMEOUT => "the request was not complete within http.request_timeout_ms".to_string(),
+        s => s.canonical_reason().unwrap_or("error").to_lowercase(),
+    };
+    let (mut parts, _) = response.into_parts();
+    parts.headers.insert(header::CONTENT_TYPE, HeaderValue::from_static("application/json"));
+    parts.headers.remove(header::CONTENT_LENGTH);
+    let body = serde_json::json!({ "error": message }).to_string();
+    Response::from_parts(parts, axum::body::Body::from(body))
 }
 
 /// The connections served at once: `configured`, or fewer where the open-file limit (raised as far as allowed)

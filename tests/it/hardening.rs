@@ -836,3 +836,31 @@ fn open_connections(state: &hydrolens::service::ServiceState) -> i64 {
     let line = text.lines().find_map(|l| l.strip_prefix("hydrolens_http_connections ")).expect("the gauge is exposed");
     line.trim().parse().expect("an integer")
 }
+
+/// Errors the router or the timeout answer themselves (a method a route does not take, a body not complete in time)
+/// came back with no body; every other error is JSON (docs/http.md): now these are too.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_wrong_method_and_a_late_body_are_answered_with_a_json_error() {
+    let run = async {
+        let s = Svc::start("127.0.0.1:9".parse().expect("addr"), "request_timeout_ms = 300\n", SPEED).await;
+        let r = reqwest::Client::new().delete(format!("{}/api/status", s.url)).send().await.expect("DELETE");
+        assert_eq!(r.status(), 405);
+        let body: serde_json::Value = r.json().await.expect("a JSON body");
+        assert!(body["error"].as_str().is_some_and(|e| e.contains("method")), "{body}");
+        // a body promised and not sent within request_timeout_ms
+        let addr = s.url.trim_start_matches("http://").to_string();
+        let mut late = TcpStream::connect(addr).await.expect("connect");
+        late.write_all(
+            b"POST /api/drives/pump1/target HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n\
+              Content-Length: 100\r\nAuthorization: Bearer test-token-7f3a\r\n\r\n{",
+        )
+        .await
+        .expect("write");
+        let mut answer = Vec::new();
+        let _ = tokio::time::timeout(Duration::from_secs(5), late.read_to_end(&mut answer)).await;
+        let answer = String::from_utf8_lossy(&answer);
+        assert!(answer.starts_with("HTTP/1.1 408") && answer.contains("{\"error\":"), "{answer}");
+        s.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
+}
