@@ -93,8 +93,17 @@ pub(super) fn validate_periods(d: &RawDrive, key: &dyn Fn(&str) -> String) -> Re
         ));
     }
     let stale_ms = d.stale_ms.unwrap_or((5 * d.poll_ms).max(50));
-    if stale_ms < d.poll_ms {
-        return Err(KeyError::new(key("stale_ms"), format!("must be ≥ poll_ms ({}), got {stale_ms}", d.poll_ms)));
+    // a sample is fresh only if its reply came within stale_ms of the request before it, a poll earlier at best: at
+    // stale_ms = poll_ms a healthy link was stale 3 120 samples of 3 329 (a reviewer's, against `sim`)
+    if stale_ms < 2 * d.poll_ms {
+        return Err(KeyError::new(
+            key("stale_ms"),
+            format!(
+                "must be ≥ 2 · poll_ms ({}), got {stale_ms}: a sample is fresh only if its reply comes within \
+                 stale_ms of the request of the sample before, a poll earlier",
+                2 * d.poll_ms
+            ),
+        ));
     }
     if stale_ms > MAX_STALE_MS {
         return Err(KeyError::new(key("stale_ms"), format!("must be ≤ {MAX_STALE_MS} (10 min), got {stale_ms}")));

@@ -35,6 +35,9 @@ fn errors_name_the_key() {
     assert!(e.contains("drives[0].control.min_hz"), "{e}");
     let e = err(&format!("{MINIMAL}realtime_priority = 0\n"));
     assert!(e.contains("drives[0].realtime_priority") && e.contains("1 ..= 99"), "{e}");
+    let e = err(&format!("{MINIMAL}poll_ms = 10\nstale_ms = 19\n"));
+    assert!(e.contains("drives[0].stale_ms") && e.contains("≥ 2 · poll_ms (20)"), "{e}");
+    assert!(parse(&format!("{MINIMAL}poll_ms = 10\nstale_ms = 20\n"), "t.toml", None).is_ok());
     let e = err(&format!("{MINIMAL}stale_ms = 600001\n"));
     assert!(e.contains("drives[0].stale_ms") && e.contains("600000"), "{e}");
     // unit 0 is broadcast: a writing drive names its own unit (monitor may read through unit 0)
