@@ -4,7 +4,8 @@
 //! - an address beyond its share has its oldest connection that never carried a request (held open half-sent, as a
 //!   flood does) closed for the new one: the operator, who may share the flooder's address (a proxy, a NAT), gets in;
 //! - with every connection held, the oldest one of any address that never carried a request is closed for the new
-//!   one: a crowd spread over many addresses, each within its share, cannot keep the operator in the backlog;
+//!   one, else the one kept alive longest between requests (never one answering a request: a stream, a download):
+//!   a crowd spread over many addresses, each within its share, cannot keep the operator in the backlog;
 //! - [`RESERVED_CONNECTIONS`] more, kept for the operator: taken when the others are all held (or one address holds
 //!   its share of connections that all carried requests), and serving only the control routes, `/healthz` and
 //!   `/readyz`, one request each;
@@ -118,6 +119,12 @@ struct Mark {
     order: u64,
     /// A request came on it: it is a client's, not a connection held open half-sent.
     served: std::sync::atomic::AtomicBool,
+    /// A request is being answered on it (from the request until its response body is sent or dropped): an event
+    /// stream or a download stays busy for as long as it runs.
+    busy: std::sync::atomic::AtomicBool,
+    /// When its last response ended (milliseconds since the accept loop's epoch): how long it has waited, kept
+    /// alive, for its next request.
+    idle_since_ms: AtomicU64,
     /// Cancelled to close it (evicted for a newer connection of its address).
     close: tokio_util::sync::CancellationToken,
 }
@@ -155,15 +162,19 @@ impl PerClient {
     /// Closes the oldest connection of any address that never carried a request, where every ordinary connection
     /// is held: a crowd held open half-sent from many addresses, each within its share, is never past a share, and
     /// held every connection (reconnecting as each timed out) while the operator's waited in the kernel's backlog.
-    /// False when every connection carried one (clients', such as dashboards' event streams).
+    ///
+    /// Where every connection carried one, the one kept alive longest between requests goes (a reviewer's crowd of
+    /// 515 sending a request every 8 s held every connection, and a silent crowd the reserve): a client's next
+    /// request opens a new connection. A connection answering a request (an event stream, a download) is never
+    /// closed for another.
     fn evict_oldest_idle(&self) -> bool {
         let m = self.0.lock().unwrap_or_else(|e| e.into_inner());
-        let victim = m
-            .values()
-            .flatten()
-            .filter(|c| !c.served.load(Ordering::Relaxed) && !c.close.is_cancelled())
-            .min_by_key(|c| c.order)
-            .cloned();
+        let open = || m.values().flatten().filter(|c| !c.close.is_cancelled());
+        let never = open().filter(|c| !c.served.load(Ordering::Relaxed)).min_by_key(|c| c.order);
+        let between = || {
+            open().filter(|c| !c.busy.load(Ordering::Relaxed)).min_by_key(|c| c.idle_since_ms.load(Ordering::Relaxed))
+        };
+        let victim = never.or_else(between).cloned();
         victim.is_some_and(|c| {
             c.close.cancel();
             true
@@ -186,6 +197,44 @@ impl Drop for ClientGuard {
                 m.remove(&self.ip);
             }
         }
+    }
+}
+
+/// A request being answered on a connection: its mark is busy until this is dropped (with the response body).
+struct Answering {
+    mark: Arc<Mark>,
+    epoch: Instant,
+}
+
+impl Drop for Answering {
+    fn drop(&mut self) {
+        let now = u64::try_from(self.epoch.elapsed().as_millis()).unwrap_or(u64::MAX);
+        self.mark.idle_since_ms.store(now, Ordering::Relaxed);
+        self.mark.busy.store(false, Ordering::Relaxed);
+    }
+}
+
+/// A response body that keeps its connection busy ([`Answering`]) until it is sent or dropped.
+struct Tracked {
+    inner: axum::body::Body,
+    _answering: Option<Answering>,
+}
+
+impl hyper::body::Body for Tracked {
+    type Data = axum::body::Bytes;
+    type Error = axum::Error;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<hyper::body::Frame<Self::Data>, Self::Error>>> {
+        Pin::new(&mut self.inner).poll_frame(cx)
+    }
+    fn is_end_stream(&self) -> bool {
+        self.inner.is_end_stream()
+    }
+    fn size_hint(&self) -> hyper::body::SizeHint {
+        self.inner.size_hint()
     }
 }
 
@@ -440,14 +489,20 @@ impl Connection {
         let mark = client.as_ref().map(|c| c.mark.clone());
         let served = mark.clone();
         let service = hyper::service::service_fn(move |mut req: hyper::Request<hyper::body::Incoming>| {
-            if let Some(m) = &served {
+            let answering = served.clone().map(|m| {
                 m.served.store(true, Ordering::Relaxed);
-            }
+                m.busy.store(true, Ordering::Relaxed);
+                Answering { mark: m, epoch }
+            });
             req.extensions_mut().insert(ConnectInfo::<SocketAddr>(peer));
             if reserved {
                 req.extensions_mut().insert(Reserved);
             }
-            app.clone().oneshot(req)
+            let response = app.clone().oneshot(req);
+            async move {
+                let response = response.await?;
+                Ok::<_, std::convert::Infallible>(response.map(|inner| Tracked { inner, _answering: answering }))
+            }
         });
         let mut builder = hyper::server::conn::http1::Builder::new();
         let header_timeout =

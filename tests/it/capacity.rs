@@ -326,3 +326,63 @@ async fn a_crowd_from_many_addresses_gives_way_to_the_operator() {
     assert!(metric(&m, "hydrolens_http_refused_total{reason=\"evicted\"}").unwrap_or(0.0) >= 1.0, "{m}");
     drop(crowd);
 }
+
+/// A reviewer's two-part crowd: connections kept alive with a request every 8 s held every ordinary connection
+/// (never closed for a newer one: they had carried a request) and a silent crowd the reserve; every operator request
+/// timed out. Now, with none left that never carried a request, the one kept alive longest between requests is
+/// closed for the new one; a connection answering a request (an event stream) keeps its place.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn kept_alive_connections_give_way_to_the_operator_and_streams_keep_their_place() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let s = Serve::start(dir.path(), "max_connections = 16\nmax_connections_per_client = 4\n");
+    let addr = s.addr;
+    let from = move |a: [u8; 4], request: &'static str| async move {
+        let socket = tokio::net::TcpSocket::new_v4().expect("socket");
+        socket.bind(std::net::SocketAddr::from((a, 0))).expect("a loopback address");
+        let mut c = socket.connect(addr).await.expect("connect");
+        c.write_all(request.as_bytes()).await.expect("write");
+        c
+    };
+    let read_head = |mut c: TcpStream| async move {
+        let mut head = Vec::new();
+        let mut byte = [0u8; 1];
+        while !head.ends_with(b"\r\n\r\n") && c.read(&mut byte).await.expect("read") == 1 {
+            head.push(byte[0]);
+        }
+        (String::from_utf8_lossy(&head).split_whitespace().nth(1).unwrap_or("").to_string(), c)
+    };
+    // four dashboards' event streams, then twelve connections kept alive after a request each, from six addresses
+    let mut streams = Vec::new();
+    for k in 0..4u8 {
+        let (code, c) = read_head(from([127, 0, 4, 1 + k], EVENTS).await).await;
+        assert_eq!(code, "200");
+        streams.push(c);
+    }
+    let mut kept = Vec::new();
+    for k in 0..12u8 {
+        let mut c = from([127, 0, 3, 1 + k / 2], "GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await;
+        let mut buf = [0u8; 512];
+        let n = c.read(&mut buf).await.expect("answered");
+        assert!(String::from_utf8_lossy(&buf[..n]).starts_with("HTTP/1.1 200"));
+        kept.push(c);
+    }
+    // and a silent crowd of 40 from ten more addresses: the reserve's 32 and more
+    let mut silent = Vec::new();
+    for k in 0..40u8 {
+        silent.push(from([127, 0, 5, 1 + k / 4], "GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n").await);
+    }
+    for _ in 0..3 {
+        let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await.map(|(c, _)| c);
+        let [(health, _), (target, _)] = operator(&s.url).await;
+        eprintln!("kept alive, streams and a silent crowd: /api/status {status:?}, /healthz {health}, target {target}");
+        assert_eq!(status, Some(200), "an ordinary connection for the operator");
+        assert_eq!((health, target), (200, 200));
+    }
+    // the streams were not closed for anyone (each still open: data, or nothing yet, but no end)
+    for c in &mut streams {
+        let mut buf = [0u8; 256];
+        let r = tokio::time::timeout(Duration::from_millis(200), c.read(&mut buf)).await;
+        assert!(!matches!(r, Ok(Ok(0)) | Ok(Err(_))), "a stream was closed: {r:?}");
+    }
+    drop((kept, silent));
+}

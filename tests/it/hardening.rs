@@ -317,12 +317,14 @@ async fn concurrent_connections_are_bounded() {
         let http = "header_timeout_ms = 10000\nmax_connections = 2\n";
         let s = Svc::start("127.0.0.1:9".parse().expect("addr"), http, "").await;
         let addr = s.url.trim_start_matches("http://").to_string();
-        // two ordinary connections kept alive after a request each (a client's: not closed for a newer one), then
+        // two ordinary connections answering a request each (event streams: never closed for a newer one), then
         // the operator's reserve (issue 29, finding 4) held idle
         let mut held = Vec::new();
         for _ in 0..2 {
             let mut c = TcpStream::connect(&addr).await.expect("connect");
-            c.write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await.expect("write");
+            c.write_all(b"GET /api/events HTTP/1.1\r\nHost: 127.0.0.1\r\nAccept: text/event-stream\r\n\r\n")
+                .await
+                .expect("write");
             let mut buf = [0u8; 256];
             let n = c.read(&mut buf).await.expect("answered");
             assert!(String::from_utf8_lossy(&buf[..n]).starts_with("HTTP/1.1 200"));
