@@ -36,9 +36,13 @@ const READ_BYTES: usize = 1 << 18;
 /// hundred bytes, a header with every `true_*` and estimate column under one kB. A longer line is an error naming
 /// its number and this cap, so a file of one endless line costs no more memory than a normal one.
 pub const MAX_LINE_BYTES: usize = 1 << 14;
-/// Blank lines a recording may hold beyond one per row: a file of nothing but line ends (a reviewer's 2 MB gzip of
-/// 2 GiB of them took 14 s to refuse, past every cap on rows and line length) is refused at this many.
+/// Blank lines a recording may hold beyond [`BLANK_LINES_PER_ROW`] a row: a file of nothing but line ends (a
+/// reviewer's 2 MB gzip of 2 GiB of them took 14 s to refuse, past every cap on rows and line length) is refused at
+/// this many.
 pub const MAX_EXTRA_BLANK_LINES: u64 = 1000;
+/// Blank lines a row may bring (a double-spaced export, CRLF read as two line ends): reading stays within a few
+/// times a file of rows alone.
+pub const BLANK_LINES_PER_ROW: u64 = 4;
 /// Rows per batch when a whole recording is loaded.
 const LOAD_BATCH_ROWS: usize = 4096;
 const UTF8_BOM: &[u8] = b"\xef\xbb\xbf";
@@ -383,7 +387,7 @@ impl<R: Read> StreamReader<R> {
             let line = &self.lines.buf[a..b];
             if line.is_empty() {
                 // lines so far: the header, the rows and the blank ones
-                if number - 1 - self.rows > self.rows + MAX_EXTRA_BLANK_LINES {
+                if number - 1 - self.rows > BLANK_LINES_PER_ROW * self.rows + MAX_EXTRA_BLANK_LINES {
                     return Err(too_many_blank_lines(&self.origin, number));
                 }
                 continue;
@@ -508,14 +512,14 @@ fn io_error(origin: &str, error: std::io::Error) -> RecordingError {
     RecordingError::Io { path: origin.to_string(), error }
 }
 
-/// The error for a recording of more blank lines than rows (beyond [`MAX_EXTRA_BLANK_LINES`]).
+/// The error for a recording of more blank lines than [`BLANK_LINES_PER_ROW`] a row and [`MAX_EXTRA_BLANK_LINES`].
 fn too_many_blank_lines(origin: &str, line: u64) -> RecordingError {
     RecordingError::Line {
         path: origin.to_string(),
         line,
         message: format!(
-            "more blank lines than rows (over {MAX_EXTRA_BLANK_LINES} beyond one a row): not a recording, refused \
-             before reading on"
+            "more blank lines than rows (over {MAX_EXTRA_BLANK_LINES} beyond {BLANK_LINES_PER_ROW} a row): not a \
+             recording, refused before reading on"
         ),
     }
 }

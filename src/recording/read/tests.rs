@@ -365,8 +365,8 @@ fn a_reader_with_a_row_cap_stops_past_it_naming_the_file() {
 }
 
 /// A reviewer's 2 MB gzip of 2 GiB of line ends took 14 s to refuse ("no data rows"): blank lines were skipped past
-/// every cap. Now a recording may hold at most one blank line a row, plus [`MAX_EXTRA_BLANK_LINES`]: beyond, the line
-/// where it went past is named, before the header too.
+/// every cap. Now a recording may hold at most [`BLANK_LINES_PER_ROW`] blank lines a row, plus
+/// [`MAX_EXTRA_BLANK_LINES`]: beyond, the line where it went past is named, before the header too.
 #[test]
 fn a_recording_of_blank_lines_is_refused_at_the_line_it_goes_past_the_cap() {
     let blanks = |n: usize| "\n".repeat(n);
@@ -374,10 +374,10 @@ fn a_recording_of_blank_lines_is_refused_at_the_line_it_goes_past_the_cap() {
     assert!(e.contains("line 1002") && e.contains("blank lines"), "{e}");
     let e = parse_str(&blanks(2000)).expect_err("blank lines").to_string();
     assert!(e.contains("line 1001") && e.contains("blank lines"), "{e}");
-    // a blank line after each row, and a thousand more: a recording
+    // four blank lines after each row (a double-spaced export with CRLF read as two), and a thousand more: a recording
     let mut text = format!("t_s,omega_rad_s\n{}", blanks(1000));
     for k in 0..50 {
-        text.push_str(&format!("{k},1\n\r\n"));
+        text.push_str(&format!("{k},1\n\r\n\r\n\n\n"));
     }
     assert_eq!(parse_str(&text).expect("a recording").t_s().len(), 50);
 }
