@@ -112,11 +112,18 @@ async fn reserve_gate(State(metrics): State<HttpMetrics>, req: Request, next: Ne
 #[derive(Debug, Default)]
 struct PerClient(Mutex<HashMap<IpAddr, Vec<Arc<Mark>>>>, AtomicU64);
 
+/// How long a new connection has to send its request before it is held open half-sent, and is closed for a newer
+/// one ahead of a connection kept alive between requests: under a crowd churning thousands of connections a second,
+/// the operator's was closed before its request was read.
+const NEVER_SERVED_GRACE: Duration = Duration::from_secs(1);
+
 /// One open connection, as its address's list holds it.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 struct Mark {
     /// Its number in the order the connections came (any address).
     order: u64,
+    /// When it came.
+    opened: Instant,
     /// A request came on it: it is a client's, not a connection held open half-sent.
     served: std::sync::atomic::AtomicBool,
     /// A request is being answered on it (from the request until its response body is sent or dropped): an event
@@ -134,7 +141,14 @@ impl PerClient {
     /// back.
     fn enter(self: &Arc<Self>, ip: IpAddr) -> (usize, ClientGuard) {
         let ip = super::throttle::key(ip);
-        let mark = Arc::new(Mark { order: self.1.fetch_add(1, Ordering::Relaxed), ..Mark::default() });
+        let mark = Arc::new(Mark {
+            order: self.1.fetch_add(1, Ordering::Relaxed),
+            opened: Instant::now(),
+            served: Default::default(),
+            busy: Default::default(),
+            idle_since_ms: Default::default(),
+            close: Default::default(),
+        });
         let mut m = self.0.lock().unwrap_or_else(|e| e.into_inner());
         let list = m.entry(ip).or_default();
         list.push(mark.clone());
@@ -163,18 +177,26 @@ impl PerClient {
     /// is held: a crowd held open half-sent from many addresses, each within its share, is never past a share, and
     /// held every connection (reconnecting as each timed out) while the operator's waited in the kernel's backlog.
     ///
-    /// Where every connection carried one, the one kept alive longest between requests goes (a reviewer's crowd of
+    /// One that came less than [`NEVER_SERVED_GRACE`] ago is closed only after those kept alive between requests;
+    /// where every connection carried one, the one kept alive longest between requests goes (a reviewer's crowd of
     /// 515 sending a request every 8 s held every connection, and a silent crowd the reserve): a client's next
     /// request opens a new connection. A connection answering a request (an event stream, a download) is never
     /// closed for another.
     fn evict_oldest_idle(&self) -> bool {
         let m = self.0.lock().unwrap_or_else(|e| e.into_inner());
         let open = || m.values().flatten().filter(|c| !c.close.is_cancelled());
-        let never = open().filter(|c| !c.served.load(Ordering::Relaxed)).min_by_key(|c| c.order);
-        let between = || {
-            open().filter(|c| !c.busy.load(Ordering::Relaxed)).min_by_key(|c| c.idle_since_ms.load(Ordering::Relaxed))
+        let never = |old: bool| {
+            open()
+                .filter(|c| !c.served.load(Ordering::Relaxed) && (c.opened.elapsed() >= NEVER_SERVED_GRACE) == old)
+                .min_by_key(|c| c.order)
         };
-        let victim = never.or_else(between).cloned();
+        let between = || {
+            open()
+                .filter(|c| c.served.load(Ordering::Relaxed) && !c.busy.load(Ordering::Relaxed))
+                .min_by_key(|c| c.idle_since_ms.load(Ordering::Relaxed))
+        };
+        // held half-sent past its grace, else kept alive between requests, else the oldest still in its grace
+        let victim = never(true).or_else(between).or_else(|| never(false)).cloned();
         victim.is_some_and(|c| {
             c.close.cancel();
             true
