@@ -85,6 +85,12 @@ impl Identification {
         }
     }
 
+    /// Known to its stated standard deviation: identified, or (B) identified as the sum of friction and a load
+    /// proportional to the speed.
+    pub fn known(self) -> bool {
+        matches!(self, Identification::Identified | Identification::FrictionOrLoad)
+    }
+
     pub const ALL: [Identification; 7] = [
         Identification::Identified,
         Identification::TooLittleExcitation,

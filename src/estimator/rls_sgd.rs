@@ -304,8 +304,7 @@ impl RlsSgd {
         // neither known nor standing
         let fan = self.fan_unexamined(b, viscous_var.sqrt());
         let unexamined = |(inertia, viscous): (Identification, Identification)| {
-            let known = matches!(viscous, Identification::Identified | Identification::FrictionOrLoad);
-            (inertia, if fan && known { Identification::TooLittleExcitation } else { viscous })
+            (inertia, if fan && viscous.known() { Identification::TooLittleExcitation } else { viscous })
         };
         let fit = unexamined(self.verdicts((b, j), (sds.0, viscous_var.sqrt())));
         let (inertia, mut viscous) = unexamined(self.verdicts((b, j), sds));
@@ -360,9 +359,7 @@ impl RlsSgd {
         // a parameter identified at the last judgement (B also as friction or load: the same evidence, only away
         // from the model's) that stood is held to the looser bounds (`IDENTIFIED_HOLD_*`); one the windows did not
         // back ([`Self::backed`]) is not, or a chirp's B, held at z ≥ 0, stood +57 % once it left 2 sd
-        let held = |was: Identification, stood: bool| {
-            stood && matches!(was, Identification::Identified | Identification::FrictionOrLoad)
-        };
+        let held = |was: Identification, stood: bool| stood && was.known();
         let (held_j, held_b) = (held(was_j, stood_j), held(was_b, stood_b));
         let known = |sd: f64, x: f64, limit: f64, held: bool| {
             sd <= limit * x.abs() * if held { IDENTIFIED_HOLD_SD_FACTOR } else { 1.0 }
@@ -504,14 +501,13 @@ impl Estimator for RlsSgd {
         let ((mut inertia, mut viscous), (j_stands, b_stands)) = self.judged;
         if let (Identification::Identified, Some(why)) = (inertia, self.qualified) {
             inertia = why;
-            if matches!(viscous, Identification::Identified | Identification::FrictionOrLoad) {
+            if viscous.known() {
                 viscous = why;
             }
         }
         // known, but near the nominal without the windows' backing ([`Self::backed`]): the nominal stands, said so
         // (after the reasons above, which say more of why the data cannot tell)
-        let known = |why: Identification| matches!(why, Identification::Identified | Identification::FrictionOrLoad);
-        let (j_unbacked, b_unbacked) = (known(inertia) && !j_stands, known(viscous) && !b_stands);
+        let (j_unbacked, b_unbacked) = (inertia.known() && !j_stands, viscous.known() && !b_stands);
         if j_unbacked {
             inertia = Identification::NominalPredictsAsWell;
         }
