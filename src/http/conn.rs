@@ -107,10 +107,9 @@ async fn reserve_gate(State(metrics): State<HttpMetrics>, req: Request, next: Ne
     next.run(req).await
 }
 
-/// Open connections per client address (IPv6 by its /64, as the token throttle keys them), oldest first, and the
-/// number the next one gets (their age across addresses).
+/// Open connections per client address (IPv6 by its /64, as the token throttle keys them), oldest first.
 #[derive(Debug, Default)]
-struct PerClient(Mutex<HashMap<IpAddr, Vec<Arc<Mark>>>>, AtomicU64);
+struct PerClient(Mutex<HashMap<IpAddr, Vec<Arc<Mark>>>>);
 
 /// How long a new connection has to send its request before it is held open half-sent, and is closed for a newer
 /// one ahead of a connection kept alive between requests: under a crowd churning thousands of connections a second,
@@ -120,9 +119,7 @@ const NEVER_SERVED_GRACE: Duration = Duration::from_secs(1);
 /// One open connection, as its address's list holds it.
 #[derive(Debug)]
 struct Mark {
-    /// Its number in the order the connections came (any address).
-    order: u64,
-    /// When it came.
+    /// When it came (the order the connections came in, any address).
     opened: Instant,
     /// A request came on it: it is a client's, not a connection held open half-sent.
     served: std::sync::atomic::AtomicBool,
@@ -142,7 +139,6 @@ impl PerClient {
     fn enter(self: &Arc<Self>, ip: IpAddr) -> (usize, ClientGuard) {
         let ip = super::throttle::key(ip);
         let mark = Arc::new(Mark {
-            order: self.1.fetch_add(1, Ordering::Relaxed),
             opened: Instant::now(),
             served: Default::default(),
             busy: Default::default(),
@@ -188,7 +184,7 @@ impl PerClient {
         let never = |old: bool| {
             open()
                 .filter(|c| !c.served.load(Ordering::Relaxed) && (c.opened.elapsed() >= NEVER_SERVED_GRACE) == old)
-                .min_by_key(|c| c.order)
+                .min_by_key(|c| c.opened)
         };
         let between = || {
             open()
@@ -371,9 +367,9 @@ pub async fn serve_with(listener: tokio::net::TcpListener, state: AppState, limi
     let epoch = Instant::now();
     let mut last_accept_error: Option<Instant> = None;
     loop {
-        // accepted first, then given a slot: with every slot held, the oldest connection that never carried a
-        // request makes room for it ([`PerClient::evict_oldest_idle`]); else it waits for a slot or the reserve
-        // (one connection waits here, the rest in the kernel's backlog)
+        // accepted first, then given a slot: with every slot held, a connection held half-sent or kept alive
+        // between requests makes room for it ([`PerClient::evict_oldest_idle`]); else it waits for a slot or the
+        // reserve (one connection waits here, the rest in the kernel's backlog)
         let (stream, peer) = tokio::select! {
             biased;
             () = shutdown.cancelled() => break,
