@@ -37,18 +37,46 @@ async fn open(addr: std::net::SocketAddr, request: &str) -> Option<(u16, TcpStre
     let go = async {
         let mut s = TcpStream::connect(addr).await.ok()?;
         s.write_all(request.as_bytes()).await.ok()?;
-        let mut head = Vec::new();
-        let mut byte = [0u8; 1];
-        while !head.ends_with(b"\r\n\r\n") {
-            if s.read(&mut byte).await.ok()? == 0 {
-                break;
-            }
-            head.push(byte[0]);
-        }
-        let code = String::from_utf8_lossy(&head).split_whitespace().nth(1)?.parse().ok()?;
-        Some((code, s))
+        response_head(s).await
     };
     tokio::time::timeout(Duration::from_secs(5), go).await.ok().flatten()
+}
+
+/// Reads up to the end of the response headers: the status code and the still-open connection.
+async fn response_head(mut s: TcpStream) -> Option<(u16, TcpStream)> {
+    let mut head = Vec::new();
+    let mut byte = [0u8; 1];
+    while !head.ends_with(b"\r\n\r\n") {
+        if s.read(&mut byte).await.ok()? == 0 {
+            break;
+        }
+        head.push(byte[0]);
+    }
+    let code = String::from_utf8_lossy(&head).split_whitespace().nth(1)?.parse().ok()?;
+    Some((code, s))
+}
+
+/// A connection from the loopback address `from` (a crowd spread over many addresses) that has sent `request`.
+async fn connect_from(addr: std::net::SocketAddr, from: [u8; 4], request: &str) -> TcpStream {
+    let socket = tokio::net::TcpSocket::new_v4().expect("socket");
+    socket.bind(std::net::SocketAddr::from((from, 0))).expect("a loopback address");
+    let mut c = socket.connect(addr).await.expect("connect");
+    c.write_all(request.as_bytes()).await.expect("write");
+    c
+}
+
+/// Three times: the operator's `/api/status` on a new connection (an ordinary one: 200, not the reserve's 503), and
+/// its `/healthz` and target POST, beside `crowd` (printed).
+async fn operator_gets_in(s: &Serve, crowd: &str) {
+    for _ in 0..3 {
+        let t = Instant::now();
+        let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await.map(|(c, _)| c);
+        let took = t.elapsed();
+        let [(health, _), (target, _)] = operator(&s.url).await;
+        eprintln!("{crowd}: /api/status {status:?} in {took:?}, /healthz {health}, target {target}");
+        assert_eq!(status, Some(200), "an ordinary connection for the operator, on every route");
+        assert_eq!((health, target), (200, 200));
+    }
 }
 
 const EVENTS: &str = "GET /api/events HTTP/1.1\r\nHost: 127.0.0.1\r\nAccept: text/event-stream\r\n\r\n";
@@ -305,23 +333,11 @@ async fn a_crowd_from_many_addresses_gives_way_to_the_operator() {
     // reserve's 32 and more in the backlog
     let mut crowd = Vec::new();
     for k in 0..64u8 {
-        let socket = tokio::net::TcpSocket::new_v4().expect("socket");
-        socket.bind(std::net::SocketAddr::from(([127, 0, 1, 1 + k / 4], 0))).expect("a loopback address");
-        let mut c = socket.connect(s.addr).await.expect("connect");
-        c.write_all(b"GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n").await.expect("half a request");
-        crowd.push(c);
-    }
-    for _ in 0..3 {
-        let t = Instant::now();
-        let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await.map(|(c, _)| c);
-        let took = t.elapsed();
-        let [(health, _), (target, _)] = operator(&s.url).await;
-        eprintln!(
-            "a crowd of 64 from 16 addresses: /api/status {status:?} in {took:?}, /healthz {health}, target {target}"
+        crowd.push(
+            connect_from(s.addr, [127, 0, 1, 1 + k / 4], "GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n").await,
         );
-        assert_eq!(status, Some(200), "an ordinary connection for the operator, on every route");
-        assert_eq!((health, target), (200, 200));
     }
+    operator_gets_in(&s, "a crowd of 64 from 16 addresses").await;
     let m = s.metrics().await;
     assert!(metric(&m, "hydrolens_http_refused_total{reason=\"evicted\"}").unwrap_or(0.0) >= 1.0, "{m}");
     drop(crowd);
@@ -335,32 +351,17 @@ async fn a_crowd_from_many_addresses_gives_way_to_the_operator() {
 async fn kept_alive_connections_give_way_to_the_operator_and_streams_keep_their_place() {
     let dir = tempfile::tempdir().expect("tmp");
     let s = Serve::start(dir.path(), "max_connections = 16\nmax_connections_per_client = 4\n");
-    let addr = s.addr;
-    let from = move |a: [u8; 4], request: &'static str| async move {
-        let socket = tokio::net::TcpSocket::new_v4().expect("socket");
-        socket.bind(std::net::SocketAddr::from((a, 0))).expect("a loopback address");
-        let mut c = socket.connect(addr).await.expect("connect");
-        c.write_all(request.as_bytes()).await.expect("write");
-        c
-    };
-    let read_head = |mut c: TcpStream| async move {
-        let mut head = Vec::new();
-        let mut byte = [0u8; 1];
-        while !head.ends_with(b"\r\n\r\n") && c.read(&mut byte).await.expect("read") == 1 {
-            head.push(byte[0]);
-        }
-        (String::from_utf8_lossy(&head).split_whitespace().nth(1).unwrap_or("").to_string(), c)
-    };
     // four dashboards' event streams, then twelve connections kept alive after a request each, from six addresses
     let mut streams = Vec::new();
     for k in 0..4u8 {
-        let (code, c) = read_head(from([127, 0, 4, 1 + k], EVENTS).await).await;
-        assert_eq!(code, "200");
+        let (code, c) = response_head(connect_from(s.addr, [127, 0, 4, 1 + k], EVENTS).await).await.expect("a head");
+        assert_eq!(code, 200);
         streams.push(c);
     }
     let mut kept = Vec::new();
     for k in 0..12u8 {
-        let mut c = from([127, 0, 3, 1 + k / 2], "GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await;
+        let mut c =
+            connect_from(s.addr, [127, 0, 3, 1 + k / 2], "GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await;
         let mut buf = [0u8; 512];
         let n = c.read(&mut buf).await.expect("answered");
         assert!(String::from_utf8_lossy(&buf[..n]).starts_with("HTTP/1.1 200"));
@@ -369,15 +370,11 @@ async fn kept_alive_connections_give_way_to_the_operator_and_streams_keep_their_
     // and a silent crowd of 40 from ten more addresses: the reserve's 32 and more
     let mut silent = Vec::new();
     for k in 0..40u8 {
-        silent.push(from([127, 0, 5, 1 + k / 4], "GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n").await);
+        silent.push(
+            connect_from(s.addr, [127, 0, 5, 1 + k / 4], "GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n").await,
+        );
     }
-    for _ in 0..3 {
-        let status = open(s.addr, "GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n").await.map(|(c, _)| c);
-        let [(health, _), (target, _)] = operator(&s.url).await;
-        eprintln!("kept alive, streams and a silent crowd: /api/status {status:?}, /healthz {health}, target {target}");
-        assert_eq!(status, Some(200), "an ordinary connection for the operator");
-        assert_eq!((health, target), (200, 200));
-    }
+    operator_gets_in(&s, "kept alive, streams and a silent crowd").await;
     // the streams were not closed for anyone (each still open: data, or nothing yet, but no end)
     for c in &mut streams {
         let mut buf = [0u8; 256];
