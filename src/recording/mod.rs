@@ -106,22 +106,41 @@ fn turns_wrapped(from: f64, to: f64) -> f64 {
 
 /// `theta_rad` with a single-turn encoder's wraps taken out ([`position_step`]): each reading plus the whole turns
 /// wrapped before it (so a position that never wraps is returned as it is, a lone corrupt value included); a missing
-/// reading stays missing, and the next one is compared with the last read.
+/// reading stays missing, and the next one is compared with the last read. Across missing readings the position
+/// may have moved by more than half a turn: there the wrap is the one that brings the step nearest the movement at the
+/// pace of the last two readings in a row (a multi-turn position still in its first turn moved 4 rad over a gap, and
+/// was read as a wrap back).
 pub fn unwrapped_positions(theta: &[f64]) -> Vec<f64> {
     use std::f64::consts::TAU;
-    let (mut turns, mut last) = (0.0, f64::NAN);
+    // the turns so far, the last reading and its row, and the step a row between the last two readings in a row
+    let (mut turns, mut last, mut pace) = (0.0, None::<(usize, f64)>, None::<f64>);
     theta
         .iter()
-        .map(|&x| {
+        .enumerate()
+        .map(|(k, &x)| {
             if x.is_finite() {
-                if last.is_finite() {
-                    turns += turns_wrapped(last, x);
+                if let Some((i, from)) = last {
+                    let wrapped = match pace {
+                        Some(p) if k > i + 1 => turns_wrapped_beyond(from, x, p * (k - i) as f64),
+                        _ => turns_wrapped(from, x),
+                    };
+                    turns += wrapped;
+                    if k == i + 1 {
+                        pace = Some(x - from - TAU * wrapped);
+                    }
                 }
-                last = x;
+                last = Some((k, x));
             }
             x - TAU * turns
         })
         .collect()
+}
+
+/// The whole turns a single-turn position wrapped by between two readings that moved about `expected` between them.
+fn turns_wrapped_beyond(from: f64, to: f64, expected: f64) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    let one_turn = |x: f64| (-PI..=TAU).contains(&x);
+    if one_turn(from) && one_turn(to) { ((to - from - expected) / TAU).round() } else { 0.0 }
 }
 
 /// Cells of one column of one file outside the column's [`sensor_range`], taken as missing.
@@ -252,5 +271,24 @@ mod tests {
         // a missing reading stays missing; the next one continues from the last read
         let gap = unwrapped_positions(&[6.2, f64::NAN, 0.1]);
         assert!(gap[1].is_nan() && (gap[2] - (6.2 + position_step(6.2, 0.1))).abs() < 1e-12, "{gap:?}");
+        // across 100 missing readings a multi-turn position in its first turn moved 4 rad: no wrap; a single-turn one
+        // 0.4 rad over 9 through its wrap, and 4 rad over 100 through its wrap (a step back of 2.2 rad as read): one
+        let missing = |x: &[f64], from: usize, n: usize| {
+            let mut x = x.to_vec();
+            x[from..from + n].fill(f64::NAN);
+            x
+        };
+        let first_turn: Vec<f64> = (0..150).map(|k| 0.04 * k as f64).collect();
+        let kept = missing(&first_turn, 20, 100);
+        let back = unwrapped_positions(&kept);
+        assert!(back.iter().zip(&kept).all(|(a, b)| a.to_bits() == b.to_bits()), "{back:?}");
+        for (start, from, n) in [(5.8, 10, 9), (4.0, 20, 100)] {
+            let through: Vec<f64> = (0..150).map(|k| start + 0.04 * k as f64).collect();
+            let wrapped = missing(&through.iter().map(|x| x.rem_euclid(TAU)).collect::<Vec<_>>(), from, n);
+            let back = unwrapped_positions(&wrapped);
+            let truth = missing(&through, from, n);
+            let same = |(a, b): (&f64, &f64)| (a.is_nan() && b.is_nan()) || (a - b).abs() < 1e-9;
+            assert!(back.iter().zip(&truth).all(same), "{start}: {back:?}");
+        }
     }
 }
