@@ -87,10 +87,8 @@ const PLAUSIBLE_VISCOUS_FACTOR: f64 = 4.0;
 const UNEARNED_VISCOUS_FACTOR: f64 = 2.5;
 /// The window sign test's z from which adapted values that differ from the nominal count as earned.
 const IDENTIFIED_Z: f64 = 1.0;
-/// J known to this relative standard deviation is identified: the ±15 % a user may rely on is then 3 sd. At 6 % (2.5
-/// sd) J was 16–44 % off at 0–5 of the 225–334 checkpoints per seed set of the new load families where it was
-/// reported identified; at 5 %, at 0–2 (docs/estimator.md), and on the six families one run of 576 gained a hold and
-/// one lost it.
+/// J known to this relative standard deviation is identified: the ±15 % a user may rely on is then 3 sd (at 6 %, J
+/// was called identified 16–44 % off at up to 5 of a seed set's new-load checkpoints).
 const INERTIA_IDENTIFIED_SD: f64 = 0.05;
 /// A J known to its limit by the fits' own sd still does not stand where its credible sd passes this fraction of it:
 /// the windows' pooled J lies that far from the RLS's (a gearbox load, last seed 15010: J +350 %, credible sd 80 %,
@@ -100,10 +98,8 @@ const INERTIA_CONTRADICTED_SD: f64 = 0.25;
 const VISCOUS_IDENTIFIED_SD: f64 = 0.25;
 /// Once identified, a parameter stays so until the evidence is clearly gone (a hysteresis, as the validation's own):
 /// its standard deviation past this factor of the limit that let it in, or the sign test's z below
-/// `IDENTIFIED_HOLD_Z`. Without it the state flapped within a second of first being reached, as z and the credible
-/// standard deviation wander about their thresholds. 1.3 since J's credible sd counts the whole distance to the
-/// windows' pooled J: at 1.1, J and B fell back 205 / 86 times over the six families of nine seed sets (151 / 69
-/// before that change), at 1.3 139 / 70, for 3 of 7992 new-load checkpoints covered fewer.
+/// `IDENTIFIED_HOLD_Z`. Without it the state flaps within a second of first being reached, as z and the credible
+/// standard deviation wander about their thresholds (docs/estimator.md, "J / B fell back").
 const IDENTIFIED_HOLD_SD_FACTOR: f64 = 1.3;
 /// J is identified only once a speed-up and a slow-down window have each known it to this share on their own.
 const ONE_WAY_J_SD: f64 = 0.1;
@@ -111,9 +107,7 @@ const IDENTIFIED_HOLD_Z: f64 = 0.0;
 /// B stands before it is known to its limit where the data put the nominal B this many of its standard deviations
 /// away, the windows say the adapted values predict better (the sign test at `IDENTIFIED_Z`) and their B shows no
 /// hint of a speed dependence: a B of ±30 % is still nearer the truth than a nominal 6 sd off it (reserve seed 19004,
-/// B ×2.14: the nominal stood 6 s longer and T̂_L was 1.46× the truth reference's). Over ten seed sets the six
-/// families' holds rose 869 → 879 of 960, no harm on the new loads unchanged (1009 of 1120); without the check of
-/// the hint, 890 holds for 6 more new-load runs doing harm (fans, before the speed test could see them).
+/// B ×2.14: the nominal stood 6 s longer and T̂_L was 1.46× the truth reference's).
 const NOMINAL_REJECTED_Z: f64 = 3.0;
 
 /// Whether the data set `x` (with standard deviation `sd`) apart from the nominal `x0`: more than 2 sd from it. Within
@@ -403,9 +397,8 @@ impl RlsSgd {
         // (`UNEARNED_VISCOUS_FACTOR`) that friction is the likely reading, or where the data reject the nominal
         // (`NOMINAL_REJECTED_Z`); either only where the windows' B shows no hint that it moves with the speed and a
         // fan that made up its distance from the nominal would have shown one (`WindowPool::would_show`; where
-        // `speed_test_applies`; with the hint heeded under periodic loads too, the six families' holds fell 974 ->
-        // 960 of 1056). Standing on no hint alone (nor on too few windows to look), a fan's B stood in its first
-        // seconds: over the twelve seed sets new-load no harm 1229 -> 1236 of 1344, six-family holds 1062 -> 1060.
+        // `speed_test_applies`: under a periodic load the windows' B lines up with the speed by chance). Standing on
+        // no hint alone (nor on too few windows to look), a fan's B stood in its first seconds.
         let b0 = self.rls.b0;
         let near = b <= UNEARNED_VISCOUS_FACTOR * b0 && b >= b0 / UNEARNED_VISCOUS_FACTOR;
         let b_nominal = self.nominal_parameters().1;
@@ -425,8 +418,7 @@ impl RlsSgd {
     /// as more friction does, so it is not known yet, and does not stand ([`Self::judge`]; nor before the evidence:
     /// [`Self::standing`] asks no hint of the speed test). A B below the nominal is no such load's. Standing, a fan's B
     /// called identified in its first seconds (the sign test backs it: locally it predicts each window better) made
-    /// T̂_L up to 2.2× the nominal model's (last seed 15015 at 2 ms); over the twelve seed sets new-load no harm
-    /// 1236 -> 1245 of 1344 and six-family holds 1060 -> 1057 (B below the nominal too: 1030).
+    /// T̂_L up to 2.2× the nominal model's (last seed 15015 at 2 ms).
     fn fan_unexamined(&self, b: f64, sd: f64) -> bool {
         let b0 = self.nominal_parameters().1;
         self.speed_test_applies() && b > b0 && apart(b, b0, sd) && self.rls.viscous.speed_hint().is_none()
