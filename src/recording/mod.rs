@@ -93,15 +93,16 @@ pub fn sensor_range(column: &str) -> Option<(f64, f64)> {
 /// first turn and is taken as it is; half a turn per sample is 314 rad/s at a 10 ms step, beyond what the speed
 /// column may read at 1 ms.
 pub fn position_step(from: f64, to: f64) -> f64 {
-    (to - from) - std::f64::consts::TAU * turns_wrapped(from, to)
+    (to - from) - std::f64::consts::TAU * turns_wrapped(from, to, 0.0)
 }
 
-/// The whole turns a single-turn position wrapped by between two readings ([`position_step`]): 0 where it did not.
-fn turns_wrapped(from: f64, to: f64) -> f64 {
+/// The whole turns a single-turn position wrapped by between two readings that moved about `moved` between them (0
+/// for neighbouring readings, [`position_step`]): 0 where it did not.
+fn turns_wrapped(from: f64, to: f64, moved: f64) -> f64 {
     use std::f64::consts::{PI, TAU};
-    let step = to - from;
+    let off = to - from - moved;
     let one_turn = |x: f64| (-PI..=TAU).contains(&x);
-    if step.abs() > PI && one_turn(from) && one_turn(to) { (step / TAU).round() } else { 0.0 }
+    if off.abs() > PI && one_turn(from) && one_turn(to) { (off / TAU).round() } else { 0.0 }
 }
 
 /// `theta_rad` with a single-turn encoder's wraps taken out ([`position_step`]): each reading plus the whole turns
@@ -120,10 +121,11 @@ pub fn unwrapped_positions(theta: &[f64]) -> Vec<f64> {
         .map(|(k, &x)| {
             if x.is_finite() {
                 if let Some((i, from)) = last {
-                    let wrapped = match pace {
-                        Some(p) if k > i + 1 => turns_wrapped_beyond(from, x, p * (k - i) as f64),
-                        _ => turns_wrapped(from, x),
+                    let moved = match pace {
+                        Some(p) if k > i + 1 => p * (k - i) as f64,
+                        _ => 0.0,
                     };
+                    let wrapped = turns_wrapped(from, x, moved);
                     turns += wrapped;
                     if k == i + 1 {
                         pace = Some(x - from - TAU * wrapped);
@@ -134,13 +136,6 @@ pub fn unwrapped_positions(theta: &[f64]) -> Vec<f64> {
             x - TAU * turns
         })
         .collect()
-}
-
-/// The whole turns a single-turn position wrapped by between two readings that moved about `expected` between them.
-fn turns_wrapped_beyond(from: f64, to: f64, expected: f64) -> f64 {
-    use std::f64::consts::{PI, TAU};
-    let one_turn = |x: f64| (-PI..=TAU).contains(&x);
-    if one_turn(from) && one_turn(to) { ((to - from - expected) / TAU).round() } else { 0.0 }
 }
 
 /// Cells of one column of one file outside the column's [`sensor_range`], taken as missing.
