@@ -163,10 +163,7 @@ impl PerClient {
                 })
                 .cloned()
         });
-        victim.is_some_and(|c| {
-            c.close.cancel();
-            true
-        })
+        victim.inspect(|c| c.close.cancel()).is_some()
     }
 
     /// Closes the oldest connection of any address that never carried a request, where every ordinary connection
@@ -193,10 +190,7 @@ impl PerClient {
         };
         // held half-sent past its grace, else kept alive between requests, else the oldest still in its grace
         let victim = never(true).or_else(between).or_else(|| never(false)).cloned();
-        victim.is_some_and(|c| {
-            c.close.cancel();
-            true
-        })
+        victim.inspect(|c| c.close.cancel()).is_some()
     }
 }
 
@@ -226,8 +220,7 @@ struct Answering {
 
 impl Drop for Answering {
     fn drop(&mut self) {
-        let now = u64::try_from(self.epoch.elapsed().as_millis()).unwrap_or(u64::MAX);
-        self.mark.idle_since_ms.store(now, Ordering::Relaxed);
+        self.mark.idle_since_ms.store(millis_since(self.epoch), Ordering::Relaxed);
         self.mark.busy.store(false, Ordering::Relaxed);
     }
 }
@@ -268,7 +261,7 @@ impl<T> Watched<T> {
     fn note<R>(&self, poll: &Poll<std::io::Result<R>>) {
         match poll {
             Poll::Pending => {
-                let now = u64::try_from(self.epoch.elapsed().as_millis()).unwrap_or(u64::MAX - 1) + 1;
+                let now = millis_since(self.epoch) + 1;
                 let _ = self.waiting_since.compare_exchange(0, now, Ordering::Relaxed, Ordering::Relaxed);
             }
             Poll::Ready(_) => self.waiting_since.store(0, Ordering::Relaxed),
@@ -308,13 +301,18 @@ impl<T: AsyncWrite + Unpin> AsyncWrite for Watched<T> {
     }
 }
 
+/// Milliseconds since `epoch` (the accept loop's), at most `u64::MAX - 1` so that one more fits.
+fn millis_since(epoch: Instant) -> u64 {
+    u64::try_from(epoch.elapsed().as_millis()).unwrap_or(u64::MAX - 1).min(u64::MAX - 1)
+}
+
 /// Resolves once a write has waited `limit` on a client that does not read.
 async fn stalled(waiting_since: Arc<AtomicU64>, epoch: Instant, limit: Duration) {
     let limit_ms = u64::try_from(limit.as_millis()).unwrap_or(u64::MAX);
     loop {
         tokio::time::sleep((limit / 4).max(Duration::from_millis(50))).await;
         let since = waiting_since.load(Ordering::Relaxed);
-        let now = u64::try_from(epoch.elapsed().as_millis()).unwrap_or(u64::MAX - 1) + 1;
+        let now = millis_since(epoch) + 1;
         if since != 0 && now.saturating_sub(since) >= limit_ms {
             return;
         }
