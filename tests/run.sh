@@ -21,8 +21,8 @@ if [ ${#need[@]} -gt 0 ]; then
   ($sudo_ apt-get update -qq && DEBIAN_FRONTEND=noninteractive $sudo_ apt-get install -y -qq "${need[@]}" >/dev/null) \
     || echo "tests/run.sh: could not install ${need[*]}; the tests that drive them will fail" >&2
 fi
-# six test threads on two cores: most of the integration tests wait on a service's real time with the cores idle, so
-# the integration tests take a sixth less time than with four (docs/development.md "Time in the tests");
+# four test threads on two cores: most of the integration tests wait on a service's real time with the cores idle, so
+# the suite takes about a quarter less time than with one thread a core (docs/development.md "Time in the tests");
 # RUST_TEST_THREADS set outside wins
-export RUST_TEST_THREADS="${RUST_TEST_THREADS:-6}"
+export RUST_TEST_THREADS="${RUST_TEST_THREADS:-4}"
 exec cargo test --locked "$@"
