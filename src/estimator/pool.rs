@@ -36,6 +36,9 @@ pub(super) struct WindowPool {
     overlap: f64,
     /// The pooled value and its variance.
     pub estimate: (f64, f64),
+    /// Whether the pooled value lay outside the physical bounds (`estimate` is then the bound, with the prior's
+    /// variance): the windows' fits are no fits of the plant.
+    pub outside: bool,
     /// The windows' line on their covariate ([`WindowPool::speed_slope`]), fitted as each window comes: the tests
     /// read it at every judgement (every 0.1 s of data), and fitting it there cost an update at 1 ms 7 ns.
     slope: Option<SpeedSlope>,
@@ -52,6 +55,7 @@ impl WindowPool {
             bounds,
             overlap,
             estimate: (b, var),
+            outside: false,
             slope: None,
         }
     }
@@ -64,7 +68,7 @@ impl WindowPool {
         self.speeds[self.next] = speed;
         self.next = (self.next + 1) % POOL;
         self.len = (self.len + 1).min(POOL);
-        self.estimate = self.pool();
+        (self.estimate, self.outside) = self.pool();
         self.slope = self.speed_slope();
     }
 
@@ -160,7 +164,7 @@ impl WindowPool {
         Some(SpeedSlope { slope, se, mean_b, mean_abs_speed, speed_range: hi - lo })
     }
 
-    fn pool(&self) -> (f64, f64) {
+    fn pool(&self) -> ((f64, f64), bool) {
         let w = &self.windows[..self.len];
         let (pb, pv) = self.prior;
         // Start from the windows' median (weighed by their claims), so a wild window cannot pull the start.
@@ -212,7 +216,7 @@ impl WindowPool {
             m = b / info;
         }
         let [lo, hi] = self.bounds;
-        if m < lo || m > hi { (m.clamp(lo, hi), pv) } else { (m, 1.0 / honest) }
+        if m < lo || m > hi { ((m.clamp(lo, hi), pv), true) } else { ((m, 1.0 / honest), false) }
     }
 }
 
