@@ -388,12 +388,14 @@ impl RlsSgd {
     fn standing(&self, (inertia, viscous): (Identification, Identification), credible_j_sd: f64) -> (bool, bool) {
         let ((b, viscous_var), (j, inertia_var)) = self.combined;
         // J also while the windows keep it in force once it is known to its limit (they test J directly), unless the
-        // windows' own J contradicts it (`INERTIA_CONTRADICTED_SD`) or their B lies outside its physical bounds: the
-        // load they did not follow is then in both columns, and their J is no inertia's (impacts on an exact model at
-        // 5 ms: the windows' B below zero, J up to ×3.8 stood unidentified for 9 s, T̂_L 1.56× the nominal model's;
-        // `estimator::a_j_from_windows_whose_b_is_below_zero_does_not_stand`)
+        // windows' own J contradicts it (`INERTIA_CONTRADICTED_SD`), or their B lies outside its physical bounds or
+        // follows the speed: the load they did not follow is then in both columns, and their J is no inertia's
+        // (impacts on an exact model at 5 ms: the windows' B below zero, J up to ×3.8 stood unidentified for 9 s, T̂_L
+        // 1.56× the nominal model's, `estimator::a_j_from_windows_whose_b_is_below_zero_does_not_stand`; a fan on an
+        // exact model at 5 ms: J +13 % stood, T̂_L 1.16×, `estimator::a_fans_j_does_not_stand_unidentified`)
         let j_stands = inertia == Identification::Identified
             || (!self.rls.viscous.outside
+                && viscous != Identification::LoadFollowsSpeed
                 && self.validation.in_force
                 && inertia_var.sqrt() <= INERTIA_IDENTIFIED_SD * j
                 && credible_j_sd <= INERTIA_CONTRADICTED_SD * j);
