@@ -282,9 +282,10 @@ async fn vfd1_rate(url: &str) -> f64 {
     25.0 / (vfd1_times(url, t0).await[24] - t0)
 }
 
-/// A counter of drive `index`'s link in `/api/status` (`polls`, `errors`).
+/// A counter of drive `index`'s link in `/api/status` (`polls`, `errors`); missing, the test fails rather than count
+/// zero (a zero of timeouts would pass the hold-back's assertion unseen).
 async fn link_count(url: &str, index: usize, counter: &str) -> u64 {
-    status(url).await["drives"][index]["link"][counter].as_u64().unwrap_or(0)
+    status(url).await["drives"][index]["link"][counter].as_u64().unwrap_or_else(|| panic!("link counter {counter}"))
 }
 
 /// The time stamps (`t_s`) of vfd1's samples in the last 10 s of its history, those after `after_s`.
