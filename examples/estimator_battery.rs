@@ -17,7 +17,9 @@
 //! `periodic=0` runs rls-sgd without its periodic-load fit (the version before it). `kalman-jump=0` runs the reference
 //! Kalman filter without its jump test (the filter before it). `viscous=true-start` starts rls-sgd from the true B
 //! (J still wrong, B's prior as uncertain as usual); `viscous=known` also holds B there (prior σ 0.1 %): which
-//! failures are B's, and whether the data pull a right B away.
+//! failures are B's, and whether the data pull a right B away. `start=exact` starts rls-sgd (and the nominal-model
+//! Kalman filter) from the true J and B; `start=near` from J and B each 10–20 % off the truth, either way (drawn from
+//! the seed): the nominal models a plant usually has, where adapting has least to gain and most to lose.
 
 use hydrolens::estimator::EstimatorSettings;
 use hydrolens::estimator::battery::{self, Run};
@@ -33,6 +35,7 @@ fn main() {
     let mut only_seed: Option<u64> = None;
     let mut settings = EstimatorSettings::default();
     let mut true_viscous = false;
+    let mut start: Option<String> = None;
     for arg in std::env::args().skip(1) {
         let (k, v) = arg.split_once('=').unwrap_or((arg.as_str(), ""));
         match k {
@@ -48,6 +51,7 @@ fn main() {
                     settings.viscous_prior_sd = 1e-3;
                 }
             }
+            "start" if v == "exact" || v == "near" => start = Some(v.to_string()),
             "periodic" => settings.periodic_load = v != "0",
             "families" => {
                 let named: Vec<Family> = v.split(',').filter_map(Family::from_name).collect();
@@ -87,6 +91,14 @@ fn main() {
         .filter(|(_, i)| only_seed.is_none_or(|s| s == first + i))
         .map(|(f, i)| Scenario::generate(f, first + i, seconds))
         .map(|s| if true_viscous { Scenario { viscous_factor: 1.0, ..s } } else { s })
+        .map(|s| match start.as_deref() {
+            Some("exact") => Scenario { inertia_factor: 1.0, viscous_factor: 1.0, ..s },
+            Some(_) => {
+                let (inertia_factor, viscous_factor) = near_start(s.seed);
+                Scenario { inertia_factor, viscous_factor, ..s }
+            }
+            None => s,
+        })
         .collect();
     let jobs: Vec<(&Scenario, u32)> = scenarios.iter().flat_map(|s| polls.iter().map(move |&p| (s, p))).collect();
     let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
@@ -211,4 +223,21 @@ fn main() {
     println!("all: {holding}/{} hold ({:.0} %)", results.len(), 100.0 * holding as f64 / results.len().max(1) as f64);
     let honest = results.iter().filter(|r| r.viscous_honest()).count();
     println!("B within 2 sd of the truth at the end: {honest}/{}", results.len());
+}
+
+/// J and B factors each 10–20 % off 1, either way, from the seed alone (SplitMix64): `start=near`.
+fn near_start(seed: u64) -> (f64, f64) {
+    let mut x = seed ^ 0x5bd1_e995_0f1e_2d3c;
+    let mut next = || {
+        x = x.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = x;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut factor = || {
+        let off = 0.1 + 0.1 * next();
+        if next() < 0.5 { 1.0 - off } else { 1.0 + off }
+    };
+    (factor(), factor())
 }
