@@ -220,20 +220,22 @@ async fn a_drive_in_local_mode_raises_an_alarm_and_no_overspeed_follows() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_drive_with_a_slower_ramp_of_its_own_is_followed_without_an_alarm() {
     let run = async {
-        let speed =
-            "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 40.0\nmax_hz = 50.0\nramp_hz_per_s = 20.0\n";
+        // the service's ramp (Hz/s), five times the drive's own
+        let ramp = 20.0;
+        let speed = format!(
+            "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 40.0\nmax_hz = 50.0\nramp_hz_per_s = {ramp:?}\n"
+        );
         let mut plant = support::test_plant(5.0);
         if let Some(d) = plant.drive.as_mut() {
             d.ramp_hz_per_s = 4.0;
         }
-        let stack = Stack::start_on(plant, 10, speed).await;
+        let stack = Stack::start_on(plant, 10, &speed).await;
         let drive = &stack.state.drives[0];
         let (mut alarms, mut peak, mut lead, mut settled_at): (u64, f64, f64, Option<u64>) = (0, 0.0, 0.0, None);
         // the longest span of two sample intervals the test saw (s): a cycle the machine delayed takes a longer ramp
         // step (the lead is the drive's read-back + LEAD_HZ + one cycle's step), and a sample refused in between
         // (not written from) makes the written cycle's Δt the two intervals together
         let (mut times, mut longest_dt): ([f64; 3], f64) = ([f64::NAN; 3], 0.02);
-        let ramp = 20.0;
         // 1500 of the loop's own cycles: 15 s, the climb to about 26 Hz takes 6.5 s at the drive's 4 Hz/s
         for cycle in 0..1500u64 {
             stack.wait_polls(1, "climbing").await;
