@@ -117,12 +117,17 @@ impl WindowPool {
         self.slope.map(|s| (s.slope / s.se).abs() > SPEED_SLOPE_HOLD_Z)
     }
 
-    /// Whether a speed dependence that made up `distance` of B at the windows' mean speed would show as a hint: a
-    /// fan's local B is twice its torque over the speed, so its slope is that B over the speed, and it must lie
-    /// `SPEED_SLOPE_HOLD_Z` standard errors from zero. Where it would not, no hint is no evidence.
-    pub(super) fn would_show(&self, distance: f64) -> bool {
-        self.slope
-            .is_some_and(|s| (distance / s.mean_abs_speed.max(f64::MIN_POSITIVE)).abs() > SPEED_SLOPE_HOLD_Z * s.se)
+    /// How much likelier the windows' B against their speed is under a load that made up `distance` of B at their
+    /// mean speed than under friction (one B at every speed): the likelihood ratio of the fitted slope, a fan's
+    /// slope (its local B is twice its torque over the speed, so the slope is that B over the speed) against none,
+    /// with the slope's standard error. Near 1 where the two slopes lie within a standard error of each other (too
+    /// few windows, too narrow a range of speeds, a small distance): the windows cannot tell them apart. `None`
+    /// before there are windows enough to look (`SPEED_SLOPE_WINDOWS`).
+    pub(super) fn load_odds(&self, distance: f64) -> Option<f64> {
+        self.slope.map(|s| {
+            let load = distance / s.mean_abs_speed.max(f64::MIN_POSITIVE);
+            ((s.slope * load - load * load / 2.0) / (s.se * s.se)).exp()
+        })
     }
 
     /// The weighted line of the windows' B on their mean speed (a meta-regression: each window weighted by its
@@ -328,11 +333,12 @@ mod tests {
         assert_eq!(pool(&|_, b_w, _| b_w).speed_hint(), Some(true));
     }
 
-    /// No hint is evidence only where a fan would have shown one: windows of one friction (each off by up to its own
-    /// sd) at 30–32 rad/s show no hint, yet a fan that made up 0.05 N·m·s/rad there would not have shown one either;
-    /// the same windows spread over 5–60 rad/s would have shown it.
+    /// No hint favours friction only where a fan would have shown one: windows of one friction (each off by up to its
+    /// own sd) at 30–32 rad/s show no hint, yet a fan that made up 0.05 N·m·s/rad there would not have shown one
+    /// either, and the odds stay near 1; the same windows spread over 5–60 rad/s favour friction. The fan run's
+    /// windows ([`FAN_WINDOWS`]) favour a fan that made up their distance from a nominal of 0.03.
     #[test]
-    fn no_hint_is_evidence_only_where_a_fan_would_show() {
+    fn the_windows_favour_friction_only_where_a_fan_would_show() {
         let pattern = [0.9, -0.6, 0.3, -1.0, 0.5, -0.2, 0.8, -0.7];
         let pool = |speed: &dyn Fn(usize) -> f64| {
             let mut p = WindowPool::new(0.04, 0.01, [0.0, 0.5], 1.0);
@@ -341,13 +347,27 @@ mod tests {
             }
             p
         };
+        let odds = |p: &WindowPool, distance: f64| p.load_odds(distance).expect("windows enough");
         let narrow = pool(&|i| 30.0 + (i % 3) as f64);
         assert_eq!(narrow.speed_hint(), Some(false));
-        assert!(!narrow.would_show(0.05));
+        assert!(odds(&narrow, 0.05) > 0.5, "{}", odds(&narrow, 0.05));
         let wide = pool(&|i| 5.0 + 55.0 * ((i * 5) % 16) as f64 / 15.0);
         assert_eq!(wide.speed_hint(), Some(false));
-        assert!(wide.would_show(0.05));
-        assert!(!wide.would_show(0.0), "no distance, nothing to show");
+        assert!(odds(&wide, 0.05) < 1.0 / 3.0, "{}", odds(&wide, 0.05));
+        assert_eq!(odds(&wide, 0.0), 1.0, "no distance, nothing to tell");
+        let mut fan = WindowPool::new(0.03, 0.01, [0.0, 0.5], 1.0);
+        for &(speed, b, sd) in &FAN_WINDOWS {
+            fan.add(b, sd * sd, speed);
+        }
+        let distance = fan.estimate.0 - 0.03;
+        eprintln!(
+            "odds of a fan: narrow {:.2}, wide {:.3}, the fan run's {:.1}",
+            odds(&narrow, 0.05),
+            odds(&wide, 0.05),
+            odds(&fan, distance)
+        );
+        assert!(odds(&fan, distance) > 3.0, "{distance}: {}", odds(&fan, distance));
+        assert!(WindowPool::new(0.03, 0.01, [0.0, 0.5], 1.0).load_odds(0.05).is_none(), "no windows, no look");
     }
 
     /// The windows' J against the way the speed went (+1 a speed-up, −1 a slow-down). One inertia, every window off

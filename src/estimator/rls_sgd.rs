@@ -85,6 +85,12 @@ type Judged = ((Identification, Identification), (bool, bool));
 const PLAUSIBLE_VISCOUS_FACTOR: f64 = 4.0;
 /// Before the evidence is in, an adapted B stands only this near the nominal (either way).
 const UNEARNED_VISCOUS_FACTOR: f64 = 2.5;
+/// The likelihood ratio at which the windows' B against their speed counts as evidence, either way, between friction
+/// and a load that follows the speed and makes up B's distance from the nominal (`WindowPool::load_odds`): 3,
+/// "positive" evidence on Kass and Raftery's scale. Below it either way the windows cannot tell them apart: an
+/// identified B stands, one before the evidence does not. A fan's B held back at any odds above 1 cost the six
+/// families 8 runs that hold for no run more without harm (docs/estimator.md, "Tried and not used").
+const LOAD_ODDS: f64 = 3.0;
 /// The window sign test's z from which adapted values that differ from the nominal count as earned.
 const IDENTIFIED_Z: f64 = 1.0;
 /// J known to this relative standard deviation is identified: the ±15 % a user may rely on is then 3 sd (at 6 %, J
@@ -297,9 +303,9 @@ impl RlsSgd {
     fn judge(&self) -> (Judged, (f64, f64)) {
         let ((_, viscous_var), _) = self.combined;
         let ((b, j), sds) = self.credible();
-        // above the model's before the speed test can look, B is not yet told from a fan's (`fan_unexamined`):
+        // above the model's where the windows favour a fan's reading, or before they can look (`fan_favoured`):
         // neither known nor standing
-        let fan = self.fan_unexamined(b, viscous_var.sqrt());
+        let fan = self.fan_favoured(b, viscous_var.sqrt());
         let unexamined = |(inertia, viscous): (Identification, Identification)| {
             (inertia, if fan && viscous.known() { Identification::TooLittleExcitation } else { viscous })
         };
@@ -404,15 +410,18 @@ impl RlsSgd {
                 && credible_j_sd <= INERTIA_CONTRADICTED_SD * j);
         // B, before the evidence is in, where it is known to its limit and near enough the nominal
         // (`UNEARNED_VISCOUS_FACTOR`) that friction is the likely reading, or where the data reject the nominal
-        // (`NOMINAL_REJECTED_Z`); either only where the windows' B shows no hint that it moves with the speed and a
-        // fan that made up its distance from the nominal would have shown one (`WindowPool::would_show`; where
-        // `speed_test_applies`: under a periodic load the windows' B lines up with the speed by chance). Standing on
-        // no hint alone (nor on too few windows to look), a fan's B stood in its first seconds.
+        // (`NOMINAL_REJECTED_Z`); either only where the windows' B shows no hint that it moves with the speed and
+        // favours friction over a load that made up its distance from the nominal by `LOAD_ODDS`
+        // (`WindowPool::load_odds`; where `speed_test_applies`: under a periodic load the windows' B lines up with the
+        // speed by chance). Standing on no hint alone (nor on too few windows to look), a fan's B stood in its first
+        // seconds; on no hint where the windows could not tell a fan from friction, a random load's B ×2.5 stood 11 s
+        // on an exact model (T̂_L 4.7× the nominal model's, `estimator::b_stands_only_where_the_windows_favour_friction`).
         let b0 = self.rls.b0;
         let near = b <= UNEARNED_VISCOUS_FACTOR * b0 && b >= b0 / UNEARNED_VISCOUS_FACTOR;
         let b_nominal = self.nominal_parameters().1;
         let friction_reading = !self.speed_test_applies()
-            || (self.rls.viscous.speed_hint() == Some(false) && self.rls.viscous.would_show(b - b_nominal));
+            || (self.rls.viscous.speed_hint() == Some(false)
+                && self.rls.viscous.load_odds(b - b_nominal).is_some_and(|odds| odds <= 1.0 / LOAD_ODDS));
         let rejects_nominal =
             (b - b_nominal).abs() > NOMINAL_REJECTED_Z * viscous_var.sqrt() && self.validation.z() >= IDENTIFIED_Z;
         let unearned = viscous == Identification::TooLittleExcitation
@@ -422,15 +431,21 @@ impl RlsSgd {
         (j_stands, j_stands && (viscous == Identification::Identified || unearned))
     }
 
-    /// Whether B lies above the nominal (more than 2 `sd`) before the windows are enough for the speed test to
-    /// look (`pool::SPEED_SLOPE_WINDOWS`): a load that rises with the speed (a fan's local slope) gives that as much
-    /// as more friction does, so it is not known yet, and does not stand ([`Self::judge`]; nor before the evidence:
-    /// [`Self::standing`] asks no hint of the speed test). A B below the nominal is no such load's. Standing, a fan's B
-    /// called identified in its first seconds (the sign test backs it: locally it predicts each window better) made
-    /// T̂_L up to 2.2× the nominal model's (last seed 15015 at 2 ms).
-    fn fan_unexamined(&self, b: f64, sd: f64) -> bool {
+    /// Whether B lies above the nominal (more than 2 `sd`) where the windows' B against their speed favours a load
+    /// that rises with the speed and made up that distance over friction by `LOAD_ODDS`, or before the windows are
+    /// enough to look (`pool::SPEED_SLOPE_WINDOWS`): a fan's local slope gives such a B as much as more friction
+    /// does, so it is not known, and does not stand ([`Self::judge`]; before the evidence, [`Self::standing`] asks
+    /// the odds the other way). A B below the nominal is no such load's. Standing, a fan's B called identified in its
+    /// first seconds (the sign test backs it: locally it predicts each window better) made T̂_L up to 2.2× the
+    /// nominal model's (last seed 15015 at 2 ms); called identified with its windows' slope 1.7 standard errors up,
+    /// before the speed test showed the fan, B ×3.3 stood 5 s on an exact model (3.4×,
+    /// `estimator::an_identified_b_yields_to_windows_that_favour_a_fan`).
+    fn fan_favoured(&self, b: f64, sd: f64) -> bool {
         let b0 = self.nominal_parameters().1;
-        self.speed_test_applies() && b > b0 && apart(b, b0, sd) && self.rls.viscous.speed_hint().is_none()
+        self.speed_test_applies()
+            && b > b0
+            && apart(b, b0, sd)
+            && self.rls.viscous.load_odds(b - b0).is_none_or(|odds| odds >= LOAD_ODDS)
     }
 
     /// Which of the values [`Self::standing`] lets stand are backed by the data: one within 2 sd of the nominal is

@@ -422,7 +422,8 @@ impl WindowRls {
         let [blo, bhi] = self.s.viscous_bounds_nm_s_rad;
         let sd_w = var_w.max(0.0).sqrt();
         if (blo - 3.0 * sd_w..=bhi + 3.0 * sd_w).contains(&b_w) {
-            let speed = w.rows.iter().map(|r| r.omega).sum::<f64>() / w.rows.len() as f64;
+            // against the speed's magnitude: a fan's local B is 2·k·|ω| whichever way the shaft turns
+            let speed = w.rows.iter().map(|r| r.omega.abs()).sum::<f64>() / w.rows.len() as f64;
             self.viscous.add(b_w, var_w, speed);
             let gj = Vector2::new(-self.j0 / (t0 * t0), 0.0);
             let direction = match (w.rows.first(), w.rows.last()) {
