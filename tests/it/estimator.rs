@@ -783,7 +783,7 @@ fn a_fan_on_a_shaft_that_turns_both_ways_is_seen() {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
     let (speed_noise, torque_noise) = (Normal::new(0.0, 0.2).expect("sd"), Normal::new(0.0, 0.05).expect("sd"));
     let (mut w, mut target) = (0.0f64, 0.0f64);
-    let (mut rows, mut truth) = (Vec::new(), Vec::new());
+    let (mut rows, mut t_s, mut truth) = (Vec::new(), Vec::new(), Vec::new());
     for k in 0..(seconds / dt) as usize {
         let t = k as f64 * dt;
         let aim = targets[(t / 3.0) as usize % targets.len()];
@@ -796,7 +796,8 @@ fn a_fan_on_a_shaft_that_turns_both_ways_is_seen() {
             omega_rad_s: w + speed_noise.sample(&mut rng),
             drive_torque_nm: torque + torque_noise.sample(&mut rng),
         });
-        truth.push((t, fan(w)));
+        t_s.push(t);
+        truth.push(fan(w));
     }
     let model = PlantModel::reference();
     let run = |method: Method| {
@@ -805,15 +806,7 @@ fn a_fan_on_a_shaft_that_turns_both_ways_is_seen() {
         rows.iter().map(|m| est.update(m)).collect::<Vec<_>>()
     };
     let (rls, kalman) = (run(Method::RlsSgd), run(Method::Kalman));
-    let rmse = |e: &[Estimate]| {
-        let sq: Vec<f64> = e
-            .iter()
-            .zip(&truth)
-            .filter(|(_, (t, _))| *t >= 5.0)
-            .map(|(e, (_, l))| (e.load_hat_nm - l).powi(2))
-            .collect();
-        (sq.iter().sum::<f64>() / sq.len() as f64).sqrt()
-    };
+    let rmse = |e: &[Estimate]| scored_rmse(&e.iter().map(|e| e.load_hat_nm).collect::<Vec<_>>(), &truth, &t_s);
     let last = rls.last().expect("rows");
     let stood = rls.iter().filter(|e| e.viscous_hat_nm_s_rad != b).count();
     eprintln!(
