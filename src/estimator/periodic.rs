@@ -494,7 +494,7 @@ mod tests {
 
     /// A load of a long period is answered within a fit's interval of the horizon holding two of its cycles, however
     /// many fits were refused before: held-out sine seed 1018 (period 7.3 s), whose windows' B stood +60 % on an exact
-    /// model until the fit came, was answered at 23 s while a refused fit doubled the interval to the next; now at 15.5 s.
+    /// model until the fit came, was answered at 23 s while a refused fit doubled the interval to the next; now at 15.6 s.
     #[test]
     fn a_long_period_is_answered_once_two_cycles_are_in_the_horizon() {
         let scenario = Scenario::generate(Family::Sine, 1018, 60.0);
