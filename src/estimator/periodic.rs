@@ -444,6 +444,17 @@ mod tests {
     /// Feeds a battery scenario's polled rows to a fresh periodic fit; with `drop_every` = k,
     /// every k-th row is lost (as a late poll would be), so the steps and blocks are uneven.
     fn fed(family: Family, seed: u64, poll_ms: u32, drop_every: Option<usize>) -> PeriodicLoad {
+        fed_watching(family, seed, poll_ms, drop_every, |_, _| {})
+    }
+
+    /// As [`fed`], calling `watch` with each row's time and the fit after it.
+    fn fed_watching(
+        family: Family,
+        seed: u64,
+        poll_ms: u32,
+        drop_every: Option<usize>,
+        mut watch: impl FnMut(f64, &PeriodicLoad),
+    ) -> PeriodicLoad {
         let truth = PlantModel::reference();
         let p = battery::poll(&Scenario::generate(family, seed, 60.0), &truth, poll_ms);
         let kept: Vec<usize> = (0..p.t_s.len()).filter(|&k| drop_every.is_none_or(|d| k % d != d - 1)).collect();
@@ -452,6 +463,7 @@ mod tests {
             let (a, b) = (&p.measurements[pair[0]], &p.measurements[pair[1]]);
             let dt = p.t_s[pair[1]] - p.t_s[pair[0]];
             fit.push(dt, (a.omega_rad_s, a.drive_torque_nm), (b.omega_rad_s, b.drive_torque_nm), [0.0, 0.2]);
+            watch(p.t_s[pair[1]], &fit);
         }
         fit
     }
@@ -503,17 +515,12 @@ mod tests {
         else {
             unreachable!("the sine family is a sine profile")
         };
-        let p = battery::poll(&scenario, &PlantModel::reference(), 10);
-        let mut fit = PeriodicLoad::default();
         let mut answered = None;
-        for k in 1..p.t_s.len() {
-            let (a, b) = (&p.measurements[k - 1], &p.measurements[k]);
-            let dt = p.t_s[k] - p.t_s[k - 1];
-            fit.push(dt, (a.omega_rad_s, a.drive_torque_nm), (b.omega_rad_s, b.drive_torque_nm), [0.0, 0.2]);
+        fed_watching(Family::Sine, 1018, 10, None, |t, fit| {
             if answered.is_none() && fit.estimate().is_some() {
-                answered = Some((p.t_s[k], fit.fits));
+                answered = Some((t, fit.fits));
             }
-        }
+        });
         let (t, fits) = answered.expect("answered");
         assert!(fits[1] >= 2, "fits refused before the answer: {fits:?}");
         assert!(t <= 2.0 * period_s + FIT_EVERY_S + BLOCK_S, "period {period_s} s, answered at {t} s");
