@@ -135,6 +135,11 @@ impl PeriodicLoad {
         })
     }
 
+    /// Whether a fit has been accepted (its answer then stands, aging, until a later one is).
+    pub fn answered(&self) -> bool {
+        self.accepted.is_some()
+    }
+
     /// Forgets the horizon (after a gap or a missing value); the last answer stands until the next fit, which comes as
     /// often as for a horizon that grows.
     pub fn restart(&mut self) {
