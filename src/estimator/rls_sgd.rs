@@ -428,18 +428,19 @@ impl RlsSgd {
         // speed by chance). Standing on no hint alone (nor on too few windows to look), a fan's B stood in its first
         // seconds; on no hint where the windows could not tell a fan from friction, a random load's B ×2.5 stood 11 s
         // on an exact model (T̂_L 4.7× the nominal model's, `estimator::b_stands_only_where_the_windows_favour_friction`).
-        // Below the nominal, too few windows to look are no bar: a load rising with the speed (a fan) puts the windows'
-        // B above it, and the test looks from `pool::SPEED_SLOPE_WINDOWS` windows on (tuned ramp 16 at 5 ms, B ×2.97:
-        // the windows rejected the nominal at 3.8 s, which stood until the periodic fit's answer at 8.4 s, T̂_L 2.57×
-        // the truth reference's; `estimator::a_b_below_a_wrong_nominal_stands_before_the_speed_test_can_look`).
+        // Below the nominal, too few windows to look are no bar, and the odds decide without the hint: a load rising
+        // with the speed (a fan) puts the windows' B above it (tuned ramp 16 at 5 ms, B ×2.97: the windows rejected the
+        // nominal at 3.8 s, which stood until the periodic fit's answer at 8.4 s, T̂_L 2.57× the truth reference's,
+        // `estimator::a_b_below_a_wrong_nominal_stands_before_the_speed_test_can_look`; unseen brake 7007 at 5 ms, B
+        // ×2.97: the windows' B 0.034 ± 0.009 hinted at a slope and stood only from 34 s, odds for friction 3.5, 2.22×).
         let b0 = self.rls.b0;
         let near = b <= UNEARNED_VISCOUS_FACTOR * b0 && b >= b0 / UNEARNED_VISCOUS_FACTOR;
         let b_nominal = self.nominal_parameters().1;
         let hint = self.rls.viscous.speed_hint();
+        let friction_odds = self.rls.viscous.load_odds(b - b_nominal).is_some_and(|odds| odds <= 1.0 / LOAD_ODDS);
         let friction_reading = !self.speed_test_applies()
-            || (b < b_nominal && hint.is_none())
-            || (hint == Some(false)
-                && self.rls.viscous.load_odds(b - b_nominal).is_some_and(|odds| odds <= 1.0 / LOAD_ODDS));
+            || (b < b_nominal && (hint.is_none() || friction_odds))
+            || (hint == Some(false) && friction_odds);
         let rejects_nominal =
             (b - b_nominal).abs() > NOMINAL_REJECTED_Z * viscous_var.sqrt() && self.validation.z() >= IDENTIFIED_Z;
         let unearned = viscous == Identification::TooLittleExcitation
