@@ -472,8 +472,8 @@ fn a_j_the_windows_contradict_does_not_stand() {
 /// A J that the periodic fit explains stands beside windows its load biases (docs/estimator.md, "What stands"): under
 /// a sine load (final seed 9012, J ×1.94 and B ×0.5, 10 ms) the fit answers J 0.0800 ± 1 % from 8 s, while the
 /// windows, whose nuisance cannot follow a sine of 3.3 s, pool J +6–10 %. Their distance counted against J's standing
-/// kept the nominal J (and with it B) until 41 s, T̂_L 1.90× the truth reference's; now J stands from the fit's first
-/// answer.
+/// kept the nominal J (and with it B) past the 15 s checkpoint (until 41 s at 5 ms), T̂_L 1.90× the truth reference's;
+/// now J stands from the fit's first answer.
 #[test]
 fn a_j_the_periodic_fit_explains_stands_beside_biased_windows() {
     let s = Scenario::generate(Family::Sine, 9012, 60.0);
