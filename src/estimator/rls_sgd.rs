@@ -404,8 +404,9 @@ impl RlsSgd {
 
     /// Which adapted values stand (the others are the nominal ones): J where identified or known to its limit while
     /// the windows keep the adapted values in force and do not contradict it (`credible_j_sd`); B where identified,
-    /// or, before the evidence is in, known to its limit and near the nominal (without a hint that it moves with the
-    /// speed) or far enough from it that the data reject the nominal; B only where J stands.
+    /// or, before the evidence is in, known to its limit and near the nominal or far enough from it that the data
+    /// reject the nominal, either only where the windows read it as friction (above the nominal: no hint that it moves
+    /// with the speed, and the odds; below it: the odds, or too few windows to look); B only where J stands.
     fn standing(&self, (inertia, viscous): (Identification, Identification), credible_j_sd: f64) -> (bool, bool) {
         let ((b, viscous_var), (j, inertia_var)) = self.combined;
         // J also while the windows keep it in force once it is known to its limit (they test J directly), unless the
