@@ -171,6 +171,8 @@ impl RlsSgd {
         };
         match self.periodic.estimate() {
             // (never an answer with `periodic_load` off: the fit is not fed)
+            // B from the fit alone where it has a fan's term: the windows' B carries the fan's local slope
+            Some(a) if self.periodic.fits_fan() => (a.viscous, combine(windows.1, a.inertia)),
             Some(a) => (combine(windows.0, a.viscous), combine(windows.1, a.inertia)),
             None => windows,
         }
@@ -246,6 +248,10 @@ impl RlsSgd {
                 self.windows[i].rows.clear();
                 self.windows[i].rows.push(Row { s: 0.0, omega: w1, i_torque: 0.0, i_speed: 0.0 });
             }
+        }
+        if learnt && self.speed_test_applies() && self.rls.viscous.depends_on_speed(false) {
+            // the windows show a load that grows with the speed: the periodic fit takes a fan's term from now on
+            self.periodic.fit_fan();
         }
         if confirmed != self.periodic.confirmed() {
             // J and B moved to the periodic fit's first confirmed answer: a better source, not an estimate wandering

@@ -609,6 +609,33 @@ fn a_b_above_the_nominal_does_not_stand_before_the_speed_test_can_look() {
     ]);
 }
 
+/// Once the windows show a fan, the periodic fit takes a fan's term, and its B is friction's (docs/estimator.md, "B
+/// and J under a periodic load"). Fans at 2 % of polls lost: tuned seed 22 at 2 ms (B ×2.9) kept the nominal B, as
+/// a load that follows the speed, and its T̂_L was 1.13× the nominal model's, 7.06× the truth reference's; reserve
+/// seed 19008 at 1 ms (B ×2.4) kept it too, 1.00× and 6.28×. Now B is within 10 % at the end, and T̂_L 0.73× and 0.21×
+/// the nominal model's (4.53× and 1.34× the truth reference's).
+#[test]
+fn a_fans_friction_comes_from_the_fit_with_a_fans_term() {
+    let settings = EstimatorSettings::default();
+    for (seed, poll_ms) in [(22, 2), (19008, 1)] {
+        let s = Scenario::generate(Family::Centrifugal, seed, 60.0);
+        let r = battery::run(&s, poll_ms, battery::LOST_POLLS, &settings, &settings);
+        eprintln!(
+            "{poll_ms} ms {}: B {:+.1} %, T̂_L {:.2}× the nominal model's, {:.2}× the truth reference's",
+            r.describe,
+            100.0 * r.rls.viscous_error,
+            r.nominal_ratio(),
+            r.load_ratio()
+        );
+        assert!(
+            r.rls.viscous_error.abs() <= 0.1 && r.nominal_ratio() <= 0.75,
+            "seed {seed}: B {:+.1} %, {:.2}× the nominal model's",
+            100.0 * r.rls.viscous_error,
+            r.nominal_ratio()
+        );
+    }
+}
+
 /// An identified B above the nominal yields to windows that favour a fan (docs/estimator.md, "What stands"): on an
 /// exact model at 5 ms (held-out seed 1022, 2 % of polls lost), a fan's B ×3.3 was called identified with its
 /// windows' slope 1.7 standard errors up, odds of 3.6 for the fan, and stood 5 s until the speed test showed it:
@@ -837,9 +864,10 @@ fn a_load_timed_with_the_speed_ups_is_not_taken_for_inertia() {
 /// A fan on a shaft that turns both ways (its torque ∝ ω·|ω|, 3 N·m at 60 rad/s, plus 3 N·m), on a correct model:
 /// the fan's local B is twice its torque over the *magnitude* of the speed, the same at +40 and at −40 rad/s, so the
 /// speed test sets the windows' B against |ω|. Against the signed speed, a program that goes as far each way showed
-/// no slope, the fan's B (×1.7) stood as friction, and T̂_L was 6.7× the Kalman filter's on the same model; now B
-/// never stands and T̂_L is 1.08× it (J, identified 5 % low, carries the part of the fan the windows' nuisance does
-/// not follow: docs/estimator.md, Limits). Torque-driven: the speed follows a program of smooth moves between −60 and
+/// no slope, the fan's B (×1.7) stood as friction, and T̂_L was 6.7× the Kalman filter's on the same model. Now the
+/// speed test shows the fan, the periodic fit takes a fan's term, and its B, friction's, is the model's: B never
+/// moves from it, is reported as the nominal predicting as well (as the load's before the fan's term came), and T̂_L
+/// is 1.00× the Kalman filter's (1.08× before). Torque-driven: the speed follows a program of smooth moves between −60 and
 /// +60 rad/s, and the drive torque is what the shaft needs (J ω' + B ω + load), measured with noise.
 #[test]
 fn a_fan_on_a_shaft_that_turns_both_ways_is_seen() {
@@ -887,6 +915,7 @@ fn a_fan_on_a_shaft_that_turns_both_ways_is_seen() {
         Identification::from_code(last.viscous_identified).name()
     );
     assert_eq!(stood, 0, "the fan's B stood as friction");
-    assert_eq!(last.viscous_identified, Identification::LoadFollowsSpeed.code());
+    let verdict = Identification::from_code(last.viscous_identified);
+    assert!(matches!(verdict, Identification::NominalPredictsAsWell | Identification::LoadFollowsSpeed), "{verdict:?}");
     assert!(rmse(&rls) <= battery::LOAD_RMSE_FACTOR * rmse(&kalman), "{} against {}", rmse(&rls), rmse(&kalman));
 }
