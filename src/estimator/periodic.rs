@@ -160,8 +160,6 @@ impl PeriodicLoad {
         })
     }
 
-    /// Whether a fit has been accepted with two cycles of its period in the horizon: its answer then stands, aging,
-    /// until a later one is. A provisional answer (`PROVISIONAL_CYCLES`) is in [`Self::estimate`] but not confirmed.
     /// From now on, fits with a fan's term (`−∫ω|ω|`, module doc): the windows have shown a load that grows with the
     /// speed. A provisional answer fitted without it goes.
     pub fn fit_fan(&mut self) {
@@ -176,6 +174,8 @@ impl PeriodicLoad {
         self.fan
     }
 
+    /// Whether a fit has been accepted with two cycles of its period in the horizon: its answer then stands, aging,
+    /// until a later one is. A provisional answer (`PROVISIONAL_CYCLES`) is in [`Self::estimate`] but not confirmed.
     pub fn confirmed(&self) -> bool {
         self.confirmed
     }

@@ -158,7 +158,7 @@ impl RlsSgd {
     }
 
     /// B and J with their variances: the windows' (B from their pool, J from the RLS), and the periodic fit's beside
-    /// them by precision where it has an answer.
+    /// them by precision where it has an answer (its B alone where it has a fan's term).
     fn parameters(&self) -> ((f64, f64), (f64, f64)) {
         let windows = (self.rls.viscous.estimate, (self.rls.inertia_kg_m2(), self.rls.inertia_sd().powi(2)));
         let combine = |(x, v): (f64, f64), (xp, vp): (f64, f64)| {
