@@ -308,7 +308,10 @@ mod tests {
         assert!(first >= before + phase && first <= std::time::Instant::now() + phase);
         assert!(t.wait(&shutdown));
         assert!(std::time::Instant::now() >= first, "not before its phase");
-        assert_eq!(t.next - first, period);
+        // the next tick is on the phase's grid: one period on, or more where this thread woke a period late (a loaded
+        // machine; asserting exactly one period failed there, 8 ms against 4)
+        let after = t.next - first;
+        assert!(after >= period && after.as_nanos() % period.as_nanos() == 0, "{after:?}");
     }
 
     #[cfg(target_os = "linux")]
