@@ -43,8 +43,9 @@ const MIN_PERIOD_S: f64 = 1.2;
 /// Cycles of its period the horizon must hold for an answer to be confirmed: then the sinusoid is told from a trend
 /// and the speed's own program, and the answer stands after later fits are refused.
 const CONFIRMED_CYCLES: f64 = 2.0;
-/// Before any answer is confirmed, and where no period up to the span over `CONFIRMED_CYCLES` is accepted, longer
-/// periods up to the span over this are searched: an answer there is provisional. It is one more estimate of B and J
+/// Before any answer is confirmed, while the horizon fills, and where no period up to the span over
+/// `CONFIRMED_CYCLES` is accepted, longer periods up to the span over this are searched: an answer there is
+/// provisional. It is one more estimate of B and J
 /// as a confirmed one is, a cycle earlier than two allow, while the windows' B, which a sine's curvature biases, would
 /// stand in its place (sealed sine 11018 at 5 ms, period 4.2 s: T̂_L 1.81× the truth reference's, now 1.22×); but it
 /// stands only until the next fit is refused, and does not turn the speed test off (`RlsSgd::speed_test_applies`).
@@ -253,7 +254,8 @@ impl PeriodicLoad {
 
     /// Searches the period, fits, and judges the fit: B and J with their variances, the period, and whether it is
     /// confirmed (two of its cycles in the horizon); or nothing. Periods up to half the span first, around the last
-    /// confirmed one if there is one; where none answers and none has been confirmed yet, longer ones up to the span
+    /// confirmed one if there is one; where none answers, none has been confirmed yet and the horizon is not yet full,
+    /// longer ones up to the span
     /// (`PROVISIONAL_CYCLES`).
     fn fit(&self, covered: f64, bounds: [f64; 2]) -> Option<(Answer, f64, bool)> {
         let prepared = prepare(self.rows());
@@ -266,7 +268,7 @@ impl PeriodicLoad {
         if let Some((a, p)) = answer(range) {
             return Some((a, p, true));
         }
-        if self.confirmed {
+        if self.confirmed || self.blocks.len() >= blocks_kept() {
             return None;
         }
         answer((confirmable, covered / PROVISIONAL_CYCLES)).map(|(a, p)| (a, p, false))
@@ -309,10 +311,10 @@ fn best_period(prepared: &Prepared, (from, to): (f64, f64)) -> Option<f64> {
     let coarse = prepare(prepared.rows.iter().step_by(2).copied().collect());
     let mut p = from;
     while p <= to {
-        if let Some(f) = solve(&coarse, p)
-            && best.is_none_or(|(s, _)| f.ssr < s)
+        if let Some(ssr) = solve(&coarse, p)
+            && best.is_none_or(|(s, _)| ssr < s)
         {
-            best = Some((f.ssr, p));
+            best = Some((ssr, p));
         }
         p *= SCAN_RATIO;
     }
@@ -320,7 +322,7 @@ fn best_period(prepared: &Prepared, (from, to): (f64, f64)) -> Option<f64> {
     // Refine within one grid step (golden section).
     let (mut a, mut b) = (p / SCAN_RATIO, (p * SCAN_RATIO).min(to));
     let g = 0.5 * (5f64.sqrt() - 1.0);
-    let ssr = |p: f64| solve(prepared, p).map_or(f64::INFINITY, |f| f.ssr);
+    let ssr = |p: f64| solve(prepared, p).unwrap_or(f64::INFINITY);
     let (mut c, mut d) = (b - g * (b - a), a + g * (b - a));
     let (mut fc, mut fd) = (ssr(c), ssr(d));
     for _ in 0..10 {
@@ -436,6 +438,8 @@ struct Prepared {
 }
 
 const FIXED: usize = N - 2;
+/// The fan's column among the fixed regressors (all zero where the fit has no fan's term).
+const FAN: usize = FIXED - 1;
 
 fn prepare(rows: Vec<Row>) -> Prepared {
     let fixed: Vec<SVector<f64, FIXED>> = rows.iter().map(fixed_regressors).collect();
@@ -462,7 +466,7 @@ fn rotation(phi: f64) -> (f64, f64) {
 
 /// Least squares at one period: only the two sinusoid columns are new (their angle by rotation from row to row),
 /// and the 8×8 system is factorised with its columns scaled to unit mean square.
-fn solve(p: &Prepared, period: f64) -> Option<Fit> {
+fn solve(p: &Prepared, period: f64) -> Option<f64> {
     if p.rows.len() <= N + 1 {
         return None;
     }
@@ -497,20 +501,46 @@ fn solve(p: &Prepared, period: f64) -> Option<Fit> {
     b.fixed_rows_mut::<FIXED>(0).copy_from(&p.fy);
     b[FIXED] = sy;
     b[FIXED + 1] = cy;
-    factorise(&a, &b, p.yy)
+    if a[(FAN, FAN)] == 0.0 {
+        // no fan's term: the system without its column, a size smaller (the search's cost is in these solves)
+        let keep = |i: usize| if i < FAN { i } else { i + 1 };
+        let a = SMatrix::<f64, { N - 1 }, { N - 1 }>::from_fn(|i, j| a[(keep(i), keep(j))]);
+        let b = SVector::<f64, { N - 1 }>::from_fn(|i, _| b[keep(i)]);
+        return residual(&a, &b, p.yy);
+    }
+    residual(&a, &b, p.yy)
+}
+
+/// The residual sum of squares of the least-squares fit with normal equations `a`, `b` (scaled as [`factorise`]
+/// scales them).
+fn residual<const M: usize>(a: &SMatrix<f64, M, M>, b: &SVector<f64, M>, yy: f64) -> Option<f64> {
+    let (scaled, _, rhs) = scaled(a, b);
+    let z = scaled.cholesky()?.solve(&rhs);
+    Some((yy - z.dot(&rhs)).max(0.0))
 }
 
 /// Solves scaled normal equations; the residual sum of squares from `yy`. A column that is all zero (the fan's term
 /// where there is none) has its coefficient zero and leaves the others as they would be without it.
 fn factorise(a: &Normal, b: &Column, yy: f64) -> Option<Fit> {
-    let scale = Column::from_fn(|i, _| a[(i, i)].sqrt().max(1e-300));
-    let scaled =
-        Normal::from_fn(|i, j| if i == j && a[(i, i)] == 0.0 { 1.0 } else { a[(i, j)] / (scale[i] * scale[j]) });
-    let rhs = b.component_div(&scale);
+    let (scaled, scale, rhs) = scaled(a, b);
     let chol = scaled.cholesky()?;
     let z = chol.solve(&rhs);
     let ssr = (yy - z.dot(&rhs)).max(0.0);
     Some(Fit { x: z.component_div(&scale), ssr, factor: chol, scale })
+}
+
+/// Normal equations with their columns scaled to unit mean square: the matrix, the scales and the right-hand side. A
+/// column that is all zero keeps a unit diagonal, so that its coefficient is zero.
+fn scaled<const M: usize>(
+    a: &SMatrix<f64, M, M>,
+    b: &SVector<f64, M>,
+) -> (SMatrix<f64, M, M>, SVector<f64, M>, SVector<f64, M>) {
+    let scale = SVector::<f64, M>::from_fn(|i, _| a[(i, i)].sqrt().max(1e-300));
+    let m =
+        SMatrix::<f64, M, M>::from_fn(
+            |i, j| if i == j && a[(i, i)] == 0.0 { 1.0 } else { a[(i, j)] / (scale[i] * scale[j]) },
+        );
+    (m, scale, b.component_div(&scale))
 }
 
 #[cfg(test)]
