@@ -689,9 +689,10 @@ async fn the_dashboard_draws_each_tracked_effect_its_trend_and_where_the_power_g
         assert!(values.iter().any(|v| *v >= 14_000.0), "{name}: the bulk modulus axis in full: {ticks:?}");
         let share: f64 =
             attr_after(&dom, "data-flow=\"load\"", "data-share").and_then(|s| s.parse().ok()).expect("share");
-        // a fraction, drawn: its size over the first seconds depends on where the moving target program is (on the
-        // wearing plant one CI run drew 0.24; a ramp puts input into the motor's speed, not the load)
-        assert!(share > 0.1 && share < 1.0, "{name}: the load's share of the input {share}");
+        // a fraction, drawn: its size over the first seconds depends on where the moving target program is, so on
+        // the wall clock (on the wearing plant one CI run drew 0.24, and a run beside a busy demo 0.005: a ramp puts
+        // input into the motor's speed, not the load); only its being a fraction is asserted
+        assert!(share > 0.0 && share < 1.0, "{name}: the load's share of the input {share}");
         match name {
             "clean" => {
                 assert_eq!(attr_after(&dom, leak, "data-nothing-found"), Some("7"));
