@@ -174,13 +174,15 @@ fn choose_model(
 }
 
 /// The row at which a step added to the `plain` model removes the most RSS: each candidate scored by what its
-/// column adds to the plain fit (one factorisation for all; RSS falls by (c·r)² / (c·c − cᵀA⁻¹c), r the plain
-/// residual), on a coarse grid of [`STEP_GRID`], then finer around the best.
+/// column adds to the plain fit (one factorisation and its inverted factor for all; RSS falls by
+/// (c·r)² / (c·c − cᵀA⁻¹c), r the plain residual), on a coarse grid of [`STEP_GRID`], then finer around the best.
 fn best_step(w: &Window, length: f64, plain: Model, (a, b, yy): (&Normal, &Column, f64)) -> Option<usize> {
     let n = w.rows.len();
     let (a_plain, b_plain) = plain.restrict(a, b);
     let factor = a_plain.cholesky()?;
     let x_plain = factor.solve(&b_plain);
+    // cᵀA⁻¹c = |L⁻¹c|²: L inverted once, one product per candidate rather than two triangular solves.
+    let l_inv = factor.l().solve_lower_triangular(&Normal::identity())?;
     let rss_plain = yy - b_plain.dot(&x_plain);
     let try_step = |k: usize| -> Option<(f64, usize)> {
         if !(2..n - 2).contains(&k) {
@@ -194,7 +196,7 @@ fn best_step(w: &Window, length: f64, plain: Model, (a, b, yy): (&Normal, &Colum
         }
         let cc = sf[4] - 2.0 * us * sf[3] + us * us * sf[2];
         let cy = sf[Q + POLY] - us * sf[POLY];
-        let left = cc - cross.dot(&factor.solve(&cross));
+        let left = cc - (l_inv * cross).norm_squared();
         (left > 1e-12 * cc.abs()).then(|| (rss_plain - (cy - cross.dot(&x_plain)).powi(2) / left, k))
     };
     let better = |cand: Option<(f64, usize)>, best: &mut Option<(f64, usize)>| {
