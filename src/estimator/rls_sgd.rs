@@ -84,11 +84,11 @@ type Judged = ((Identification, Identification), (bool, bool));
 /// How far from the nominal B a B can plausibly be friction: a B more than one sd beyond it either way is read as a
 /// load that follows the speed. The battery starts its models up to ×3.3 off (a reviewer's ×2.5); a load ∝ ω is as
 /// large as it likes. At ×4 on the point estimate, held-out linear 1023 on an exact model took B ×4.0 as friction,
-/// T̂_L 1.75–6.99× the nominal model's at 1, 5 and 10 ms, now 1.00× (`estimator::a_b_beyond_the_plausible_bound_is_the_loads`);
-/// a sd's margin, not the point, lets a B near the bound stand while it still reaches inside it (unseen brake 7007, B
-/// ×2.97: at ×3.5 on the point, B was read as the load's all run at 5 ms,
-/// `estimator::a_b_whose_interval_reaches_plausible_friction_stands`). With 2 sd, 8 new-load runs more did harm; at ×3,
-/// 22 fewer, but models ×3.2 off lost B (last trend 15011, reserve ramp 19022).
+/// T̂_L 1.75–6.99× the nominal model's at 1, 5 and 10 ms, now 1.00×
+/// (`estimator::a_b_beyond_the_plausible_bound_is_the_loads`); a sd's margin, not the point, lets a B near the bound
+/// stand while it still reaches inside it (unseen brake 7007, B ×2.97: at ×3.5 on the point, B was read as the
+/// load's all run at 5 ms, `estimator::a_b_whose_interval_reaches_plausible_friction_stands`). With 2 sd, 8 new-load
+/// runs more did harm; at ×3, 22 fewer, but models ×3.2 off lost B (last trend 15011, reserve ramp 19022).
 const PLAUSIBLE_VISCOUS_FACTOR: f64 = 3.5;
 /// Before the evidence is in, an adapted B stands only this near the nominal (either way).
 const UNEARNED_VISCOUS_FACTOR: f64 = 2.5;
@@ -282,9 +282,9 @@ impl RlsSgd {
     }
 
     /// The load follows the speed: the adapted B (all the torque proportional to speed) lies beyond what friction
-    /// plausibly is (more than `PLAUSIBLE_VISCOUS_FACTOR` from the nominal either way, by a sd), or the windows' B depends on
-    /// the speed they saw (a fan's slope grows with the speed; friction's does not), shown once and then kept while
-    /// the slope stays clear of zero (`pool::SPEED_SLOPE_HOLD_Z`).
+    /// plausibly is (more than `PLAUSIBLE_VISCOUS_FACTOR` from the nominal either way, by a sd), or the windows' B
+    /// depends on the speed they saw (a fan's slope grows with the speed; friction's does not), shown once and then
+    /// kept while the slope stays clear of zero (`pool::SPEED_SLOPE_HOLD_Z`).
     fn load_follows_speed(&self) -> bool {
         let ((b, var), _) = self.combined;
         let reference = self.rls.b0;
@@ -491,7 +491,7 @@ impl RlsSgd {
     /// and T̂_L was 1.46× the Kalman filter's on the same model (`estimator::a_chirp_load_on_a_correct_model_does_no_harm`).
     /// B stands only where the data set it more than 2 sd from the nominal: the windows' sign test backs a B that a
     /// smooth random load biases alike in every window (fresh random 5004, B ×1.07: B +28 % ± 16 % stood on the sign
-    /// test, T̂_L 1.11–1.13× the nominal model's at 2, 5 and 10 ms, now 0.85–0.91×;
+    /// test, T̂_L 1.11–1.13× the nominal model's at 2, 5 and 10 ms, now 0.80–0.91×;
     /// `estimator::a_b_within_two_sd_of_the_nominal_does_not_stand`).
     fn backed(&self, (j_ok, b_ok): (bool, bool), credible_j_sd: f64) -> (bool, bool) {
         let ((b, viscous_var), (j, _)) = self.combined;
