@@ -660,11 +660,7 @@ fn b_stands_only_where_the_windows_favour_friction() {
 /// 1.12× the nominal model's at 2, 5 and 10 ms; now 0.85, 0.91 and 0.80×.
 #[test]
 fn a_b_within_two_sd_of_the_nominal_does_not_stand() {
-    no_harm_on(&[
-        (Family::Random, 5004, 2, battery::LOST_POLLS),
-        (Family::Random, 5004, 5, battery::LOST_POLLS),
-        (Family::Random, 5004, 10, battery::LOST_POLLS),
-    ]);
+    no_harm_on(&[2, 5, 10].map(|poll_ms| (Family::Random, 5004, poll_ms, battery::LOST_POLLS)));
 }
 
 /// A B more than a sd beyond ×3.5 of the nominal is a load that follows the speed, not friction
@@ -673,11 +669,7 @@ fn a_b_within_two_sd_of_the_nominal_does_not_stand() {
 /// nominal model's at 1, 5 and 10 ms; now 1.00×.
 #[test]
 fn a_b_beyond_the_plausible_bound_is_the_loads() {
-    no_harm_on_an_exact_model(&[
-        (Family::Linear, 1023, 1, battery::LOST_POLLS),
-        (Family::Linear, 1023, 5, battery::LOST_POLLS),
-        (Family::Linear, 1023, 10, battery::LOST_POLLS),
-    ]);
+    no_harm_on_an_exact_model(&[1, 5, 10].map(|poll_ms| (Family::Linear, 1023, poll_ms, battery::LOST_POLLS)));
 }
 
 /// The plausible-friction bound is judged with a sd's margin, not on B's point: unseen brake 7007 (nominal B ×2.97,
