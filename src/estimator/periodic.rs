@@ -374,7 +374,7 @@ fn fit_at(prepared: &Prepared, p: f64) -> Option<Answer> {
         return None;
     }
     // The fit's own variance of B = x₂/x₁ (first order), residual-scaled.
-    let active = N - usize::from(rows.iter().all(|r| r.i_fan == 0.0));
+    let active = N - usize::from(prepared.ff[(FAN, FAN)] == 0.0);
     let sigma2 = fit.ssr / (n - active) as f64;
     let grad = [-fit.x[2] / (fit.x[1] * fit.x[1]), 1.0 / fit.x[1]];
     let (s1, s2) = (fit.scale[1], fit.scale[2]);
