@@ -4,8 +4,8 @@
 //! `knot` s) under a penalty `lambda` on its second differences; it prints B's error and standard deviation.
 //!
 //! `cargo run --release --example estimator_spline_b -- seeds=12,18,24 lambda=0.01 [from=5] [to=25] [knot=0.25]`
-//! `[poll=1]` (a seed's family is the battery's: seed k is family (k − 1) mod 6 of brake, start-up, slow, ramp,
-//! trend, sine).
+//! `[poll=1] [family=random]` (a seed's family is the battery's: seed k is family (k − 1) mod 6 of brake, start-up,
+//! slow, ramp, trend, sine; `family=` names one of those or of the new loads, `Family::NEW`, for every seed).
 
 use hydrolens::estimator::battery;
 use hydrolens::plant::PlantModel;
@@ -18,6 +18,7 @@ const ROW_S: f64 = 0.01;
 fn main() {
     let mut seeds: Vec<u64> = vec![12, 18, 24];
     let (mut lambda, mut from, mut to, mut knot, mut poll) = (0.01, 5.0, 25.0, 0.25, 1u32);
+    let mut named: Option<Family> = None;
     for arg in std::env::args().skip(1) {
         let (k, v) = arg.split_once('=').unwrap_or((arg.as_str(), ""));
         let number = |v: &str| -> f64 {
@@ -33,6 +34,12 @@ fn main() {
             "to" => to = number(v),
             "knot" => knot = number(v),
             "poll" => poll = number(v) as u32,
+            "family" => {
+                named = Some(Family::from_name(v).unwrap_or_else(|| {
+                    eprintln!("family: no such family: {v}");
+                    std::process::exit(2)
+                }))
+            }
             _ => {
                 eprintln!("unknown argument {arg}");
                 std::process::exit(2)
@@ -47,7 +54,7 @@ fn main() {
     let (j, b_true) = (truth.motor.inertia_kg_m2, truth.motor.viscous_nm_s_rad);
     let sigma = truth.sensors.speed_noise_rad_s;
     for seed in seeds {
-        let family = Family::ALL[(seed.max(1) - 1) as usize % Family::ALL.len()];
+        let family = named.unwrap_or(Family::ALL[(seed.max(1) - 1) as usize % Family::ALL.len()]);
         // the battery's 60 s scenarios (the draws depend on the length)
         let scenario = Scenario::generate(family, seed, 60f64.max(to + 1.0));
         let p = battery::poll(&scenario, &truth, poll);
