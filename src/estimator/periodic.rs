@@ -43,14 +43,13 @@ const MIN_PERIOD_S: f64 = 1.2;
 /// Cycles of its period the horizon must hold for an answer to be confirmed: then the sinusoid is told from a trend
 /// and the speed's own program, and the answer stands after later fits are refused.
 const CONFIRMED_CYCLES: f64 = 2.0;
-/// Before any answer is confirmed, while the horizon fills, and where no period up to the span over
-/// `CONFIRMED_CYCLES` is accepted, longer periods up to the span over this are searched: an answer there is
-/// provisional. It is one more estimate of B and J
-/// as a confirmed one is, a cycle earlier than two allow, while the windows' B, which a sine's curvature biases, would
-/// stand in its place (sealed sine 11018 at 5 ms, period 4.2 s: T̂_L 1.81× the truth reference's, now 1.22×); but it
-/// stands only until the next fit is refused, and does not turn the speed test off (`RlsSgd::speed_test_applies`).
-/// Held after a refusal, a smooth random load's one cycle left B +60 % for a minute (last random 15018 at 5 ms: T̂_L
-/// 0.64 → 0.97× the nominal model's).
+/// Before any answer is confirmed, while the horizon fills, and where no period up to the span over `CONFIRMED_CYCLES`
+/// is accepted, longer periods up to the span over this are searched: an answer there is provisional. It is one more
+/// estimate of B and J as a confirmed one is, a cycle earlier than two allow, while the windows' B, which a sine's
+/// curvature biases, would stand in its place (sealed sine 11018 at 5 ms, period 4.2 s: T̂_L 1.81× the truth
+/// reference's, 1.22× with it); but it stands only until the next fit is refused, and does not turn the speed test off
+/// (`RlsSgd::speed_test_applies`). Held after a refusal, a smooth random load's one cycle left B +60 % for a minute
+/// (last random 15018 at 5 ms: T̂_L 0.64 → 0.97× the nominal model's).
 const PROVISIONAL_CYCLES: f64 = 1.0;
 /// Ratio between neighbouring periods of the search grid; the best is then refined within one step.
 const SCAN_RATIO: f64 = 1.05;
@@ -625,8 +624,9 @@ mod tests {
     }
 
     /// A load of a long period is confirmed within a fit's interval of the horizon holding two of its cycles, however
-    /// many fits were refused (or provisional) before: held-out sine seed 1018 (period 7.3 s), whose windows' B stood +60 % on an exact
-    /// model until the fit came, was answered at 23 s while a refused fit doubled the interval to the next; now at 15.6 s.
+    /// many fits were refused (or provisional) before: held-out sine seed 1018 (period 7.3 s), whose windows' B stands
+    /// +60 % on an exact model until the fit comes, is answered at 15.6 s (at 23 s where a refused fit doubled the
+    /// interval to the next).
     #[test]
     fn a_long_period_is_answered_once_two_cycles_are_in_the_horizon() {
         let scenario = Scenario::generate(Family::Sine, 1018, 60.0);

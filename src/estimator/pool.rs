@@ -15,12 +15,12 @@ const POOL: usize = 40;
 pub(super) const OVERLAP: f64 = 2.0;
 
 /// B (and, for its credible standard deviation, J) from the windows as a random-effects mean (DerSimonian–Laird),
-/// robust (Huber). A window's B is biased by whatever part of the load its nuisance did not follow (a sine's
-/// curvature over a setpoint change), differently in each window; so the windows are pooled as studies of one B,
-/// each with its own variance plus a between-window variance τ² learnt from their scatter. Consistent windows (brake steps) give a tight B; scattered ones (sine
-/// loads) give their plain average with a standard deviation as wide as the scatter says, never the confident
-/// answer of whichever windows came first. The prior (the model's B) is one more, fixed, study; old windows leave
-/// the pool, so a wrong B recovers.
+/// robust (Huber). A window's B is biased by whatever part of the load its nuisance did not follow (a sine's curvature
+/// over a setpoint change), differently in each window; so the windows are pooled as studies of one B, each with its
+/// own variance plus a between-window variance τ² learnt from their scatter. Consistent windows (brake steps) give a
+/// tight B; scattered ones (sine loads) give their plain average with a standard deviation as wide as the scatter says,
+/// never the confident answer of whichever windows came first. The prior (the model's B) is one more, fixed, study; old
+/// windows leave the pool, so a wrong B recovers.
 #[derive(Debug, Clone)]
 pub(super) struct WindowPool {
     prior: (f64, f64),
