@@ -287,9 +287,7 @@ pub fn wrong_model(scenario: &Scenario, truth: &PlantModel) -> PlantModel {
     wrong
 }
 
-/// One battery run: the scenario on the reference plant at `poll_ms` with `lost_fraction` of the polls lost
-/// ([`LOST_POLLS`] as a rule), rls-sgd (with `settings`) from the wrong start against the Kalman filter (with
-/// `reference`'s settings) told the truth, and against that filter on the wrong model.
+/// One battery run on the reference plant ([`run_on`]).
 pub fn run(
     scenario: &Scenario,
     poll_ms: u32,
@@ -297,9 +295,22 @@ pub fn run(
     settings: &EstimatorSettings,
     reference: &EstimatorSettings,
 ) -> Run {
-    let truth = PlantModel::reference();
-    let polled = poll_losing(scenario, &truth, poll_ms, lost_fraction);
-    let wrong = wrong_model(scenario, &truth);
+    run_on(&PlantModel::reference(), scenario, poll_ms, lost_fraction, settings, reference)
+}
+
+/// One battery run: the scenario on `truth` at `poll_ms` with `lost_fraction` of the polls lost ([`LOST_POLLS`] as a
+/// rule), rls-sgd (with `settings`) from the wrong start against the Kalman filter (with `reference`'s settings) told
+/// the truth, and against that filter on the wrong model.
+pub fn run_on(
+    truth: &PlantModel,
+    scenario: &Scenario,
+    poll_ms: u32,
+    lost_fraction: f64,
+    settings: &EstimatorSettings,
+    reference: &EstimatorSettings,
+) -> Run {
+    let polled = poll_losing(scenario, truth, poll_ms, lost_fraction);
+    let wrong = wrong_model(scenario, truth);
     // rls-sgd is given the wrong model as its nominal one, as a plant engineer's model would be: its bounds and
     // normalisation come from the wrong J and B too.
     let rls_settings = EstimatorSettings { method: Method::RlsSgd, ..settings.clone() };
@@ -309,9 +320,9 @@ pub fn run(
         describe: scenario.describe(),
         poll_ms,
         lost_fraction,
-        rls: score(&polled, &rls_settings, &wrong, &truth),
-        kalman: score(&polled, &kalman_settings, &truth, &truth),
-        nominal: score(&polled, &kalman_settings, &wrong, &truth),
+        rls: score(&polled, &rls_settings, &wrong, truth),
+        kalman: score(&polled, &kalman_settings, truth, truth),
+        nominal: score(&polled, &kalman_settings, &wrong, truth),
         truth: (truth.motor.inertia_kg_m2, truth.motor.viscous_nm_s_rad),
     }
 }
