@@ -128,10 +128,7 @@ fn main() {
             .map(|chunk| {
                 let (settings, reference, plant) = (&settings, &reference, &plant);
                 scope.spawn(move || {
-                    chunk
-                        .iter()
-                        .map(|(s, p)| battery::run_on(plant, s, *p, lost, settings, reference))
-                        .collect::<Vec<_>>()
+                    chunk.iter().map(|(s, p)| battery::run(plant, s, *p, lost, settings, reference)).collect::<Vec<_>>()
                 })
             })
             .collect();

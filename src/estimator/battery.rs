@@ -287,21 +287,10 @@ pub fn wrong_model(scenario: &Scenario, truth: &PlantModel) -> PlantModel {
     wrong
 }
 
-/// One battery run on the reference plant ([`run_on`]).
-pub fn run(
-    scenario: &Scenario,
-    poll_ms: u32,
-    lost_fraction: f64,
-    settings: &EstimatorSettings,
-    reference: &EstimatorSettings,
-) -> Run {
-    run_on(&PlantModel::reference(), scenario, poll_ms, lost_fraction, settings, reference)
-}
-
 /// One battery run: the scenario on `truth` at `poll_ms` with `lost_fraction` of the polls lost ([`LOST_POLLS`] as a
 /// rule), rls-sgd (with `settings`) from the wrong start against the Kalman filter (with `reference`'s settings) told
 /// the truth, and against that filter on the wrong model.
-pub fn run_on(
+pub fn run(
     truth: &PlantModel,
     scenario: &Scenario,
     poll_ms: u32,
@@ -355,7 +344,7 @@ mod tests {
     fn a_run_scores_the_nominal_filter_and_keeps_checkpoints() {
         let s = Scenario::generate(Family::Brake, 1, 32.0);
         let settings = EstimatorSettings::default();
-        let r = run(&s, 10, LOST_POLLS, &settings, &settings);
+        let r = run(&PlantModel::reference(), &s, 10, LOST_POLLS, &settings, &settings);
         let times: Vec<f64> = r.rls.checkpoints.iter().map(|(t, _)| *t).collect();
         assert_eq!(times, [15.0, 30.0], "only the checkpoints within 32 s");
         assert_eq!(r.nominal.checkpoints.len(), 2);

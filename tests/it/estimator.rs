@@ -358,7 +358,10 @@ fn battery_of(
             .map(|chunk| {
                 let settings = &settings;
                 scope.spawn(move || {
-                    chunk.iter().map(|(s, p)| battery::run(s, *p, 0.0, settings, settings)).collect::<Vec<_>>()
+                    chunk
+                        .iter()
+                        .map(|(s, p)| battery::run(&PlantModel::reference(), s, *p, 0.0, settings, settings))
+                        .collect::<Vec<_>>()
                 })
             })
             .collect();
@@ -453,7 +456,7 @@ fn battery_new_loads_fast_subset_does_no_harm() {
 fn a_j_the_windows_contradict_does_not_stand() {
     let s = Scenario::generate(Family::Gearbox, 15010, 60.0);
     let settings = EstimatorSettings::default();
-    let r = battery::run(&s, 1, battery::LOST_POLLS, &settings, &settings);
+    let r = battery::run(&PlantModel::reference(), &s, 1, battery::LOST_POLLS, &settings, &settings);
     eprintln!("{}: T̂_L {:.2}× the nominal filter's, final {:?}", r.describe, r.nominal_ratio(), r.rls.last);
     assert!(r.nominal_ratio() <= battery::NOMINAL_RMSE_FACTOR, "T̂_L {:.2}× the nominal's", r.nominal_ratio());
     let identified = hydrolens::estimator::Identification::Identified.code();
@@ -478,7 +481,7 @@ fn a_j_the_windows_contradict_does_not_stand() {
 fn a_j_the_periodic_fit_explains_stands_beside_biased_windows() {
     let s = Scenario::generate(Family::Sine, 9012, 60.0);
     let settings = EstimatorSettings::default();
-    let r = battery::run(&s, 10, 0.0, &settings, &settings);
+    let r = battery::run(&PlantModel::reference(), &s, 10, 0.0, &settings, &settings);
     eprintln!(
         "10 ms {}: T̂_L {:.2}× the truth reference's, at 15 s {:?}",
         r.describe,
@@ -503,7 +506,7 @@ fn a_b_below_a_wrong_nominal_stands_before_the_speed_test_can_look() {
     let settings = EstimatorSettings::default();
     for (family, seed) in [(Family::Ramp, 16), (Family::Brake, 7007)] {
         let s = Scenario::generate(family, seed, 60.0);
-        let r = battery::run(&s, 5, 0.0, &settings, &settings);
+        let r = battery::run(&PlantModel::reference(), &s, 5, 0.0, &settings, &settings);
         eprintln!("5 ms {}: T̂_L {:.2}× the truth reference's", r.describe, r.load_ratio());
         assert!(
             r.load_ratio() <= battery::LOAD_RMSE_FACTOR,
@@ -522,7 +525,7 @@ fn a_sines_b_and_j_come_from_its_first_cycle() {
     let settings = EstimatorSettings::default();
     for (seed, poll_ms) in [(11018, 5), (1018, 1)] {
         let s = Scenario::generate(Family::Sine, seed, 60.0);
-        let r = battery::run(&s, poll_ms, 0.0, &settings, &settings);
+        let r = battery::run(&PlantModel::reference(), &s, poll_ms, 0.0, &settings, &settings);
         eprintln!(
             "{poll_ms} ms {}: T̂_L {:.2}× the truth reference's, {:.2}× the nominal model's",
             r.describe,
@@ -549,7 +552,7 @@ fn a_sines_b_and_j_come_from_its_first_cycle() {
 fn a_b_the_data_set_apart_from_a_wrong_nominal_stands_and_stays() {
     let settings = EstimatorSettings::default();
     let s = Scenario::generate(Family::Ramp, 19004, 60.0);
-    let r = battery::run(&s, 2, 0.0, &settings, &settings);
+    let r = battery::run(&PlantModel::reference(), &s, 2, 0.0, &settings, &settings);
     eprintln!("2 ms {}: T̂_L {:.2}× the truth reference's", r.describe, r.load_ratio());
     assert!(r.load_ratio() <= battery::LOAD_RMSE_FACTOR, "2 ms seed 19004: {:.2}×", r.load_ratio());
     let truth = PlantModel::reference();
@@ -619,7 +622,7 @@ fn a_fans_friction_comes_from_the_fit_with_a_fans_term() {
     let settings = EstimatorSettings::default();
     for (seed, poll_ms) in [(22, 2), (19008, 1)] {
         let s = Scenario::generate(Family::Centrifugal, seed, 60.0);
-        let r = battery::run(&s, poll_ms, battery::LOST_POLLS, &settings, &settings);
+        let r = battery::run(&PlantModel::reference(), &s, poll_ms, battery::LOST_POLLS, &settings, &settings);
         eprintln!(
             "{poll_ms} ms {}: B {:+.1} %, T̂_L {:.2}× the nominal model's, {:.2}× the truth reference's",
             r.describe,
@@ -681,7 +684,7 @@ fn a_b_whose_interval_reaches_plausible_friction_stands() {
     let settings = EstimatorSettings::default();
     let s = Scenario::generate(Family::Brake, 7007, 60.0);
     for poll_ms in [2, 5] {
-        let r = battery::run(&s, poll_ms, 0.0, &settings, &settings);
+        let r = battery::run(&PlantModel::reference(), &s, poll_ms, 0.0, &settings, &settings);
         eprintln!("{poll_ms} ms {}: T̂_L {:.2}× the truth reference's", r.describe, r.load_ratio());
         assert!(r.holds(), "{poll_ms} ms: {:?}", r.failures());
     }
@@ -703,7 +706,7 @@ fn no_harm_from(cases: &[(Family, u64, u32, f64)], start: fn(Scenario) -> Scenar
     let settings = EstimatorSettings::default();
     for &(family, seed, poll_ms, lost) in cases {
         let s = start(Scenario::generate(family, seed, 60.0));
-        let r = battery::run(&s, poll_ms, lost, &settings, &settings);
+        let r = battery::run(&PlantModel::reference(), &s, poll_ms, lost, &settings, &settings);
         eprintln!("{poll_ms} ms {}: T̂_L {:.2}× the nominal filter's", r.describe, r.nominal_ratio());
         let ratio = r.nominal_ratio();
         assert!(ratio <= battery::NOMINAL_RMSE_FACTOR, "{poll_ms} ms seed {seed}: T̂_L {ratio:.2}× the nominal's");
