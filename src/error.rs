@@ -60,7 +60,7 @@ pub fn read_small_file(path: &std::path::Path) -> std::io::Result<Vec<u8>> {
 /// Opens `path` for reading without waiting for a writer: a named pipe nobody writes to blocked the open forever
 /// (`serve --config` on a FIFO hung). Opened non-blocking, then read blocking as any file is: a pipe with a writer
 /// (a shell's process substitution) is read whole, one without ends at once.
-fn open_without_waiting(path: &std::path::Path) -> std::io::Result<std::fs::File> {
+pub fn open_without_waiting(path: &std::path::Path) -> std::io::Result<std::fs::File> {
     #[cfg(target_os = "linux")]
     {
         use rustix::fs::OFlags;
@@ -77,7 +77,7 @@ fn open_without_waiting(path: &std::path::Path) -> std::io::Result<std::fs::File
 }
 
 /// Whether `path` is a named pipe.
-fn is_fifo(path: &std::path::Path) -> bool {
+pub fn is_fifo(path: &std::path::Path) -> bool {
     #[cfg(unix)]
     {
         use std::os::unix::fs::FileTypeExt;

@@ -125,6 +125,22 @@ pub struct Replacement {
     path: PathBuf,
 }
 
+/// The temporary files of this process's uncommitted [`Replacement`]s: what [`remove_temporaries`] removes when a
+/// signal ends the process, which runs no `Drop`.
+static LIVE: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+fn live() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
+    LIVE.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// Removes the temporary files of every uncommitted [`Replacement`]: for a signal handler, before the process exits
+/// (a `simulate` stopped by Ctrl-C left its 20 MB `.NAME.PID.tmp` until the next run into that path).
+pub fn remove_temporaries() {
+    for temp in live().drain(..) {
+        let _ = std::fs::remove_file(temp);
+    }
+}
+
 impl Replacement {
     /// Removes the stale temporaries of `path` and creates this run's.
     pub fn create(path: &Path) -> std::io::Result<Replacement> {
@@ -135,8 +151,19 @@ impl Replacement {
             }
             _ => None,
         };
-        let file = File::create(temp.as_deref().unwrap_or(path))?;
+        // registered before it exists: a signal between the two leaves nothing behind
+        if let Some(temp) = &temp {
+            live().push(temp.clone());
+        }
+        let file = File::create(temp.as_deref().unwrap_or(path)).inspect_err(|_| Replacement::forget(&temp))?;
         Ok(Replacement { file, temp, path: path.to_path_buf() })
+    }
+
+    /// Takes `temp` off the files a signal removes.
+    fn forget(temp: &Option<PathBuf>) {
+        if let Some(temp) = temp {
+            live().retain(|t| t != temp);
+        }
     }
 
     /// The file being written.
@@ -149,7 +176,7 @@ impl Replacement {
         if let Some(temp) = &self.temp {
             std::fs::rename(temp, &self.path)?;
         }
-        self.temp = None;
+        Replacement::forget(&self.temp.take());
         Ok(())
     }
 }
@@ -158,9 +185,18 @@ impl Drop for Replacement {
     /// Removes the temporary file unless it was renamed into place: on an error, and on a panic.
     fn drop(&mut self) {
         if let Some(temp) = self.temp.take() {
-            let _ = std::fs::remove_file(temp);
+            let _ = std::fs::remove_file(&temp);
+            Replacement::forget(&Some(temp));
         }
     }
+}
+
+/// Whether creating an output failed for its path (missing, not writable, read-only, not a directory where one is
+/// needed): the user's to fix, exit 2. [`check`] catches the ordinary cases first; `/proc/x.csv` or a read-only mount
+/// get past it and exited 1.
+pub fn path_refused(e: &std::io::Error) -> bool {
+    use std::io::ErrorKind::{IsADirectory, NotADirectory, NotFound, PermissionDenied, ReadOnlyFilesystem};
+    matches!(e.kind(), NotFound | PermissionDenied | ReadOnlyFilesystem | IsADirectory | NotADirectory)
 }
 
 /// Writes `bytes` to `path` through a [`Replacement`].

@@ -50,12 +50,15 @@ pub enum EstimateError {
 }
 
 impl EstimateError {
-    /// A bad recording or model is the user's to fix (exit 2); an output that cannot be written is not.
+    /// A bad recording or model is the user's to fix (exit 2), and so is an output path that cannot be created
+    /// ([`crate::output::path_refused`]); an output that fails while being written (a full disk) is not.
     pub fn is_bad_input(&self) -> bool {
         match self {
             EstimateError::Recording(e) => e.is_bad_input(),
             EstimateError::Replay(_) => true,
-            EstimateError::Output { .. } => false,
+            EstimateError::Output { action, source, .. } => {
+                *action == "creating" && crate::output::path_refused(source)
+            }
         }
     }
 }

@@ -188,7 +188,9 @@ fn analyze_series(
     progress: &mut dyn FnMut(f64),
 ) -> Result<Analysis, BadInput> {
     let family = s.family;
+    within_any_plant(nominal, &s)?;
     let (start, nominal_terms) = search_start(nominal);
+    inertia_told_from_zero(&s, nominal_terms, &rec.source)?;
     let baseline = fit_baseline(&start, nominal_terms, &s, &rec.source)?;
     progress(0.05);
 
@@ -252,6 +254,51 @@ fn analyze_series(
         improved_model: with_nominal_load(current.model, nominal),
         traces,
     })
+}
+
+/// Refuses a recording whose fitting segment does not tell the inertia from zero (the least-squares J within
+/// [`INERTIA_FROM_ZERO_SD`] of its standard deviations of 0, [`search::inertia_with_sd`]): it does not excite the
+/// plant (a run at rest, a steady speed). Fitted to anyway, J came out a tenth of the truth or less and a finding was
+/// named from noise, or the fit failed (J ≤ 0) and the command refused: which of the two depended on the noise's
+/// seed. With the load unknown J is not fitted (the nominal's stands), and nothing is checked.
+fn inertia_told_from_zero(s: &Series, terms: search::MechTerms, source: &str) -> Result<(), BadInput> {
+    if s.family == Family::Flow {
+        return Ok(());
+    }
+    match search::inertia_with_sd(s, terms) {
+        Some((j, sd)) if j <= INERTIA_FROM_ZERO_SD * sd => Err(BadInput(format!(
+            "recording {source}: inertia and viscous friction cannot be fitted: the fitting segment does not tell the \
+             inertia from zero (J = {j:.3e} ± {sd:.1e} kg·m²): the speed hardly changes (it needs accelerations and \
+             several speeds)"
+        ))),
+        _ => Ok(()),
+    }
+}
+
+/// How many standard deviations from zero the fitting segment must put J.
+const INERTIA_FROM_ZERO_SD: f64 = 3.0;
+
+/// Refuses a nominal model whose free run on the recording's inputs leaves any physical range
+/// ([`crate::plant::simulate::PHYSICAL_LIMITS`]), as `simulate` refuses it: a model of absurd magnitudes (a pump of
+/// 1e9 cm³, a back pressure of 1e9 bar) was analysed to a speed error of 2.5e9 and a finding at the edge of its
+/// search, and its `--model-out` was a model `simulate` refused.
+fn within_any_plant(nominal: &PlantModel, s: &Series) -> Result<(), BadInput> {
+    let p = predict::predict(nominal, s, s.len())?;
+    let (max_speed, max_bar) = crate::plant::simulate::PHYSICAL_LIMITS;
+    // the flow family does not predict the speed (NaN throughout)
+    let speed = (s.family != Family::Flow).then_some(("speed (rad/s)", &p.omega_rad_s, max_speed));
+    let signals = speed.into_iter().chain(p.dp_bar.as_ref().map(|dp| ("p_in − p_out (bar)", dp, max_bar)));
+    for (what, values, max) in signals {
+        if let Some(k) = values.iter().position(|v| v.is_nan() || v.abs() > max) {
+            return Err(BadInput(format!(
+                "model: its free run on the recording's inputs left any physical range at t = {} s ({what} = \
+                 {:e}): the model's magnitudes (torques, displacements, pressures) are beyond any plant; check their \
+                 values and units",
+                s.t_s[k], values[k]
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// The baseline's mismatch windows: the largest `MAX_MISMATCHES` by RMS, in time order.

@@ -118,6 +118,8 @@ const SCREENED: [&str; 7] = ["p_in_bar", "p_out_bar", "omega_rad_s", "theta_rad"
 struct Columns<'a> {
     src: &'a str,
     raw: Vec<(&'static str, Vec<f64>)>,
+    /// Columns the recording has without a single value (every row empty, not a number or out of range).
+    valueless: Vec<&'static str>,
 }
 
 impl<'a> Columns<'a> {
@@ -126,8 +128,14 @@ impl<'a> Columns<'a> {
         let src = &rec.source;
         let mut outliers = Vec::new();
         let mut raw: Vec<(&'static str, Vec<f64>)> = Vec::new();
+        let mut valueless = Vec::new();
         for name in super::RECORDING_COLUMNS {
-            let Some(c) = rec.present(name) else { continue };
+            let Some(c) = rec.present(name) else {
+                if rec.column(name).is_some() {
+                    valueless.push(name);
+                }
+                continue;
+            };
             // a single-turn encoder's position, its wraps taken out first (else each wrap is a spike, and a jump of
             // a turn in the speed)
             let unwrapped = (name == "theta_rad").then(|| crate::recording::unwrapped_positions(c));
@@ -144,7 +152,7 @@ impl<'a> Columns<'a> {
                 raw.push((name, c.to_vec()));
             }
         }
-        (Columns { src, raw }, outliers)
+        (Columns { src, raw, valueless }, outliers)
     }
 
     /// A speed (or position), or an inlet pressure, that holds one value in every row is a stuck sensor or a
@@ -192,7 +200,18 @@ impl<'a> Columns<'a> {
 
     /// The error naming a required column and why it is required.
     fn need(&self, name: &str, why: &str) -> BadInput {
+        if self.valueless.contains(&name) {
+            return self.unusable(name);
+        }
         BadInput(format!("recording {}: column `{name}` is required {why}", self.src))
+    }
+
+    /// The error for a column that is there with no value the analysis can use.
+    fn unusable(&self, name: &str) -> BadInput {
+        BadInput(format!(
+            "recording {}: column `{name}` has no usable value (every row empty, not a number or out of range)",
+            self.src
+        ))
     }
 
     /// Per row, whether the speed, ΔP and drive frequency were measured there (all rows when not recorded).
@@ -234,6 +253,10 @@ impl Drive {
         f_drive: Option<&Vec<f64>>,
         n: usize,
     ) -> Result<Drive, BadInput> {
+        // a `torque_nm` with no usable value is said so, not taken for a recording of pressures that lacks them
+        if cols.valueless.contains(&"torque_nm") {
+            return Err(cols.unusable("torque_nm"));
+        }
         if let Some(tq) = cols.col("torque_nm") {
             return Ok(Drive {
                 family: Family::Torque,

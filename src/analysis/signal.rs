@@ -159,6 +159,24 @@ pub fn least_squares(columns: &[Vec<f64>], y: &[f64]) -> Option<Vec<f64>> {
     solve_and_unscale(a, DVector::from_column_slice(y), &norms)
 }
 
+/// The least-squares fit of [`least_squares`] with each coefficient's standard deviation, the residual's variance
+/// (over n − p) taken as white: `None` where [`least_squares`] gives none.
+pub fn least_squares_with_sd(columns: &[Vec<f64>], y: &[f64]) -> Option<(Vec<f64>, Vec<f64>)> {
+    let theta = least_squares(columns, y)?;
+    let (n, p) = (y.len(), columns.len());
+    if n <= p {
+        return None;
+    }
+    let rss: f64 =
+        (0..n).map(|i| (y[i] - columns.iter().zip(&theta).map(|(c, t)| c[i] * t).sum::<f64>()).powi(2)).sum();
+    let norms = unit_norms(columns)?;
+    let a = DMatrix::from_fn(n, p, |i, j| columns[j][i] / norms[j]);
+    let inverse = (a.transpose() * a).try_inverse()?;
+    let var = rss / (n - p) as f64;
+    let sd: Vec<f64> = (0..p).map(|j| (var * inverse[(j, j)]).max(0.0).sqrt() / norms[j]).collect();
+    sd.iter().all(|v| v.is_finite()).then_some((theta, sd))
+}
+
 /// The Euclidean norm of each column, so that a fit can scale its columns to unit norm and its rank test means
 /// the same whatever the units; `None` when a column is zero or not finite.
 fn unit_norms(columns: &[Vec<f64>]) -> Option<Vec<f64>> {

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 use hydrolens::{BadInput, output, plant, recording, replay_file};
 
-use super::load_model;
+use super::{load_model, remove_temporaries_on_signal};
 use crate::EstimateFlags;
 
 /// Progress on a terminal, nothing when piped.
@@ -26,12 +26,24 @@ fn progress(label: &'static str) -> impl FnMut(f64) {
     }
 }
 
+/// An output's [`output::Replacement`]; a path it cannot be created at is bad input ([`output::path_refused`]).
+fn create_output(path: &Path) -> anyhow::Result<output::Replacement> {
+    output::Replacement::create(path).map_err(|e| {
+        if output::path_refused(&e) {
+            BadInput(format!("creating {}: {e}", path.display())).into()
+        } else {
+            anyhow::Error::new(e).context(format!("creating {}", path.display()))
+        }
+    })
+}
+
 /// The most rows `simulate` writes (`--duration` over the model's `sensors.sample_ms`): about 10 GB of CSV.
 const MAX_SIMULATE_ROWS: f64 = 1e8;
 /// A `simulate` row's size on disk, about: 140–150 bytes measured on the reference plant, rounded up.
 const SIMULATE_BYTES_PER_ROW: f64 = 160.0;
 
 pub fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyhow::Result<()> {
+    remove_temporaries_on_signal();
     if !(duration.is_finite() && duration > 0.0 && duration <= 1e6) {
         return Err(BadInput(format!("--duration {duration}: expected seconds, > 0 and ≤ 1e6")).into());
     }
@@ -61,7 +73,7 @@ pub fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyh
             .into());
         }
     }
-    let mut file = output::Replacement::create(out).with_context(|| format!("creating {}", out.display()))?;
+    let mut file = create_output(out)?;
     let mut writer =
         recording::RowWriter::new(std::io::BufWriter::with_capacity(1 << 16, file.file()), &plant::simulate::COLUMNS)
             .with_context(|| format!("writing {}", out.display()))?;
@@ -87,6 +99,7 @@ pub fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyh
 
 pub fn estimate(rec_path: &Path, model_path: &Path, out: &Path, flags: &EstimateFlags) -> anyhow::Result<()> {
     use hydrolens::estimator::{self, EstimatorSettings};
+    remove_temporaries_on_signal();
     output::check(&[rec_path, model_path], &[("--out", out)])?;
     let model = load_model(model_path)?;
     let origin = model_path.display().to_string();
@@ -165,6 +178,7 @@ pub fn analyze(
     model_out: Option<&Path>,
 ) -> anyhow::Result<()> {
     use hydrolens::analysis;
+    remove_temporaries_on_signal();
     let files = analysis_files(rec_paths, drive)?;
     let mut inputs: Vec<&Path> = files.iter().map(PathBuf::as_path).collect();
     inputs.push(model_path);
@@ -174,7 +188,7 @@ pub fn analyze(
     output::check(&inputs, &outputs)?;
     let model = load_model(model_path)?;
     // every output is opened before the analysis runs, and replaces its file only once all are written
-    let create = |p: &Path| output::Replacement::create(p).with_context(|| format!("creating {}", p.display()));
+    let create = create_output;
     let mut json_file = create(json)?;
     let mut model_file = model_out.map(create).transpose()?;
     let mut report_file = report.map(create).transpose()?;

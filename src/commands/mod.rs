@@ -47,6 +47,37 @@ fn file_size_limit_is_an_error() {
     }
 }
 
+/// For the files' commands: on Ctrl-C, SIGTERM or SIGHUP the outputs' temporary files are removed and the process
+/// exits (128 + the signal, as the default action's shells report), the old outputs left as they were. By default
+/// the signal ended the process at once and left a `.NAME.PID.tmp` of up to the whole run's size until the next run
+/// into that path.
+fn remove_temporaries_on_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        let rt = match tokio::runtime::Builder::new_current_thread().enable_all().build() {
+            Ok(rt) => rt,
+            Err(e) => return tracing::warn!(error = %e, "cannot handle signals: a stopped run leaves its temporaries"),
+        };
+        // registered here, before any output is created, so that no signal finds the default action in place
+        let kinds = [SignalKind::interrupt(), SignalKind::terminate(), SignalKind::hangup()];
+        let handlers: Vec<_> = kinds.iter().map(|&k| rt.block_on(async { signal(k).map(|s| (k, s)) })).collect();
+        let Ok(mut handlers) = handlers.into_iter().collect::<std::io::Result<Vec<_>>>() else {
+            return tracing::warn!("cannot handle signals: a stopped run leaves its temporaries");
+        };
+        std::thread::spawn(move || {
+            let signo = rt.block_on(async {
+                let waits = handlers.iter_mut().map(|(k, s)| Box::pin(async move { s.recv().await.map(|_| *k) }));
+                futures::future::select_all(waits).await.0
+            });
+            hydrolens::output::remove_temporaries();
+            let code = signo.map_or(1, |k| 128 + k.as_raw_value());
+            eprintln!("stopped by a signal: the outputs' temporary files removed, the old outputs kept");
+            std::process::exit(code);
+        });
+    }
+}
+
 /// A token cancelled on Ctrl-C or SIGTERM.
 fn shutdown_on_signal() -> CancellationToken {
     let token = CancellationToken::new();
@@ -92,6 +123,11 @@ fn shutdown_on_signal() -> CancellationToken {
 /// How long a signalled shutdown may take (the loops close their recordings) before the process exits anyway.
 const SHUTDOWN_GRACE: std::time::Duration = std::time::Duration::from_secs(15);
 
+/// A model file, its `[estimator]` table checked too whether or not the command estimates: `simulate` and `analyze`
+/// ran on a table that `estimate` refused (an unknown key, `lambda = 1.5`), and `analyze --model-out` carried it
+/// into a model `estimate` then refused.
 fn load_model(path: &Path) -> anyhow::Result<PlantModel> {
-    Ok(PlantModel::load(path)?)
+    let model = PlantModel::load(path)?;
+    hydrolens::estimator::EstimatorSettings::from_model(&model, &path.display().to_string())?;
+    Ok(model)
 }

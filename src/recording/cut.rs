@@ -41,7 +41,9 @@ impl Read for RecordingFile {
 pub fn open(path: &Path) -> Result<RecordingFile, RecordingError> {
     let name = path.display().to_string();
     let io = |error| RecordingError::Io { path: name.clone(), error };
-    let file = File::open(path).map_err(io)?;
+    // a named pipe with no writer blocked `open` forever (`estimate` on a FIFO hung): opened without waiting, it
+    // reads as empty, which the readers say
+    let file = crate::error::open_without_waiting(path).map_err(io)?;
     let meta = file.metadata().map_err(io)?;
     if meta.is_dir() {
         let error = std::io::Error::new(std::io::ErrorKind::IsADirectory, "a directory, not a recording file");

@@ -357,3 +357,55 @@ fn a_long_recording_is_analysed_in_twice_the_memory_of_its_series() {
     assert!(o.status.success(), "analyze within {limit_kb} kB: {:?} {}", o.status, stderr(&o));
     assert!(json.exists());
 }
+
+/// A `torque_nm` column without one usable value (every cell beyond the sensor's range) is named as such: the
+/// analysis said `p_in_bar` was required, as if the recording had no torque.
+#[test]
+fn a_torque_column_without_a_usable_value_is_named() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let emps = support::root().join("tests/data/emps");
+    let rec = tmp.path().join("huge_torque.csv");
+    let torque = column(&emps.join("recording.csv"), "torque_nm");
+    edited(&emps.join("recording.csv"), &rec, |_, cells| cells[torque] = "1e13".into());
+    let json = tmp.path().join("a.json");
+    let model = emps.join("model.toml");
+    let args = ["analyze".as_ref(), rec.as_os_str(), "--model".as_ref(), model.as_os_str(), "--json".as_ref()];
+    let o = run(&[&args[..], &[json.as_os_str()]].concat(), Duration::from_secs(60));
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("huge_torque.csv") && err.contains("`torque_nm` has no usable value"), "{err}");
+    assert!(!err.contains("p_in_bar"), "{err}");
+}
+
+/// A recording that does not excite the plant (at rest, or at one steady speed) is refused every time: fitted to,
+/// J came out a tenth of the truth or less and a finding was named from noise (leakage at the top of its search,
+/// entrained air with an interval below zero), or the fit failed and the command refused, by the noise's seed.
+#[test]
+fn a_recording_that_does_not_excite_the_plant_is_refused_whatever_its_seed() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let mut recordings = Vec::new();
+    for seed in ["1", "2", "3", "7"] {
+        // the built-in excitation's setpoint is 0 for its first second
+        recordings.push(simulated_for(tmp.path(), &format!("rest{seed}.csv"), "0.9", seed));
+    }
+    let run = simulated_for(tmp.path(), "run.csv", "5", "2");
+    let steady = tmp.path().join("steady.csv");
+    let text = std::fs::read_to_string(&run).expect("read");
+    let mut lines = text.lines();
+    let mut cut = format!("{}\n", lines.next().expect("header"));
+    for line in lines {
+        let t: f64 = line.split(',').next().and_then(|t| t.parse().ok()).expect("t_s");
+        if (2.0..3.6).contains(&t) {
+            cut += line;
+            cut.push('\n');
+        }
+    }
+    std::fs::write(&steady, cut).expect("write");
+    recordings.push(steady);
+    for rec in &recordings {
+        let (o, _) = analyze(tmp.path(), &[rec.as_os_str()]);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "{}: {err}", rec.display());
+        assert!(err.contains("cannot be fitted"), "{}: {err}", rec.display());
+    }
+}

@@ -86,7 +86,12 @@ impl Running {
     }
 
     fn sigterm(&self) {
-        let status = Command::new("kill").args(["-TERM", &self.child.id().to_string()]).status().expect("kill");
+        self.signal("-TERM");
+    }
+
+    /// Sends the signal `kill` names so (`-INT`, `-TERM`).
+    fn signal(&self, name: &str) {
+        let status = Command::new("kill").args([name, &self.child.id().to_string()]).status().expect("kill");
         assert!(status.success());
     }
 }
@@ -336,6 +341,96 @@ fn a_killed_runs_temporary_file_is_removed_by_the_next_run() {
     let (code, msg) = run(&estimate_args(&rec, &model, &out));
     assert_eq!(code, Some(0), "{msg}");
     assert_eq!(files_in(dir.path()), ["est.csv", "rec.csv"]);
+}
+
+/// Ctrl-C or SIGTERM during a run removes its temporary file (the run's size, 20 MB a minute of `simulate`) and
+/// keeps the old output; the exit status is the signal's (128 + its number).
+#[test]
+fn a_signal_removes_the_runs_temporary_file_and_keeps_the_old_output() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let out = dir.path().join("rec.csv");
+    for (name, code) in [("-INT", 130), ("-TERM", 143)] {
+        std::fs::write(&out, "the old recording\n").expect("write");
+        // long enough (1e6 rows, about 160 MB) that the signal finds it writing
+        let running = Running::start(&simulate_args(&root().join("config/plant.toml"), "1000", &out), &[]);
+        let writing = crate::support::wait_for_sync(Duration::from_secs(20), || {
+            files_in(dir.path()).iter().any(|f| f.ends_with(".tmp"))
+        });
+        assert!(writing.is_some(), "{name}: no temporary file: {}", running.output());
+        running.signal(name);
+        let (status, msg) = running.finish(Duration::from_secs(20));
+        assert_eq!(status.and_then(|s| s.code()), Some(code), "{name}: {msg}");
+        assert!(msg.contains("temporary files removed"), "{name}: {msg}");
+        assert_eq!(files_in(dir.path()), ["rec.csv"], "{name}");
+        assert_eq!(std::fs::read_to_string(&out).expect("read"), "the old recording\n", "{name}");
+    }
+}
+
+/// A recording that is a named pipe nobody writes to is refused at once, named so; it hung `estimate` and `analyze`.
+#[test]
+fn a_recording_pipe_with_no_writer_exits_2_at_once() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let fifo = dir.path().join("rec.csv");
+    assert!(Command::new("mkfifo").arg(&fifo).status().expect("mkfifo").success());
+    let model = root().join("config/plant.toml");
+    let (est, json) = (dir.path().join("est.csv"), dir.path().join("a.json"));
+    exits_2_naming(&estimate_args(&fifo, &model, &est), &["rec.csv", "named pipe with nothing written to it"]);
+    exits_2_naming(&analyze_args(&fifo, &model, &json), &["rec.csv"]);
+}
+
+/// Every command that reads a model checks its `[estimator]` table as `estimate` does: `simulate` and `analyze` ran
+/// on a table `estimate` refused.
+#[test]
+fn every_command_refuses_a_bad_estimator_table_naming_the_key() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec = recording(dir.path());
+    for (table, key) in [("bogus = 1", "bogus"), ("lambda = 1.5", "estimator.lambda"), ("method = \"magic\"", "magic")]
+    {
+        let model = dir.path().join("m.toml");
+        std::fs::write(&model, format!("{}\n[estimator]\n{table}\n", reference_model())).expect("write");
+        let (out, json) = (dir.path().join("out.csv"), dir.path().join("a.json"));
+        exits_2_naming(&simulate_args(&model, "1", &out), &["m.toml", key]);
+        exits_2_naming(&estimate_args(&rec, &model, &out), &["m.toml", key]);
+        exits_2_naming(&analyze_args(&rec, &model, &json), &["m.toml", key]);
+        let sim = ["sim".as_ref(), "--model".as_ref(), model.as_os_str(), "--listen".as_ref(), "127.0.0.1:0".as_ref()];
+        exits_2_naming(&sim, &["m.toml", key]);
+        assert_eq!(files_in(dir.path()), ["m.toml", "rec.csv"], "{table}: nothing written");
+    }
+}
+
+/// `analyze` refuses a nominal model of absurd magnitudes, as `simulate` does: it was analysed to a speed error of
+/// 2.5e9 and a finding, and its `--model-out` was a model `simulate` refused.
+#[test]
+fn analyze_refuses_a_model_beyond_any_plant_as_simulate_does() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec = recording(dir.path());
+    for (from, to) in
+        [("displacement_cm3 = 16.0", "displacement_cm3 = 1e9"), ("back_pressure_bar = 3.0", "back_pressure_bar = 1e9")]
+    {
+        let model = dir.path().join("absurd.toml");
+        let text = reference_model();
+        assert!(text.contains(from), "{from}");
+        std::fs::write(&model, text.replace(from, to)).expect("write");
+        let (out, json, fitted) = (dir.path().join("out.csv"), dir.path().join("a.json"), dir.path().join("fit.toml"));
+        exits_2_naming(&simulate_args(&model, "3", &out), &["absurd.toml", "physical range"]);
+        let mut args = analyze_args(&rec, &model, &json).to_vec();
+        args.extend(["--model-out".as_ref(), fitted.as_os_str()]);
+        exits_2_naming(&args, &["model file", "absurd.toml", "physical range"]);
+        assert_eq!(files_in(dir.path()), ["absurd.toml", "rec.csv"], "{to}: nothing written");
+    }
+}
+
+/// An output path that gets past the checks but cannot be created (under `/proc`) exits 2 naming it, not 1.
+#[test]
+fn an_output_path_that_cannot_be_created_exits_2_naming_it() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec = recording(dir.path());
+    let model = root().join("config/plant.toml");
+    let nowhere = Path::new("/proc/hydrolens-test/out.csv");
+    exits_2_naming(&estimate_args(&rec, &model, nowhere), &["/proc/hydrolens-test/out.csv"]);
+    exits_2_naming(&analyze_args(&rec, &model, nowhere), &["/proc/hydrolens-test/out.csv"]);
+    let proc_file = Path::new("/proc/hydrolens-test.csv");
+    exits_2_naming(&estimate_args(&rec, &model, proc_file), &["creating /proc/hydrolens-test.csv"]);
 }
 
 // ---- finding 3: unreadable files exit 2 naming the path (once); no colour codes in a file

@@ -249,6 +249,16 @@ pub fn fit_mechanics_on(
     instrumented(fit, base, s)
 }
 
+/// The fitting segment's least-squares J and its standard deviation, on `terms`' torque balance: what the segment
+/// says of the inertia. Its rows are taken at five times the balance's low-pass, about 2.5 a correlation time, so
+/// the white-residual standard deviation is widened by √2.5. `None` when the balance cannot be solved.
+pub fn inertia_with_sd(s: &Series, terms: MechTerms) -> Option<(f64, f64)> {
+    let rows = BalanceRows::new(s, &[(0, s.split)], terms.coulomb || terms.stribeck);
+    let y = rows.column(|k| s.drive_torque_f[k] - s.load_f[k]);
+    let (theta, sd) = super::signal::least_squares_with_sd(&balance_columns(s, &rows, terms), &y)?;
+    Some((theta[0], sd[0] * 2.5f64.sqrt()))
+}
+
 /// IDIM-IV from the least-squares fit of `fit`, or, where the noise's bias makes least squares unphysical (a
 /// negative dry level), from `base`'s free run. `None` when neither gives a fit.
 fn instrumented(

@@ -532,7 +532,11 @@ fn header_names(names: Vec<String>, line: u64, origin: &str) -> Result<(Vec<Stri
     if names.is_empty() || (names.len() == 1 && names[0].is_empty()) {
         return Err(RecordingError::File {
             path: origin.to_string(),
-            message: "the file is empty: expected a header row starting with `t_s`".into(),
+            message: if crate::error::is_fifo(std::path::Path::new(origin)) {
+                "a named pipe with nothing written to it (no writer): expected a header row starting with `t_s`".into()
+            } else {
+                "the file is empty: expected a header row starting with `t_s`".into()
+            },
         });
     }
     let Some(t_index) = names.iter().position(|n| n == "t_s") else {

@@ -58,7 +58,14 @@ pub(super) fn validate_condition(
     }
     let mut model = match raw.model {
         None => estimator_model.clone(),
-        Some(p) => PlantModel::load(&resolve(&p)).map_err(|e| KeyError::new(k("model"), e.to_string()))?,
+        Some(p) => {
+            let path = resolve(&p);
+            let model = PlantModel::load(&path).map_err(|e| KeyError::new(k("model"), e.to_string()))?;
+            // its `[estimator]` table checked as every model file's is (`hydrolens analyze` on it would refuse it)
+            crate::estimator::EstimatorSettings::from_model(&model, &path.display().to_string())
+                .map_err(|e| KeyError::new(k("model"), e.to_string()))?;
+            model
+        }
     };
     if model.motor.displacement_cm3.is_none() || model.hydraulics.is_none() || model.pump.is_none() {
         return Err(KeyError::new(
