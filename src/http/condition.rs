@@ -1,11 +1,11 @@
 //! `GET /api/drives/{name}/condition`: a drive's condition checks (oldest first) and alarms.
 
-use axum::extract::{Path, State};
+use axum::extract::State;
 use axum::response::Response;
 
-use super::{ApiError, AppState, json_response};
+use super::{ApiError, AppState, Segment, json_response};
 
-pub(super) async fn condition(State(s): State<AppState>, Path(name): Path<String>) -> Result<Response, ApiError> {
+pub(super) async fn condition(State(s): State<AppState>, Segment(name): Segment) -> Result<Response, ApiError> {
     let c = s.service.condition(&name).ok_or_else(|| ApiError::not_found(format!("no drive {name:?}")))?;
     let body = c.to_json();
     Ok(json_response(&body, 4096))

@@ -48,6 +48,8 @@ pub struct AppState {
     pub auth: Arc<AuthThrottle>,
     /// A permit per open `/api/events` stream (`http.max_event_streams`).
     pub event_streams: Arc<tokio::sync::Semaphore>,
+    /// A permit per `/api/history` reply being built or sent ([`MAX_HISTORY_REPLIES`]).
+    pub history_replies: Arc<tokio::sync::Semaphore>,
     /// This side's own families, in the service's registry.
     pub metrics: HttpMetrics,
     /// The MQTT publisher's health, when one runs beside this outlet ([`AppState::with_mqtt`]).
@@ -74,6 +76,7 @@ impl AppState {
             status_cache: Default::default(),
             auth: Default::default(),
             event_streams: Arc::new(tokio::sync::Semaphore::new(http.max_event_streams)),
+            history_replies: Arc::new(tokio::sync::Semaphore::new(MAX_HISTORY_REPLIES)),
             mqtt: None,
             loopback_only: false,
         }
@@ -116,11 +119,13 @@ impl StatusCache {
 pub struct ApiError {
     pub status: StatusCode,
     pub message: String,
+    /// Seconds for `Retry-After` (429: what is left of the block).
+    pub retry_after_s: Option<u64>,
 }
 
 impl ApiError {
     pub fn new(status: StatusCode, message: impl Into<String>) -> ApiError {
-        ApiError { status, message: message.into() }
+        ApiError { status, message: message.into(), retry_after_s: None }
     }
     fn not_found(message: impl Into<String>) -> ApiError {
         ApiError::new(StatusCode::NOT_FOUND, message)
@@ -129,9 +134,12 @@ impl ApiError {
         ApiError::new(StatusCode::BAD_REQUEST, message)
     }
     fn throttled(wait: Duration) -> ApiError {
+        // the header says what is left of the block, as the body does (it said the whole block, 60 s, always)
+        let left = wait.as_secs_f64().ceil().max(1.0) as u64;
         ApiError {
             status: StatusCode::TOO_MANY_REQUESTS,
-            message: format!("too many wrong tokens: try again in {} s", wait.as_secs().max(1)),
+            message: format!("too many wrong tokens: try again in {left} s"),
+            retry_after_s: Some(left),
         }
     }
 }
@@ -145,8 +153,8 @@ impl IntoResponse for ApiError {
         if self.status == StatusCode::UNAUTHORIZED {
             resp.headers_mut().insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
         }
-        if self.status == StatusCode::TOO_MANY_REQUESTS {
-            resp.headers_mut().insert(header::RETRY_AFTER, HeaderValue::from(throttle::BLOCK.as_secs()));
+        if let Some(s) = self.retry_after_s {
+            resp.headers_mut().insert(header::RETRY_AFTER, HeaderValue::from(s));
         }
         resp
     }
@@ -156,6 +164,21 @@ impl From<BytesRejection> for ApiError {
     fn from(r: BytesRejection) -> ApiError {
         let status = if r.status() == StatusCode::PAYLOAD_TOO_LARGE { r.status() } else { StatusCode::BAD_REQUEST };
         ApiError::new(status, r.body_text())
+    }
+}
+
+/// A path segment (`{name}`, `{file}`); one axum cannot take (not UTF-8: `%ff`) is a JSON 400 as every error of the
+/// API, not axum's plain-text one.
+pub(super) struct Segment(pub String);
+
+impl<S: Send + Sync> axum::extract::FromRequestParts<S> for Segment {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut axum::http::request::Parts, state: &S) -> Result<Segment, ApiError> {
+        match Path::<String>::from_request_parts(parts, state).await {
+            Ok(Path(segment)) => Ok(Segment(segment)),
+            Err(r) => Err(ApiError::bad_request(r.body_text())),
+        }
     }
 }
 
@@ -187,7 +210,7 @@ pub fn router(state: AppState) -> Router {
         .route("/app.js", get(|| static_file("app.js")))
         .route("/condition.js", get(|| static_file("condition.js")))
         .route("/style.css", get(|| static_file("style.css")))
-        .route("/vendor/{file}", get(|Path(f): Path<String>| static_file_owned(format!("vendor/{f}"))))
+        .route("/vendor/{file}", get(|Segment(f): Segment| static_file_owned(format!("vendor/{f}"))))
         .route("/api/status", get(status))
         .route("/api/history", get(history))
         .route("/api/events", get(events))
@@ -357,11 +380,31 @@ async fn history(
         return Err(ApiError::bad_request(format!("max_points must be 1 ..= 100000, got {}", q.max_points)));
     }
     let drive = s.service.drive(&q.drive).ok_or_else(|| ApiError::not_found(format!("no drive {:?}", q.drive)))?;
+    let Ok(permit) = s.history_replies.clone().try_acquire_owned() else {
+        s.metrics.refused.get_or_create(&ReasonLabel { reason: "history_replies" }).inc();
+        return Ok(conn::busy("too many history replies in flight: try again in a moment", 1));
+    };
     let points = drive.history(q.seconds, q.max_points);
     let body = HistoryBody { drive: &q.drive, columns: PointColumns(&points) };
-    // about 20 bytes a value, 13 columns
-    Ok(json_response(&body, 260 * points.len()))
+    let mut buf = Vec::with_capacity(260 * points.len()); // about 20 bytes a value, 13 columns
+    if let Err(e) = serde_json::to_writer(&mut buf, &body) {
+        tracing::error!(error = %e, "serialising a response");
+        return Ok(StatusCode::INTERNAL_SERVER_ERROR.into_response());
+    }
+    // sent in chunks that hold the permit until the last one is taken: a reply a client does not read stays counted
+    let bytes = Bytes::from(buf);
+    let chunks = (0..bytes.len().div_ceil(DOWNLOAD_CHUNK)).map(move |k| {
+        let _held = &permit;
+        Ok::<_, Infallible>(bytes.slice(k * DOWNLOAD_CHUNK..((k + 1) * DOWNLOAD_CHUNK).min(bytes.len())))
+    });
+    let body = axum::body::Body::from_stream(futures::stream::iter(chunks));
+    Ok(([(header::CONTENT_TYPE, HeaderValue::from_static("application/json"))], body).into_response())
 }
+
+/// `/api/history` replies built or being sent at once: at its largest (100 000 points, about 9 MB) eight hold 72 MB.
+/// Each was built whole and held until its client read it: 120 clients that did not read took the service from 20 MB
+/// to 1.3 GB and disturbed the 1 ms poll loop; the ninth now gets 503 with `Retry-After`.
+pub const MAX_HISTORY_REPLIES: usize = 8;
 
 /// The SSE period: about 10 Hz.
 const EVENT_PERIOD: Duration = Duration::from_millis(100);
@@ -449,7 +492,7 @@ struct TargetBody {
 
 async fn set_target(
     State(s): State<AppState>,
-    Path(name): Path<String>,
+    Segment(name): Segment,
     client: ClientAddr,
     headers: HeaderMap,
     body: Result<Bytes, BytesRejection>,
@@ -492,7 +535,7 @@ async fn set_target(
 
 async fn reset(
     State(s): State<AppState>,
-    Path(name): Path<String>,
+    Segment(name): Segment,
     client: ClientAddr,
     headers: HeaderMap,
 ) -> Result<(StatusCode, Json<serde_json::Value>), ApiError> {
@@ -569,7 +612,7 @@ fn content_type(name: &str) -> &'static str {
 /// slowly it reads (the rest waits in the file).
 const DOWNLOAD_CHUNK: usize = 64 * 1024;
 
-async fn recording_file(State(s): State<AppState>, Path(file): Path<String>) -> Result<Response, ApiError> {
+async fn recording_file(State(s): State<AppState>, Segment(file): Segment) -> Result<Response, ApiError> {
     if !valid_file_name(&file) {
         return Err(ApiError::bad_request(format!("{file:?} is not a recording name such as pump1-1700000000000.csv")));
     }

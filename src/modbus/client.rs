@@ -249,12 +249,19 @@ impl DriveClient {
         }
     }
 
-    /// Drops the connection and schedules the next attempt.
+    /// Drops the connection and schedules the next attempt. A connection that cannot be made is said too (at most
+    /// every [`WARN_EVERY`]): a device unreachable from the start showed only in `/api/status` and `/readyz`.
     fn failed(&mut self, err: ClientError) -> ClientError {
-        if self.ctx.take().is_some()
-            && let Some(more_since_last) = self.loud.allow("dropped", Instant::now())
+        if self.ctx.take().is_some() {
+            if let Some(more_since_last) = self.loud.allow("dropped", Instant::now()) {
+                tracing::warn!(address = %self.endpoint.name(), error = %err, more_since_last,
+                    "modbus connection dropped");
+            }
+        } else if matches!(err, ClientError::Connect { .. })
+            && let Some(more_since_last) = self.loud.allow("connect", Instant::now())
         {
-            tracing::warn!(address = %self.endpoint.name(), error = %err, more_since_last, "modbus connection dropped");
+            tracing::warn!(address = %self.endpoint.name(), error = %err, more_since_last,
+                "modbus connection cannot be made; retrying");
         }
         self.next_attempt = Some(Instant::now() + self.backoff);
         self.backoff = (self.backoff * 2).min(BACKOFF_CAP);

@@ -417,7 +417,12 @@ impl DriveLoop {
         }
         self.was_tripped = tripped;
         let word = self.cycle.status().word;
-        if tripped {
+        if tripped && !self.settings.mode.writes() {
+            // a monitor writes nothing: no advice to reset what it may not write (the reset route answers 409)
+            self.link.trips += 1;
+            tracing::warn!(drive = %self.settings.name, status_word = word,
+                "the drive tripped (fault, comm-loss or a restart); monitor mode: its own controls must clear it");
+        } else if tripped {
             self.link.trips += 1;
             tracing::warn!(drive = %self.settings.name, status_word = word,
                 "the drive tripped (fault, comm-loss or a restart): no RUN is sent and the setpoint ramps to 0 Hz, \

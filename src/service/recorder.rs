@@ -253,12 +253,13 @@ impl Spell<'_> {
 /// The lock file of a recordings directory.
 pub const LOCK_FILE: &str = ".hydrolens.lock";
 
-/// One writer per recordings directory: an exclusive lock on `<dir>/.hydrolens.lock`, held as long as the returned
-/// file is open (the service keeps it for its lifetime; the OS drops it if the process dies), with the holder's pid
-/// in it. A second instance gets a bad-input error naming the directory and that pid, before it touches any file.
+/// One writer per recordings directory: an exclusive lock on the directory itself, held as long as the returned
+/// [`Held`] lives (the service keeps it for its lifetime; the OS drops it if the process dies), and the holder's pid
+/// in `<dir>/.hydrolens.lock`. A second instance gets a bad-input error naming the directory and that pid, before it
+/// touches any file. The lock was on the pid file: once that was deleted (by hand, by a cron job clearing old
+/// files), a second instance took the directory, compressed the first one's open recording and both wrote there.
 /// The pid is a courtesy: a full disk that refuses it is logged, and the lock holds without it.
-pub fn lock_dir(dir: &Path) -> std::io::Result<std::fs::File> {
-    use std::io::{Read, Seek, Write};
+pub fn lock_dir(dir: &Path) -> std::io::Result<Held> {
     // a directory the service may not make or write in (permissions, a read-only or virtual file system) is the
     // config's to fix: said naming the key and the path
     let named = |what: &str, path: &Path, e: std::io::Error| {
@@ -277,26 +278,15 @@ pub fn lock_dir(dir: &Path) -> std::io::Result<std::fs::File> {
         )))
     };
     std::fs::create_dir_all(dir).map_err(|e| named("make the directory", dir, e))?;
+    let locked = std::fs::File::open(dir).map_err(|e| named("open the directory", dir, e))?;
     let path = dir.join(LOCK_FILE);
-    let mut f = std::fs::OpenOptions::new()
-        .read(true)
-        .write(true)
-        .create(true)
-        .truncate(false)
-        .open(&path)
-        .map_err(|e| named("write its lock file", &path, e))?;
-    match f.try_lock() {
+    match locked.try_lock() {
         Ok(()) => {
-            let pid = f.set_len(0).and_then(|()| f.rewind()).and_then(|()| writeln!(f, "{}", std::process::id()));
-            if let Err(e) = pid.and_then(|()| f.sync_all()) {
-                tracing::warn!(file = %path.display(), error = %e,
-                    "cannot write the pid to the recordings directory's lock file; the lock holds without it");
-            }
-            Ok(f)
+            let note = write_pid(&path).map_err(|e| named("write its lock file", &path, e))?;
+            Ok(Held { dir: locked, note })
         }
         Err(std::fs::TryLockError::WouldBlock) => {
-            let mut holder = String::new();
-            let _ = f.read_to_string(&mut holder);
+            let holder = std::fs::read_to_string(&path).unwrap_or_default();
             let holder = holder.trim();
             let holder = if holder.is_empty() { "unknown".to_string() } else { holder.to_string() };
             Err(std::io::Error::other(crate::error::BadInput(format!(
@@ -309,12 +299,32 @@ pub fn lock_dir(dir: &Path) -> std::io::Result<std::fs::File> {
     }
 }
 
-/// The recordings directory's lock ([`lock_dir`]) as the service holds it: taken again when its file is no longer
-/// the one held (the directory was removed and made again), so that a second instance is still refused.
+/// A recordings directory's lock ([`lock_dir`]): the directory, locked, and the file that says who holds it.
+#[derive(Debug)]
+pub struct Held {
+    dir: std::fs::File,
+    note: std::fs::File,
+}
+
+/// Writes this process's pid into the lock file at `path` (made if missing); a write that fails is logged.
+fn write_pid(path: &Path) -> std::io::Result<std::fs::File> {
+    use std::io::{Seek, Write};
+    let mut f = std::fs::OpenOptions::new().read(true).write(true).create(true).truncate(false).open(path)?;
+    let pid = f.set_len(0).and_then(|()| f.rewind()).and_then(|()| writeln!(f, "{}", std::process::id()));
+    if let Err(e) = pid.and_then(|()| f.sync_all()) {
+        tracing::warn!(file = %path.display(), error = %e,
+            "cannot write the pid to the recordings directory's lock file; the lock holds without it");
+    }
+    Ok(f)
+}
+
+/// The recordings directory's lock ([`lock_dir`]) as the service holds it: taken again when the directory is no
+/// longer the one held (removed and made again), and its pid file written again when that was deleted, so that a
+/// second instance is still refused, naming this one.
 #[derive(Debug)]
 pub struct DirLock {
     dir: PathBuf,
-    held: Mutex<std::fs::File>,
+    held: Mutex<Held>,
 }
 
 impl DirLock {
@@ -322,24 +332,38 @@ impl DirLock {
         Ok(DirLock { dir: dir.to_path_buf(), held: Mutex::new(lock_dir(dir)?) })
     }
 
-    /// Takes the lock again (making the directory again) if `<dir>/.hydrolens.lock` is not the file held.
+    /// Takes the lock again (making the directory again) if `dir` is not the directory held; writes the pid file
+    /// again if it is not the one written.
     pub fn keep(&self) {
         use std::os::unix::fs::MetadataExt;
         let mut held = self.held.lock().unwrap_or_else(|e| e.into_inner());
-        let same = match (std::fs::metadata(self.dir.join(LOCK_FILE)), held.metadata()) {
+        let same = |path: &Path, file: &std::fs::File| match (std::fs::metadata(path), file.metadata()) {
             (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
             _ => false,
         };
-        if same {
+        if !same(&self.dir, &held.dir) {
+            match lock_dir(&self.dir) {
+                Ok(h) => {
+                    *held = h;
+                    tracing::warn!(dir = %self.dir.display(), "the recordings directory was gone: made and locked again");
+                }
+                Err(e) => tracing::error!(dir = %self.dir.display(), error = %e,
+                    "the recordings directory was gone and cannot be locked again"),
+            }
             return;
         }
-        match lock_dir(&self.dir) {
-            Ok(f) => {
-                *held = f;
-                tracing::warn!(dir = %self.dir.display(), "the recordings directory's lock file was gone: taken again");
+        let path = self.dir.join(LOCK_FILE);
+        if !same(&path, &held.note) {
+            match write_pid(&path) {
+                Ok(f) => {
+                    held.note = f;
+                    tracing::warn!(dir = %self.dir.display(),
+                        "the recordings directory's lock file was gone: written again (the directory stays locked)");
+                }
+                Err(e) => tracing::warn!(dir = %self.dir.display(), error = %e,
+                    "the recordings directory's lock file was gone and cannot be written again (the directory \
+                     stays locked)"),
             }
-            Err(e) => tracing::error!(dir = %self.dir.display(), error = %e,
-                "the recordings directory's lock file was gone and cannot be taken again"),
         }
     }
 }
@@ -611,5 +635,25 @@ mod tests {
         let names = file_names(dir.path());
         assert_eq!(names, vec!["pump1-3.csv.gz"], "the empty and header-only files are removed, not compressed");
         assert_eq!(keeper.health.snapshot().files_compressed, 1);
+    }
+
+    /// The lock is on the directory: with its pid file deleted (a cron job clearing old files) a second instance is
+    /// still refused, and the holder writes the file again. On the file, a second instance took the directory and
+    /// compressed the first one's open recording.
+    #[test]
+    fn the_directory_stays_locked_when_its_lock_file_is_deleted() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let lock = DirLock::take(dir.path()).expect("the first takes it");
+        let pid_file = dir.path().join(LOCK_FILE);
+        std::fs::remove_file(&pid_file).expect("rm");
+        let e = lock_dir(dir.path()).expect_err("a second is refused").to_string();
+        assert!(e.contains("another hydrolens") && e.contains("pid unknown"), "{e}");
+        lock.keep();
+        let pid = std::process::id().to_string();
+        assert_eq!(std::fs::read_to_string(&pid_file).expect("written again").trim(), pid);
+        let e = lock_dir(dir.path()).expect_err("still refused").to_string();
+        assert!(e.contains(&format!("pid {pid}")), "{e}");
+        drop(lock);
+        lock_dir(dir.path()).expect("free once the holder is gone");
     }
 }

@@ -96,6 +96,8 @@ fn the_token_never_reaches_the_log() {
     assert_eq!(code, None, "serve keeps running with an unreachable drive: {out}");
     assert!(out.contains("dashboard on"), "{out}");
     assert!(!out.contains(secret), "the token is in the log:\n{out}");
+    // a drive unreachable from the start is said (it showed only in /api/status and /readyz)
+    assert!(out.contains("modbus connection cannot be made") && out.contains("127.0.0.1:9"), "{out}");
 }
 
 /// The configs we ship parse (the compose one with its in-container model path pointed at the repository's).

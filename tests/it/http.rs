@@ -14,6 +14,12 @@ use crate::support::{self, Stack, TOKEN, wait_for};
 
 /// A service whose drive points at a closed port: the router works, the drive is down.
 fn make_app(token: Option<&str>, mode: &str) -> (axum::Router, CancellationToken, tempfile::TempDir) {
+    let (state, shutdown, dir) = make_state(token, mode);
+    (router(state), shutdown, dir)
+}
+
+/// [`make_app`]'s state, before it becomes a router.
+fn make_state(token: Option<&str>, mode: &str) -> (AppState, CancellationToken, tempfile::TempDir) {
     let dir = tempfile::tempdir().expect("tmp");
     let text = support::config_text(
         "127.0.0.1:9".parse().expect("addr"),
@@ -28,8 +34,37 @@ fn make_app(token: Option<&str>, mode: &str) -> (axum::Router, CancellationToken
     http.token = token.map(str::to_string);
     http.max_body_bytes = 1024;
     let metrics = hydrolens::http::HttpMetrics::register(&mut svc.state.registry());
-    let state = AppState::new(svc.state.clone(), &http, metrics, shutdown.clone());
-    (router(state), shutdown, dir)
+    (AppState::new(svc.state.clone(), &http, metrics, shutdown.clone()), shutdown, dir)
+}
+
+/// `/api/history` replies in flight are bounded ([`hydrolens::http::MAX_HISTORY_REPLIES`]): a reply holds its permit
+/// until its body is read to the end or dropped, and one beyond gets 503 with `Retry-After`. Built whole and held
+/// until read, 120 replies nobody read took the service to 1.3 GB.
+#[tokio::test]
+async fn history_replies_in_flight_are_bounded_until_read() {
+    use hydrolens::http::MAX_HISTORY_REPLIES;
+    let (state, stop, _dir) = make_state(None, "monitor");
+    let permits = state.history_replies.clone();
+    let app = router(state);
+    let history = || app.clone().oneshot(get("/api/history?drive=pump1&seconds=5"));
+    let mut unread = Vec::new();
+    for _ in 0..MAX_HISTORY_REPLIES {
+        let resp = history().await.expect("infallible");
+        assert_eq!(resp.status(), StatusCode::OK);
+        unread.push(resp);
+    }
+    assert_eq!(permits.available_permits(), 0);
+    let busy = history().await.expect("infallible");
+    assert_eq!(busy.status(), StatusCode::SERVICE_UNAVAILABLE);
+    assert!(busy.headers().contains_key(header::RETRY_AFTER));
+    let read = unread.pop().expect("a reply").into_body();
+    let bytes = axum::body::to_bytes(read, usize::MAX).await.expect("body");
+    let json: serde_json::Value = serde_json::from_slice(&bytes).expect("json");
+    assert_eq!(json["drive"], "pump1");
+    assert_eq!(permits.available_permits(), 1, "a reply read to its end frees its permit");
+    drop(unread);
+    assert_eq!(permits.available_permits(), MAX_HISTORY_REPLIES, "a client gone frees its reply's");
+    stop.cancel();
 }
 
 async fn call(app: &axum::Router, req: Request<Body>) -> (StatusCode, serde_json::Value) {
@@ -77,6 +112,10 @@ async fn bad_input_gets_4xx_with_a_json_error() {
         (get("/api/history?drive=pump1&seconds=inf"), StatusCode::BAD_REQUEST),
         (get("/api/recordings/..%2F..%2Fetc%2Fpasswd"), StatusCode::BAD_REQUEST),
         (get("/api/recordings/none-1.csv"), StatusCode::NOT_FOUND),
+        // a segment that is not UTF-8: axum's plain-text 400 before
+        (get("/api/drives/%ff/condition"), StatusCode::BAD_REQUEST),
+        (get("/api/recordings/%ff.csv"), StatusCode::BAD_REQUEST),
+        (post("/api/drives/%ff/target", Some(TOKEN), ok_body), StatusCode::BAD_REQUEST),
         (get("/no/such/route"), StatusCode::NOT_FOUND),
         (get("/readyz"), StatusCode::SERVICE_UNAVAILABLE),
     ];

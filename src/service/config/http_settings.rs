@@ -67,6 +67,14 @@ pub(super) fn validate_http(h: RawHttp) -> Result<HttpSettings, Invalid> {
     if history_s > 3600.0 {
         return Err(KeyError::new("http.history_seconds".into(), format!("must be ≤ 3600, got {history_s}")));
     }
+    // a client sends `Authorization: Bearer <token>` as one visible ASCII word: a token with a space, a line end or
+    // a non-ASCII letter never matched, and the write routes could never be used
+    if let Some(c) = h.token.chars().find(|c| !c.is_ascii_graphic()) {
+        return Err(KeyError::new(
+            "http.token".into(),
+            format!("must be visible ASCII without spaces (no client can send {c:?} in a Bearer token)"),
+        ));
+    }
     let token = (!h.token.is_empty()).then_some(h.token);
     // an idle or half-sent request must be gone within 30 s (issue 20)
     for (k, ms) in [("http.header_timeout_ms", h.header_timeout_ms), ("http.request_timeout_ms", h.request_timeout_ms)]

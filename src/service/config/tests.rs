@@ -292,3 +292,16 @@ fn bit_fields_and_counters_take_no_scale_offset_or_float() {
     let text = format!("{MINIMAL}[drives.registers.watchdog]\naddress = 20\ntype = \"i16\"\nscale = 1.0\n");
     assert!(parse(&text, "t.toml", None).is_ok());
 }
+
+/// A token no client can send as `Authorization: Bearer <token>` (a space, a line end, a non-ASCII letter) is refused
+/// naming `http.token`: accepted, the write routes could never be used.
+#[test]
+fn a_token_no_client_can_send_is_refused() {
+    for token in [" 0123456789abcdef0123 ", "0123456789abcdef\\n0123", "pässwörd-pässwörd-ü", "tab\\there-0123456789"]
+    {
+        let e = err(&format!("[http]\ntoken = \"{token}\"\n{MINIMAL}"));
+        assert!(e.contains("http.token") && e.contains("visible ASCII"), "{token:?}: {e}");
+    }
+    let ok = parse(&format!("[http]\ntoken = \"0123456789abcdef-_.~+/=\"\n{MINIMAL}"), "t.toml", None).expect("valid");
+    assert_eq!(ok.http.token.as_deref(), Some("0123456789abcdef-_.~+/="));
+}
