@@ -394,3 +394,25 @@ async fn a_second_master_on_the_same_drive_is_found_and_the_finder_stands_back()
     };
     tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
+
+/// A monitor writes nothing: a drive that trips under it is said without the reset advice (the reset route answers
+/// 409 in monitor mode), and still counted.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_monitors_tripped_drive_is_said_without_reset_advice() {
+    let run = async {
+        let (sim, sim_addr, sim_stop, _task) = start_sim(test_plant(5.0), 0).await;
+        let dir = tempfile::tempdir().expect("tmp");
+        let text = config(sim_addr, dir.path(), 10).replace("mode = \"speed\"", "mode = \"monitor\"");
+        let s = ServeProcess::start(dir.path(), &text);
+        wait_for(Duration::from_secs(10), || async { polls_of(&s).await > 0 }).await.expect("polling");
+        sim.lock().set_fault(true);
+        let said = || s.log().lines().find(|l| l.contains("WARN") && l.contains("the drive tripped")).map(String::from);
+        wait_for(Duration::from_secs(15), || async { said().is_some() }).await.expect("the trip is said");
+        let line = said().expect("said");
+        assert!(line.contains("monitor mode") && !line.contains("reset"), "{line}");
+        let m = s.metrics().await;
+        assert_eq!(metric(&m, "hydrolens_trips_total{drive=\"pump1\"}"), Some(1.0), "{m}");
+        sim_stop.cancel();
+    };
+    tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
+}
