@@ -333,14 +333,16 @@ fn json_bytes(body: Bytes) -> Response {
 /// A JSON body serialised into a buffer sized up front. axum's `Json` grows a small `BytesMut` through many tiny
 /// writes: with 50 drives (≈ 75 kB) that copying was a fifth of the status route's CPU.
 fn json_response<T: Serialize>(body: &T, size_hint: usize) -> Response {
+    serialised(body, size_hint).map_or_else(|| StatusCode::INTERNAL_SERVER_ERROR.into_response(), json_bytes)
+}
+
+/// [`json_response`]'s body; `None` (logged) when it does not serialise, which is a 500.
+fn serialised<T: Serialize>(body: &T, size_hint: usize) -> Option<Bytes> {
     let mut buf = Vec::with_capacity(size_hint.max(256));
-    match serde_json::to_writer(&mut buf, body) {
-        Ok(()) => json_bytes(Bytes::from(buf)),
-        Err(e) => {
-            tracing::error!(error = %e, "serialising a response");
-            StatusCode::INTERNAL_SERVER_ERROR.into_response()
-        }
-    }
+    serde_json::to_writer(&mut buf, body)
+        .inspect_err(|e| tracing::error!(error = %e, "serialising a response"))
+        .ok()
+        .map(|()| Bytes::from(buf))
 }
 
 #[derive(Debug, Deserialize)]
@@ -386,13 +388,11 @@ async fn history(
     };
     let points = drive.history(q.seconds, q.max_points);
     let body = HistoryBody { drive: &q.drive, columns: PointColumns(&points) };
-    let mut buf = Vec::with_capacity(260 * points.len()); // about 20 bytes a value, 13 columns
-    if let Err(e) = serde_json::to_writer(&mut buf, &body) {
-        tracing::error!(error = %e, "serialising a response");
+    // about 20 bytes a value, 13 columns
+    let Some(bytes) = serialised(&body, 260 * points.len()) else {
         return Ok(StatusCode::INTERNAL_SERVER_ERROR.into_response());
-    }
+    };
     // sent in chunks that hold the permit until the last one is taken: a reply a client does not read stays counted
-    let bytes = Bytes::from(buf);
     let chunks = (0..bytes.len().div_ceil(DOWNLOAD_CHUNK)).map(move |k| {
         let _held = &permit;
         Ok::<_, Infallible>(bytes.slice(k * DOWNLOAD_CHUNK..((k + 1) * DOWNLOAD_CHUNK).min(bytes.len())))
