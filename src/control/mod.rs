@@ -4,8 +4,9 @@
 //! motor needs `D_m·ω` of flow plus the leakage `C_L·Δp`, where `Δp = (B·ω + T̂_L)/D_m` holds the estimated load;
 //! the pump gives `D_p·2π·f/pole_pairs`. So `f_ff = pole_pairs/(2π·D_p)·(D_m·ω* + C_L·(B·ω* + T̂_L)/D_m)`, and the
 //! PI only removes what the model misses. The output is clamped to `[min_hz, max_hz]`, ramp limited, and leads a
-//! running drive's read-back by at most [`LEAD_HZ`] (a drive with a slower ramp of its own is waited for); the
-//! integral stops growing while the output is held by a limit (anti-windup). On stale data there is no output at all:
+//! running drive's read-back by at most [`LEAD_HZ`] either way (a drive with a slower ramp of its own is waited for,
+//! and a drive run faster by another hand, local mode, is not chased down to `min_hz`); the integral stops moving
+//! while the output is held by a limit (anti-windup). On stale data there is no output at all:
 //! the caller writes nothing and the drive's own watchdog takes over.
 
 use std::f64::consts::PI;
@@ -116,9 +117,13 @@ pub const FOLLOW_GRACE_S: f64 = 0.3;
 pub const MIN_PROGRESS_HZ: f64 = 0.2;
 /// How long (s) a drive away from the setpoint may go without [`MIN_PROGRESS_HZ`] of progress before its grace starts.
 pub const STALL_S: f64 = 0.5;
-/// The setpoint leads the read-back of a running drive by at most this much (Hz) plus one poll's ramp step: a drive
-/// that ramps slower than `ramp_hz_per_s` is waited for, not run away from (twice [`FOLLOW_TOLERANCE_HZ`], so that
-/// a drive that stands still at its read-back is still found not following).
+/// The setpoint leads the read-back of a running drive by at most this much (Hz) plus one poll's ramp step, either
+/// way: a drive that ramps slower than `ramp_hz_per_s` is waited for, not run away from (twice
+/// [`FOLLOW_TOLERANCE_HZ`], so that a drive that stands still at its read-back is still found not following). Down
+/// as up: a drive run above the setpoint by another hand (local mode at 40 Hz under a 19 Hz regulator) left the
+/// regulator lowering the setpoint at the full ramp, each retry after a hold a little further, to `min_hz`, and the
+/// drive was sent 0 Hz from 40 when it followed again (a reviewer's run: the shaft fell to 2 rad/s under a 30 rad/s
+/// target).
 pub const LEAD_HZ: f64 = 2.0 * FOLLOW_TOLERANCE_HZ;
 /// A drive found not following: the setpoint holds its read-back this long before the regulator tries again (s).
 pub const HOLD_S: f64 = 2.0;
@@ -233,10 +238,12 @@ impl SpeedLaw {
         *since_s < STALL_S
     }
 
-    /// The highest setpoint a running drive's read-back allows this cycle (None: no read-back, or a tripped drive).
-    fn lead_ceiling(&self, x: &Inputs, dt: f64) -> Option<f64> {
+    /// The lowest and highest setpoint a running drive's read-back allows this cycle (None: no read-back, or a
+    /// tripped drive, which is commanded down whatever it reads).
+    fn lead_band(&self, x: &Inputs, dt: f64) -> Option<(f64, f64)> {
         let known = x.drive_hz.is_finite() && x.drive_running && !x.tripped;
-        known.then_some(x.drive_hz + LEAD_HZ + self.limits.ramp_hz_per_s * dt)
+        let lead = LEAD_HZ + self.limits.ramp_hz_per_s * dt;
+        known.then_some((x.drive_hz - lead, x.drive_hz + lead))
     }
 
     /// Sets the integral so that the speed law's output is `hz` now (back-calculation anti-windup).
@@ -291,9 +298,11 @@ impl SpeedLaw {
             None => min_hz + (wanted - min_hz).clamp(0.0, ramp_hz_per_s * dt),
             Some(last) => last + (wanted - last).clamp(-ramp_hz_per_s * dt, ramp_hz_per_s * dt),
         };
-        // a setpoint that rises leads a running drive's read-back by at most the lead: the drive's own ramp rules
-        let out = match (self.lead_ceiling(x, dt), self.last_hz) {
-            (Some(ceiling), Some(last)) if out > last => out.min(ceiling.max(last)),
+        // a setpoint that moves leads a running drive's read-back by at most the lead, either way: the drive's own
+        // ramp rules, and a drive another hand runs elsewhere is not chased
+        let out = match (self.lead_band(x, dt), self.last_hz) {
+            (Some((_, ceiling)), Some(last)) if out > last => out.min(ceiling.max(last)),
+            (Some((floor, _)), Some(last)) if out < last => out.max(floor.min(last)),
             _ => out,
         };
         let out = out.clamp(min_hz, max_hz);
@@ -314,7 +323,9 @@ impl SpeedLaw {
         // anti-windup: integrate only while the output is not held by a limit in the direction of the error
         let (lo, hi) = (self.limits.min_hz, self.limits.max_hz);
         let ramp_held = self.last_hz.is_some_and(|last| (unclamped - last).abs() > self.limits.ramp_hz_per_s * dt);
-        let lead_held = self.lead_ceiling(x, dt).is_some_and(|ceiling| unclamped > ceiling && error > 0.0);
+        let lead_held = self
+            .lead_band(x, dt)
+            .is_some_and(|(floor, ceiling)| (unclamped > ceiling && error > 0.0) || (unclamped < floor && error < 0.0));
         let pushing_past = (unclamped >= hi && error > 0.0) || (unclamped <= lo && error < 0.0);
         if !pushing_past && !ramp_held && !lead_held {
             self.integral_hz += self.gains.ki_hz_per_rad * error * dt;
@@ -393,6 +404,42 @@ mod tests {
             assert!(hz - prev <= 20.0 * 0.01 + 1e-9, "{prev} → {hz}");
             prev = hz;
         }
+        assert!(!s.not_following());
+    }
+
+    /// A drive run above the setpoint by another hand (local mode at 40 Hz, 30 s, under a 30 rad/s target, about
+    /// 19 Hz): the setpoint stays within the lead of where it was, however often the regulator tries again, and when
+    /// the drive follows again (at a ramp of its own) it comes down from 40 Hz to the target, not to 0 Hz. Before, the
+    /// regulator lowered the setpoint at the full ramp while the drive moved away, and each retry a little further:
+    /// 0 Hz after 22 s of local mode.
+    #[test]
+    fn a_drive_run_faster_by_another_hand_is_not_chased_down() {
+        let ff = reference_ff();
+        let mut s = law(Mode::Speed);
+        s.target_omega_rad_s = 30.0;
+        let mut last = 0.0_f64;
+        for _ in 0..1000 {
+            last = s.step(&Inputs { drive_hz: last, ..fresh(ff.omega_rad_s(last), 0.0) }).expect("writes");
+        }
+        let before = last;
+        assert!((ff.omega_rad_s(before) - 30.0).abs() < 0.5, "settled: {before} Hz");
+        // local mode: the drive runs up to 40 Hz at 20 Hz/s of its own and stays there
+        let (mut drive, mut lowest) = (before, before);
+        for _ in 0..3000 {
+            drive = (drive + 0.2).min(40.0);
+            last = s.step(&Inputs { drive_hz: drive, ..fresh(ff.omega_rad_s(drive), 0.0) }).expect("writes");
+            lowest = lowest.min(last);
+        }
+        assert!(s.not_following(), "30 s above the setpoint is not following");
+        let bound = before - LEAD_HZ - 20.0 * 0.01 - 1e-9;
+        assert!(lowest >= bound, "chased down in local mode: {lowest} Hz < {bound} (from {before})");
+        // it follows again, at its own 20 Hz/s: down from 40 Hz to the target, never far below it
+        for k in 0..1500 {
+            drive += (last - drive).clamp(-0.2, 0.2);
+            last = s.step(&Inputs { drive_hz: drive, ..fresh(ff.omega_rad_s(drive), 0.0) }).expect("writes");
+            assert!(last >= bound, "poll {k} after local mode: {last} Hz < {bound}");
+        }
+        assert!((ff.omega_rad_s(drive) - 30.0).abs() < 0.5, "back at the target: {drive} Hz");
         assert!(!s.not_following());
     }
 

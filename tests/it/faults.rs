@@ -213,6 +213,51 @@ async fn a_drive_in_local_mode_raises_an_alarm_and_no_overspeed_follows() {
     tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
 
+/// A drive run faster than the regulator wants in local mode (40 Hz under a 30 rad/s target, about 19 Hz) for 6 s:
+/// the alarm is raised, the setpoint is not chased down while the speed stands above the target, and when the drive
+/// follows again the speed comes down to the target without falling far below it. Before, the setpoint was lowered
+/// at the full ramp while the drive ran away from it, and further at each retry (5 Hz within a second, 0 Hz after 22
+/// s), and the drive was sent that from 40 Hz when it followed again (a reviewer's run: the shaft fell to 2 rad/s).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_drive_run_faster_in_local_mode_is_not_chased_down() {
+    let run = async {
+        let speed =
+            "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\nmax_hz = 50.0\nramp_hz_per_s = 20.0\n";
+        let stack = Stack::start(5.0, 10, speed).await;
+        wait_for(Duration::from_secs(10), || async { (stack.sim.lock().truth().omega_rad_s - 30.0).abs() < 1.0 })
+            .await
+            .expect("settles at the target");
+        stack.wait_polls(100, "settled").await;
+        let before = stack.sim.lock().truth().f_set_hz;
+        set(&stack, |f| f.local_hz = Some(40.0));
+        let mut lowest = before;
+        // 6 s of the loop's own 10 ms cycles: found not following, held, tried again twice
+        for _ in 0..600 {
+            stack.wait_polls(1, "in local mode").await;
+            lowest = lowest.min(stack.sim.lock().truth().f_set_hz);
+        }
+        assert_eq!(stack.status().await["status"]["not_following"], true, "the alarm is raised");
+        set(&stack, |f| f.local_hz = None);
+        let mut trough = f64::INFINITY;
+        for _ in 0..500 {
+            stack.wait_polls(1, "following again").await;
+            let truth = stack.sim.lock().truth();
+            (lowest, trough) = (lowest.min(truth.f_set_hz), trough.min(truth.omega_rad_s));
+        }
+        eprintln!(
+            "local mode 40 Hz for 6 s from {before:.1} Hz: lowest setpoint {lowest:.1} Hz; lowest speed after {trough:.1} rad/s (target 30)"
+        );
+        let bound = before - hydrolens::control::LEAD_HZ - 1.0;
+        assert!(lowest >= bound, "the setpoint was chased down to {lowest} Hz (from {before})");
+        assert!(trough >= 22.0, "the speed fell to {trough} rad/s when the drive followed again (target 30)");
+        wait_for(Duration::from_secs(15), || async { stack.status().await["status"]["not_following"] == false })
+            .await
+            .expect("the alarm ends once the drive follows");
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
+}
+
 /// A healthy drive whose own ramp (4 Hz/s) is five times slower than the service's (`ramp_hz_per_s` 20): it climbs to
 /// the target with no alarm on the way, the setpoint never runs more than the lead ahead of it, and the speed does not
 /// overshoot. Before, the drive was found not following 0.3 s into the climb and held at its read-back for 2 s, again
