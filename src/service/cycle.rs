@@ -271,6 +271,9 @@ impl DriveCycle {
         if let Some(r) = self.frozen.observe_inlet(sample.measured.p_in_bar, sample.measured.f_drive_hz) {
             return nothing(Verdict::Rejected(r));
         }
+        if let Some(r) = self.frozen.observe_image(&sample.measured, now.into_std()) {
+            return nothing(Verdict::Rejected(r));
+        }
         let m = &sample.measured;
         // the model's pump and motor (the law's): the speed the frequency gives, the torque from Δp
         let plant = self.law.feed_forward;

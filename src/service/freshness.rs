@@ -38,11 +38,23 @@ pub enum Rejected {
          scale (a slipping coupling, a changed unit), or a model whose displacements or pole pairs are wrong"
     )]
     Mismatch { entry: &'static str, value: f64, expected: f64, f_drive_hz: f64, held_s: f64 },
+    #[error(
+        "speed, both pressures and the drive's frequency unchanged bit for bit for {held_s:.1} s while the drive runs \
+         at {f_drive_hz:.1} Hz and the sample counter moves: the PLC's copy of the drive's data stopped (a fieldbus \
+         link to the drive, an input task)"
+    )]
+    ImageFrozen { f_drive_hz: f64, held_s: f64 },
 }
 
 /// How far the drive's frequency may move (Hz) while the speed reads the very same non-zero value: 2 Hz is
 /// hundreds of the speed register's steps, which no turning shaft holds still.
 pub const FROZEN_SPEED_HZ: f64 = 2.0;
+
+/// How long (s) the whole process image (speed, both pressures, the drive's frequency) may repeat bit for bit while
+/// the drive runs at [`NO_TURN_HZ`] or more and the sample counter moves: a running pump's sensors move by their noise
+/// every sample, so a repeated image is a PLC whose copy of the drive's data stopped updating while its own counter
+/// runs on. The service wrote on from it for 10 s (a reviewer's PLC), feeding the drive's watchdog.
+pub const FROZEN_IMAGE_S: f64 = 1.0;
 
 /// A drive running at least this fast (Hz) turns its motor: the pump's flow has nowhere else to go.
 pub const NO_TURN_HZ: f64 = 5.0;
@@ -63,6 +75,8 @@ pub struct FrozenSpeed {
     inlet: Frozen,
     /// Since when the speed has read no turn while the drive runs.
     no_turn_since: Option<std::time::Instant>,
+    /// The process image (speed, pressures, frequency, bit for bit) and since when it has repeated.
+    image: Option<([u64; 4], std::time::Instant)>,
 }
 
 impl FrozenSpeed {
@@ -90,6 +104,23 @@ impl FrozenSpeed {
     /// The verdict on one sample's inlet pressure (bar): frozen while the drive's frequency moves.
     pub fn observe_inlet(&mut self, p_in_bar: f64, f_drive_hz: f64) -> Option<Rejected> {
         self.inlet.observe("inlet_pressure_bar", p_in_bar, f_drive_hz)
+    }
+
+    /// The verdict on one sample's whole process image, taken at `at`: frozen once it has repeated bit for bit for
+    /// [`FROZEN_IMAGE_S`] while the drive runs at [`NO_TURN_HZ`] or more ([`FROZEN_IMAGE_S`]).
+    pub fn observe_image(&mut self, m: &Measured, at: std::time::Instant) -> Option<Rejected> {
+        let bits = [m.omega_rad_s, m.p_in_bar, m.p_out_bar, m.f_drive_hz].map(f64::to_bits);
+        let running = m.f_drive_hz.abs() >= NO_TURN_HZ;
+        match self.image {
+            Some((held, since)) if held == bits && running => {
+                let held_s = at.saturating_duration_since(since).as_secs_f64();
+                (held_s > FROZEN_IMAGE_S).then_some(Rejected::ImageFrozen { f_drive_hz: m.f_drive_hz, held_s })
+            }
+            _ => {
+                self.image = Some((bits, at));
+                None
+            }
+        }
     }
 }
 
@@ -420,5 +451,36 @@ mod tests {
         assert_eq!(implausible_jump(&a, &b, 1.0, &ranges()), None);
         let noisy = Measured { omega_rad_s: 42.0, p_in_bar: 51.0, ..a };
         assert_eq!(implausible_jump(&a, &noisy, 0.001, &ranges()), None);
+    }
+
+    /// A process image that repeats bit for bit while the drive runs is frozen after [`FROZEN_IMAGE_S`]; one that
+    /// moves by a quantum, or a stopped drive's, is not.
+    #[test]
+    fn a_process_image_repeated_while_the_drive_runs_is_frozen() {
+        let at = std::time::Instant::now();
+        let ms = |n: u64| at + std::time::Duration::from_millis(n);
+        let running = Measured {
+            t_s: 0.0,
+            f_set_hz: f64::NAN,
+            f_drive_hz: 19.1,
+            p_in_bar: 80.3,
+            p_out_bar: 2.1,
+            omega_rad_s: 30.1,
+            drive_power_w: f64::NAN,
+        };
+        let mut f = FrozenSpeed::default();
+        assert_eq!(f.observe_image(&running, ms(0)), None);
+        assert_eq!(f.observe_image(&running, ms(1000)), None, "a second is allowed");
+        assert!(matches!(f.observe_image(&running, ms(1010)), Some(Rejected::ImageFrozen { .. })));
+        // a speed a quantum off starts it again
+        let moved = Measured { omega_rad_s: 30.11, ..running };
+        assert_eq!(f.observe_image(&moved, ms(1020)), None);
+        assert_eq!(f.observe_image(&moved, ms(2000)), None);
+        // a stopped drive's sensors may rest on one value
+        let stopped = Measured { omega_rad_s: 0.0, f_drive_hz: 0.0, ..running };
+        let mut g = FrozenSpeed::default();
+        for n in 0..500 {
+            assert_eq!(g.observe_image(&stopped, ms(10 * n)), None);
+        }
     }
 }

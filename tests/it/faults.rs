@@ -72,6 +72,38 @@ async fn frozen_counter_is_stale_and_nothing_is_written() {
     tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
 
+/// A PLC whose copy of the drive's data stops updating while its own sample counter runs on (a fieldbus link to the
+/// drive failed, an input task stopped): every value repeats bit for bit. Before, no check saw it: the service stayed
+/// ready and wrote on from the frozen data, feeding the drive's watchdog (a reviewer's PLC: 10 s, 97 writes). Now the
+/// samples are refused after a second: stale, not ready, nothing written, and the drive's own watchdog stops it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_plc_whose_copy_of_the_drive_stops_is_refused_and_nothing_is_written() {
+    let run = async {
+        let stack = Stack::start(5.0, 10, SPEED).await;
+        ready_within(&stack, Duration::from_secs(5)).await.expect("ready");
+        wait_for(Duration::from_secs(10), || async { (stack.sim.lock().truth().omega_rad_s - 30.0).abs() < 2.0 })
+            .await
+            .expect("running at the target");
+        set(&stack, |f| f.freeze_values = true);
+        let said = |s: serde_json::Value| s["link"]["last_error"].as_str().is_some_and(|e| e.contains("bit for bit"));
+        let refused = wait_for(Duration::from_secs(15), || async { said(stack.status().await) }).await;
+        assert!(refused.is_some(), "not refused as frozen: {}", stack.status().await);
+        stack.wait_polls(2, "a write in flight lands").await;
+        let before = stack.sim.lock().writes;
+        // 1.5 s of the loop's own cycles: past the drive's 1 s comm watchdog
+        stack.wait_polls(150, "frozen").await;
+        assert_eq!(stack.sim.lock().writes, before, "no writes while the data are frozen");
+        assert_eq!(stack.readyz().await, 503);
+        assert!(stack.sim.lock().truth().tripped, "the drive's own watchdog stopped it");
+        set(&stack, |f| f.freeze_values = false);
+        wait_for(Duration::from_secs(5), || async { !stack.state.drives[0].snapshot().link.stale })
+            .await
+            .expect("fresh again");
+        stack.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn exceptions_and_out_of_range_values_are_counted_and_rejected() {
     let run = async {

@@ -32,6 +32,9 @@ pub struct Faults {
     pub speed_override_rad_s: Option<f64>,
     /// Report the shaft speed times this: a tachometer on a slipping coupling, or read with the wrong scale.
     pub speed_scale: Option<f64>,
+    /// Every value but the sample counter stops updating: the PLC's copy of the drive's data stopped (a fieldbus
+    /// link to the drive, an input task) while its own counter runs on.
+    pub freeze_values: bool,
 }
 
 /// Efficiency of the simulated induction motor, copper and iron (its slip is the plant's `motor_slip`): the drive
@@ -255,6 +258,9 @@ impl DriveSim {
             (DRIVE_POWER_W, self.drive_power_w()),
         ];
         for (spec, v) in values {
+            if self.faults.freeze_values && spec != self.map.sample_counter {
+                continue;
+            }
             let words = spec.encode_saturating(v);
             let at = usize::from(spec.address);
             self.input_image[at..at + words.len()].copy_from_slice(&words);
