@@ -218,7 +218,7 @@ impl TimeStepCheck {
         }
         let mid = self.steps.len() / 2;
         let median = *self.steps.select_nth_unstable_by(mid, f64::total_cmp).1;
-        let why = if median > self.max_gap_s {
+        let why = if crate::estimator::beyond_gap(median, self.max_gap_s) {
             format!(
                 "longer than estimator.max_gap_s = {} s (model file {}): every row would be a gap the estimator \
                  restarts at, and nothing would be estimated; check the unit of t_s, or raise max_gap_s",

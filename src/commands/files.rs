@@ -114,6 +114,15 @@ pub fn estimate(rec_path: &Path, model_path: &Path, out: &Path, flags: &Estimate
     let est = estimator::try_build(&settings, &model).map_err(|hydrolens::error::KeyError { key, message: msg }| {
         BadInput(format!("{key} (command line or model file {origin}) {msg}"))
     })?;
+    if settings.speed_noise_rad_s.is_none() && model.sensors.speed_noise_rad_s <= 0.0 {
+        // the observer's gain and every window's weight come from it: a reviewer's torque-only model (no [sensors])
+        // ran on 0.1 rad/s against a tachometer of 0.8, T̂_L 17× worse, without a word
+        eprintln!(
+            "estimate: the model file {origin} gives no speed noise ([sensors] speed_noise_rad_s): assuming {} rad/s; \
+             set it, or pass --speed-noise, for the recording's tachometer",
+            estimator::DEFAULT_SPEED_NOISE_RAD_S
+        );
+    }
     let max_gap_s = settings.resolve(&model).map(|r| r.max_gap_s).unwrap_or(f64::INFINITY);
     let done = replay_file::estimate_file(rec_path, &model, &origin, est.as_ref(), out, Some(max_gap_s))?;
     eprintln!("estimate ({}): {} rows written to {}{}", settings.method, done.rows, out.display(), done.filled());

@@ -23,7 +23,7 @@ pub use guard::{Identification, Identified, LoadCharacter, Verdict};
 pub use kalman::Kalman;
 pub use paper::PaperLiteral;
 pub use rls_sgd::RlsSgd;
-pub use settings::{EstimatorSettings, Method, Resolved};
+pub use settings::{DEFAULT_SPEED_NOISE_RAD_S, EstimatorSettings, Method, Resolved};
 
 use crate::plant::PlantModel;
 
@@ -119,6 +119,16 @@ fn safe_resolved(model: &PlantModel) -> Resolved {
 const MAX_ABS_SPEED_RAD_S: f64 = 1e5;
 const MAX_ABS_TORQUE_NM: f64 = 1e7;
 
+/// A time step within this share of `max_gap_s` above it is no gap: a clock written in decimal (t_s = 0.1, 0.2, 0.3,
+/// …) gives steps of 0.1 ± an ulp, and a recording polled at exactly `max_gap_s` (100 ms) was refused as "longer than
+/// max_gap_s", half its steps gaps.
+const GAP_ROUNDING: f64 = 1e-3;
+
+/// Whether a time step `dt_s` is longer than `max_gap_s`, beyond the rounding of a decimal clock ([`GAP_ROUNDING`]).
+pub(crate) fn beyond_gap(dt_s: f64, max_gap_s: f64) -> bool {
+    dt_s > max_gap_s * (1.0 + GAP_ROUNDING)
+}
+
 /// The usable parts of a sample: each `None` is missing, non-finite or absurd.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Checked {
@@ -132,7 +142,7 @@ pub(crate) struct Checked {
 
 impl Checked {
     pub fn new(m: &Measurement, max_gap_s: f64) -> Checked {
-        let ok_dt = m.dt_s.is_finite() && m.dt_s > 0.0 && m.dt_s <= max_gap_s;
+        let ok_dt = m.dt_s.is_finite() && m.dt_s > 0.0 && !beyond_gap(m.dt_s, max_gap_s);
         let finite_in = |v: f64, max: f64| (v.is_finite() && v.abs() <= max).then_some(v);
         Checked {
             dt_s: ok_dt.then_some(m.dt_s),
@@ -173,5 +183,22 @@ pub(crate) fn finite_or(e: Estimate, fallback: Estimate) -> Estimate {
         inertia_identified: pick(e.inertia_identified, fallback.inertia_identified),
         viscous_identified: pick(e.viscous_identified, fallback.viscous_identified),
         load_character: pick(e.load_character, fallback.load_character),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A step of `max_gap_s` written in decimal (0.3 − 0.2 = 0.09999999999999998, 0.1 + an ulp) is no gap; a longer
+    /// one is.
+    #[test]
+    fn a_step_of_max_gap_s_in_decimal_is_no_gap() {
+        let m = |dt_s: f64| Measurement { dt_s, omega_rad_s: 1.0, drive_torque_nm: 1.0 };
+        for dt in [0.3 - 0.2, 0.1, 0.30000000000000004 - 0.2, 0.1 + 1e-12] {
+            assert!(!Checked::new(&m(dt), 0.1).gap, "{dt}");
+        }
+        assert!(Checked::new(&m(0.101), 0.1).gap);
+        assert!(beyond_gap(0.2, 0.1) && !beyond_gap(0.1 * (1.0 + 1e-6), 0.1));
     }
 }

@@ -245,7 +245,7 @@ impl EstimatorSettings {
         let speed_noise = s.speed_noise_rad_s.unwrap_or(if model.sensors.speed_noise_rad_s > 0.0 {
             model.sensors.speed_noise_rad_s
         } else {
-            0.1
+            DEFAULT_SPEED_NOISE_RAD_S
         });
         // Both pressures carry the sensor noise: σ_τ = D_m·√2·σ_p.
         let torque_noise = s.torque_noise_nm.unwrap_or_else(|| {
@@ -290,6 +290,9 @@ impl EstimatorSettings {
         })
     }
 }
+
+/// σ of the speed (rad/s) where neither the settings nor the model's `[sensors]` give one (`estimate` says so).
+pub const DEFAULT_SPEED_NOISE_RAD_S: f64 = 0.1;
 
 /// The largest covariance a setting may start from or be bounded by: beyond it an update's products overflow.
 const MAX_COVARIANCE: f64 = 1e12;

@@ -316,6 +316,75 @@ fn outputs_written_in_place_get_every_row_once() {
     assert!(std::fs::read(&real).expect("real") == expected);
 }
 
+/// A recording polled every 100 ms, its clock written in decimal (0.1, 0.2, 0.3, …: steps of 0.1 ± an ulp), is a
+/// recording at `max_gap_s` (0.1 s), not one beyond it: it was refused, "its time step is 1.000e-1 s … longer than
+/// estimator.max_gap_s = 0.1 s", exit 2 (a reviewer's file), and half its steps would have been gaps.
+#[test]
+fn a_recording_polled_at_max_gap_s_is_estimated() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let text = csv_of(&test_stand(12.0));
+    // every 100th row of the 1 ms stand, its time rewritten in decimal tenths
+    let mut kept = 0usize;
+    let lines: Vec<String> = text
+        .lines()
+        .enumerate()
+        .filter(|(r, _)| *r == 0 || (r - 1) % 100 == 0)
+        .map(|(r, line)| {
+            if r == 0 {
+                return line.to_string();
+            }
+            kept += 1;
+            let rest = line.split_once(',').expect("a time column").1;
+            // from 30 s, as a recording cut from a longer one: there most decimal steps are 0.1 and an ulp or two
+            format!("{:.1},{rest}", 30.0 + (kept - 1) as f64 / 10.0)
+        })
+        .collect();
+    assert!(kept > 100 && text.lines().next().expect("header").starts_with("t_s,"));
+    let rec = dir.path().join("tenths.csv");
+    std::fs::write(&rec, lines.join("\n") + "\n").expect("write");
+    for method in ["rls-sgd", "kalman"] {
+        let out = dir.path().join(format!("{method}.csv"));
+        let o = run_estimate(&rec, &out, method);
+        assert!(o.status.success(), "{method}: {}", String::from_utf8_lossy(&o.stderr));
+        let rows = std::fs::read_to_string(&out).expect("output").lines().count() - 1;
+        assert_eq!(rows, kept, "{method}: a row out for each row in");
+    }
+}
+
+/// A model that gives no speed noise (a torque-only model without `[sensors]`) runs on the default σ_ω, and `estimate`
+/// says so: a reviewer's such model ran on 0.1 rad/s against a 0.8 rad/s tachometer without a word (T̂_L 17× worse).
+#[test]
+fn a_model_without_a_speed_noise_is_said() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec = dir.path().join("rec.csv");
+    std::fs::write(&rec, csv_of(&test_stand(3.0))).expect("write");
+    let text = std::fs::read_to_string(model_path()).expect("model");
+    let without: String = text.replace("speed_noise_rad_s = 0.8\n", "");
+    assert_ne!(without, text, "the model had a speed noise to take out");
+    let model = dir.path().join("no-noise.toml");
+    std::fs::write(&model, without).expect("write");
+    let run = |model: &Path, extra: &[&str]| {
+        Command::new(support::bin())
+            .arg("estimate")
+            .arg(&rec)
+            .arg("--model")
+            .arg(model)
+            .arg("--out")
+            .arg(dir.path().join("est.csv"))
+            .args(extra)
+            .output()
+            .expect("run hydrolens")
+    };
+    let said = |o: &Output| String::from_utf8_lossy(&o.stderr).contains("gives no speed noise");
+    let o = run(&model, &[]);
+    assert!(o.status.success() && said(&o), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("0.1 rad/s"));
+    let o = run(&model, &["--speed-noise", "0.8"]);
+    assert!(o.status.success() && !said(&o), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = run(&model_path(), &[]);
+    assert!(o.status.success() && !said(&o), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 /// `estimate` reads its recording once: from a pipe (standard input here; a FIFO and `<(…)` alike) it writes the same
 /// estimates as from the file, and a pipe whose clock is in the wrong unit is refused naming the time step. It read
 /// the recording twice (a look at its time step first): a small pipe hung on the second open, a larger one was
