@@ -28,6 +28,26 @@ fn minimal_config_gets_safe_defaults() {
     assert_eq!(d.registers, RegisterMap::default());
 }
 
+/// A speed target is held to one rule at load and over HTTP: at most what `max_hz` gives with no load (78.1 rad/s at
+/// 50 Hz on the reference plant). The config accepted up to 1.5× of it, targets `POST …/target` refused with 422, and
+/// printed 1e308 as a 309-digit number.
+#[test]
+fn a_speed_target_beyond_max_hz_is_refused_as_http_refuses_it() {
+    let speed = |target: &str| {
+        format!("{MINIMAL}[drives.control]\nmode = \"speed\"\nmax_hz = 50.0\ntarget_omega_rad_s = {target}\n")
+    };
+    let s = parse(&speed("78.0"), "t.toml", None).expect("within max_hz");
+    assert!((s.drives[0].max_target_omega_rad_s() - 78.1).abs() < 0.1, "{}", s.drives[0].max_target_omega_rad_s());
+    for target in ["79.0", "100.0", "1e308"] {
+        let e = err(&speed(target));
+        assert!(
+            e.contains("drives[0].control.target_omega_rad_s") && e.contains("0 ..= 78.1 (max_hz with no load)"),
+            "{e}"
+        );
+        assert!(e.len() < 200, "{e}");
+    }
+}
+
 #[test]
 fn errors_name_the_key() {
     assert!(err("[http]\nbnd = \"x\"\n").contains("bnd"));
