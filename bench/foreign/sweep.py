@@ -2,7 +2,7 @@
 four motor sizes, polls of 1–50 ms, 60–120 s, one of twelve load kinds, Coulomb and Stribeck friction, dead time,
 leakage, torque offset and motor slip at random, and a nominal model exact, 20 % off, ×2 or ×0.5. Each is simulated,
 estimated by rls-sgd and by the Kalman filter on the nominal model, and scored by score.py (one line a plant).
-Kept as the reviewer wrote it but for the paths; about 2 s a plant."""
+Kept as the reviewer wrote it but for the paths; about 1 s a plant."""
 import random, subprocess, sys, os
 here = os.path.dirname(os.path.abspath(__file__))
 BIN, OUT = os.path.abspath(sys.argv[1]), sys.argv[2]
