@@ -107,7 +107,7 @@ impl FrozenSpeed {
     }
 
     /// The verdict on one sample's whole process image, taken at `at`: frozen once it has repeated bit for bit for
-    /// [`FROZEN_IMAGE_S`] while the drive runs at [`NO_TURN_HZ`] or more ([`FROZEN_IMAGE_S`]).
+    /// [`FROZEN_IMAGE_S`] while the drive runs at [`NO_TURN_HZ`] or more (a resting sensor may hold one value).
     pub fn observe_image(&mut self, m: &Measured, at: std::time::Instant) -> Option<Rejected> {
         let bits = [m.omega_rad_s, m.p_in_bar, m.p_out_bar, m.f_drive_hz].map(f64::to_bits);
         let running = m.f_drive_hz.abs() >= NO_TURN_HZ;
