@@ -60,12 +60,6 @@ impl WindowPool {
         }
     }
 
-    /// Forgets every window, back to the prior: the RLS found its estimate contradicted by most recent windows and
-    /// starts again ([`super::windows`]), and these windows are the same contradicted evidence.
-    pub(super) fn clear(&mut self) {
-        *self = WindowPool::new(self.prior.0, self.prior.1, self.bounds, self.overlap);
-    }
-
     pub(super) fn add(&mut self, b: f64, var: f64, speed: f64) {
         if !(b.is_finite() && var.is_finite() && var > 0.0) {
             return;

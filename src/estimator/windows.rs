@@ -496,11 +496,6 @@ impl WindowRls {
             self.p = self.prior;
             self.recent = 0;
             self.recorded = 0;
-            // and so do the windows' pools, which hold the same evidence: a plant whose J tripled (a second mass
-            // coupled) kept the old J in the pooled J, so the new one never stood, and the nominal stood for the rest
-            // of the run (bench/foreign: T̂_L 1.02× the nominal model's, 0.88× with the pools restarted)
-            self.viscous.clear();
-            self.inertia.clear();
         }
     }
 
