@@ -5,7 +5,8 @@
 # identified and how many of them more than 15 % off, and J and B at 15, 30, 45, 60 s and the end (their ratio to the
 # truth, the identification code, `!` where identified with the truth outside 2 sd, `o` where outside 2 sd at all).
 # The simulated ones come from `hydrolens simulate`; the torque-driven ones (a load tied to the speed-ups, J changing
-# mid-run) from pysim.py, a plain-Python plant with a PI speed loop. About 3 minutes. docs/estimator.md, "Limits".
+# mid-run) from pysim.py, a plain-Python plant with a PI speed loop. About 30 s after the build. docs/estimator.md,
+# "Limits".
 set -eu
 out=${1:?usage: bench/foreign/run.sh DIR}
 here=$(cd "$(dirname "$0")" && pwd)
