@@ -91,16 +91,16 @@ impl WindowPool {
         self.depends_on_covariate(shown, ACCELERATION_J_SHARE)
     }
 
-    /// Whether the pool holds [`BOTH_WAYS_WINDOWS`] windows of each sign of its covariate that each know their value
-    /// to `share` of the pooled one (J: speed-ups and slow-downs, each of which alone knows J to 10 %). Until then a
-    /// load that moves with the acceleration cannot be told from inertia, since J has been seen one way only.
-    pub(super) fn seen_both_ways(&self, share: f64) -> bool {
+    /// Whether the pool holds `count` windows of each sign of its covariate that each know their value to `share` of
+    /// the pooled one (J: speed-ups and slow-downs). Until then a load that moves with the acceleration cannot be told
+    /// from inertia, since J has been seen one way only.
+    pub(super) fn seen_both_ways(&self, share: f64, count: usize) -> bool {
         let m = self.estimate.0;
         let informative = |sign: f64| {
             let windows = self.windows[..self.len].iter().zip(&self.speeds[..self.len]);
             windows.filter(|&(&(_, v), &c)| c * sign > 0.0 && v.sqrt() <= share * m.abs()).count()
         };
-        informative(1.0) >= BOTH_WAYS_WINDOWS && informative(-1.0) >= BOTH_WAYS_WINDOWS
+        informative(1.0) >= count && informative(-1.0) >= count
     }
 
     /// The slope of the windows' values on their covariate is `SPEED_SLOPE_Z` standard errors from zero
@@ -235,9 +235,6 @@ const SPEED_SLOPE_WINDOWS: usize = 5;
 /// acceleration (twice the 5 % to which J must be known to be identified).
 const ACCELERATION_J_SHARE: f64 = 0.1;
 
-/// Informative windows of each way before J counts as seen both ways: one slow-down among speed-ups cannot show
-/// that they differ.
-const BOTH_WAYS_WINDOWS: usize = 2;
 /// The share of the between-window scatter (measured about the line) added to each window's variance in the
 /// slope's weights: a quarter, as the test has weighed it since it came in.
 const SCATTER_SHARE: f64 = 0.25;
@@ -387,17 +384,17 @@ mod tests {
             (0..16).map(|i| (0.16 + 0.003 * pattern[i % 8], 0.003, if i % 2 == 0 { 1.0 } else { -1.0 })).collect();
         let one = pool(&inertia);
         assert!(!one.depends_on_direction(false) && !one.depends_on_direction(true));
-        assert!(one.seen_both_ways(0.1));
+        assert!(one.seen_both_ways(0.1, 2));
         let timed: Vec<(f64, f64, f64)> =
             inertia.iter().map(|&(j, sd, way)| (if way > 0.0 { 1.2 * j } else { j }, sd, way)).collect();
         assert!(pool(&timed).depends_on_direction(false));
         let ups: Vec<(f64, f64, f64)> = timed.iter().copied().filter(|w| w.2 > 0.0).collect();
-        assert!(!pool(&ups).seen_both_ways(0.1));
+        assert!(!pool(&ups).seen_both_ways(0.1, 2));
         let mut downs = ups.clone();
         downs.push((0.16, 0.003, -1.0));
-        assert!(!pool(&downs).seen_both_ways(0.1), "one slow-down");
+        assert!(!pool(&downs).seen_both_ways(0.1, 2), "one slow-down");
         downs.push((0.161, 0.003, -1.0));
-        assert!(pool(&downs).seen_both_ways(0.1), "two slow-downs");
+        assert!(pool(&downs).seen_both_ways(0.1, 2), "two slow-downs");
     }
 
     /// A speed dependence once shown is kept on weaker evidence (`SPEED_SLOPE_HOLD_Z`): the first ten windows of
