@@ -55,6 +55,19 @@ fn score(rec: &Recording, method: Method, j_factor: f64, b_factor: f64) -> Score
     }
 }
 
+/// Replays a recording through `method` on `model`.
+fn replayed(rec: &Recording, model: &PlantModel, method: Method) -> Vec<Estimate> {
+    let settings = EstimatorSettings { method, ..EstimatorSettings::default() };
+    let mut est = estimator::try_build(&settings, model).expect("settings");
+    hydrolens::replay::replay(rec, model, "model", est.as_mut()).expect("replay")
+}
+
+/// T̂_L's RMS error against the recording's truth, from `SCORE_FROM_S` on.
+fn load_rmse(rec: &Recording, e: &[Estimate]) -> f64 {
+    let l: Vec<f64> = e.iter().map(|x| x.load_hat_nm).collect();
+    scored_rmse(&l, rec.column("true_load_nm").expect("column"), rec.t_s())
+}
+
 fn assert_rls_targets(s: &Score, what: &str, j_tol: f64) {
     let j = s.last.inertia_hat_kg_m2 / 0.08 - 1.0;
     let b = s.last.viscous_hat_nm_s_rad / 0.04 - 1.0;
@@ -840,18 +853,43 @@ fn a_j_seen_one_way_only_does_not_stand_before_it_is_backed() {
     let mut model = truth.clone();
     model.load = LoadSpec::default();
     model.effects = Default::default();
-    let run = |method| {
-        let settings = EstimatorSettings { method, ..EstimatorSettings::default() };
-        let mut est = estimator::try_build(&settings, &model).expect("settings");
-        hydrolens::replay::replay(&rec, &model, "model", est.as_mut()).expect("replay")
-    };
-    let (rls, kalman) = (run(Method::RlsSgd), run(Method::Kalman));
-    let t = rec.t_s();
-    let truth_load = rec.column("true_load_nm").expect("column").to_vec();
-    let load = |e: &[Estimate]| scored_rmse(&e.iter().map(|x| x.load_hat_nm).collect::<Vec<_>>(), &truth_load, t);
+    let (rls, kalman) = (replayed(&rec, &model, Method::RlsSgd), replayed(&rec, &model, Method::Kalman));
+    let load = |e: &[Estimate]| load_rmse(&rec, e);
     let far = rls.iter().filter(|e| e.inertia_hat_kg_m2 > 1.3 * 0.08).count();
     eprintln!(
         "fan with Coulomb friction at 2 ms: T̂_L RMSE rls-sgd {:.3}, Kalman {:.3} N·m; rows with J above ×1.3: {far}",
+        load(&rls),
+        load(&kalman)
+    );
+    assert!(load(&rls) <= 1.02 * load(&kalman), "{} against {}", load(&rls), load(&kalman));
+}
+
+/// A trend load (2.1 N·m rising 0.26 N·m/s to 8 N·m) on a plant of five times the reference's B and a fifth of its
+/// J (J 0.0148, B 0.195, a 20 cm³ motor, max 80 Hz; a reviewer's random plant 265), polled at 20 ms and estimated on a
+/// model 7 % off in J and 1 % in B: the first windows' B came out 4 % above the nominal with an sd of 1.1 %, and it
+/// stood from 9 to 22 s (T̂_L 1.11× the Kalman filter's on the same model). Closer to the nominal than the windows'
+/// bias, B is no evidence against it.
+#[test]
+fn a_b_near_the_nominal_does_not_stand_on_its_sd_alone() {
+    let mut truth = PlantModel::reference();
+    truth.motor.displacement_cm3 = Some(20.0);
+    truth.motor.inertia_kg_m2 = 0.01476;
+    truth.motor.viscous_nm_s_rad = 0.19488;
+    truth.sensors.sample_ms = 20.0;
+    if let Some(d) = truth.drive.as_mut() {
+        d.max_hz = 80.0;
+    }
+    truth.load = LoadSpec::Trend { start_nm: 2.07, rate_nm_per_s: 0.259, max_nm: 7.96 };
+    let rec = simulated::test_stand(&truth, 60.0, 265, &mut |_| {}).expect("simulate");
+    let mut model = truth.clone();
+    model.load = LoadSpec::default();
+    model.motor.inertia_kg_m2 = 0.01579;
+    model.motor.viscous_nm_s_rad = 0.19333;
+    let (rls, kalman) = (replayed(&rec, &model, Method::RlsSgd), replayed(&rec, &model, Method::Kalman));
+    let load = |e: &[Estimate]| load_rmse(&rec, e);
+    let stood = rls.iter().filter(|e| (e.viscous_hat_nm_s_rad - 0.19333).abs() > 1e-9).count();
+    eprintln!(
+        "trend on a plant of B 0.195 at 20 ms: T̂_L RMSE rls-sgd {:.3}, Kalman {:.3} N·m; rows with an adapted B {stood}",
         load(&rls),
         load(&kalman)
     );
