@@ -121,9 +121,10 @@ const IDENTIFIED_HOLD_SD_FACTOR: f64 = 1.3;
 /// by about that much where their nuisance does not follow the load, before the periodic fit or the pool's scatter
 /// shows it ([`RlsSgd::backed`]).
 const VISCOUS_MATERIAL_SHARE: f64 = 0.1;
-/// J is identified only once this many speed-up and as many slow-down windows have each known it to this share on
-/// their own: one slow-down among speed-ups cannot show that they differ.
+/// J is identified only once `ONE_WAY_J_WINDOWS` speed-up and as many slow-down windows have each known it to this
+/// share on their own.
 const ONE_WAY_J_SD: f64 = 0.1;
+/// Windows of each way before J counts as seen both ways: one slow-down among speed-ups cannot show that they differ.
 const ONE_WAY_J_WINDOWS: usize = 2;
 /// A J the sign test has not backed stands away from the nominal only once a speed-up and a slow-down window have
 /// each known it to this share ([`RlsSgd::backed`]).
@@ -502,9 +503,10 @@ impl RlsSgd {
     /// `IDENTIFIED_HOLD_Z`); farther from it, without that backing, only once a speed-up and a slow-down window have
     /// each known it (`UNBACKED_J_WAY_SD`): seen one way only, it may carry a load that moves with the speed-ups
     /// (a fan with Coulomb friction on an exact model at 2 ms: J ×2 from the first speed-up stood 13 s, T̂_L 1.06× the
-    /// nominal model's, `estimator::a_j_seen_one_way_only_does_not_stand_before_it_is_backed`). B stands only where the data set it more than 2 sd from the nominal, whatever the sign
-    /// test says: a smooth random load biases every window's B alike, so the test backs such a B (fresh random 5004,
-    /// B ×1.07: B +28 % ± 16 % stood on it, T̂_L 1.11–1.13× the nominal model's at 2, 5 and 10 ms, 0.80–0.91× with the rule;
+    /// nominal model's, `estimator::a_j_seen_one_way_only_does_not_stand_before_it_is_backed`). B stands only where
+    /// the data set it more than 2 sd from the nominal, whatever the sign test says: a smooth random load biases every
+    /// window's B alike, so the test backs such a B (fresh random 5004, B ×1.07: B +28 % ± 16 % stood on it, T̂_L
+    /// 1.11–1.13× the nominal model's at 2, 5 and 10 ms, 0.80–0.91× with the rule;
     /// `estimator::a_b_within_two_sd_of_the_nominal_does_not_stand`); and only more than `VISCOUS_MATERIAL_SHARE`
     /// from it: a trend load biased the first windows' B of a plant of five times the reference's B, on a model 1 %
     /// off, by +4 % at 4 of its sd, and it stood 13 s (T̂_L 1.11× the nominal model's,
