@@ -41,9 +41,7 @@ fn score(rec: &Recording, method: Method, j_factor: f64, b_factor: f64) -> Score
     let mut model = PlantModel::reference();
     model.motor.inertia_kg_m2 *= j_factor;
     model.motor.viscous_nm_s_rad *= b_factor;
-    let settings = EstimatorSettings { method, ..EstimatorSettings::default() };
-    let mut est = estimator::try_build(&settings, &model).expect("settings");
-    let e = hydrolens::replay::replay(rec, &model, "model", est.as_mut()).expect("replay");
+    let e = replayed(rec, &model, method);
     let t = rec.t_s();
     let col = |n: &str| rec.column(n).expect("column").to_vec();
     let w: Vec<f64> = e.iter().map(|e| e.omega_hat_rad_s).collect();
@@ -920,9 +918,7 @@ fn the_nominal_standing_keeps_the_reason_that_says_most() {
     let rec = simulated::test_stand(&truth, 60.0, 1, &mut |_| {}).expect("simulate");
     let mut model = truth.clone();
     model.load = LoadSpec::default();
-    let settings = EstimatorSettings { method: Method::RlsSgd, ..EstimatorSettings::default() };
-    let mut est = estimator::try_build(&settings, &model).expect("settings");
-    let e = hydrolens::replay::replay(&rec, &model, "model", est.as_mut()).expect("replay");
+    let e = replayed(&rec, &model, Method::RlsSgd);
     let last = e.last().expect("rows");
     let moves = Identification::LoadMovesWithAcceleration.code();
     let rows = |code: f64| e.iter().filter(|x| x.inertia_identified == code).count();
@@ -951,9 +947,7 @@ fn a_load_timed_with_the_speed_ups_is_not_taken_for_inertia() {
     let inputs = Inputs { setpoint_hz: &excitation::setpoint_hz, load_nm: &load };
     let rec = simulated::run(&truth, 90.0, 2, &inputs, &mut |_| {}).expect("simulate");
     let model = PlantModel::reference();
-    let settings = EstimatorSettings { method: Method::RlsSgd, ..EstimatorSettings::default() };
-    let mut est = estimator::try_build(&settings, &model).expect("settings");
-    let e = hydrolens::replay::replay(&rec, &model, "model", est.as_mut()).expect("replay");
+    let e = replayed(&rec, &model, Method::RlsSgd);
     let identified = Identification::Identified.code();
     let claimed: Vec<&Estimate> = e.iter().filter(|e| e.inertia_identified == identified).collect();
     let wrong = claimed.iter().filter(|e| (e.inertia_hat_kg_m2 - 0.16).abs() > 2.0 * e.inertia_sd_kg_m2).count();
