@@ -14,6 +14,19 @@ async fn ready_within(stack: &Stack, limit: Duration) -> Option<Duration> {
     wait_for(limit, || async { stack.readyz().await == 200 }).await
 }
 
+/// A stack regulating the speed to `target` rad/s (at most 50 Hz, ramped 20 Hz/s; a 5 N·m load, 10 ms polls),
+/// once the shaft runs within `within` rad/s of it.
+async fn settled_in_speed_mode(target: f64, within: f64) -> Stack {
+    let speed = format!(
+        "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = {target:?}\nmax_hz = 50.0\nramp_hz_per_s = 20.0\n"
+    );
+    let stack = Stack::start(5.0, 10, &speed).await;
+    wait_for(Duration::from_secs(10), || async { (stack.sim.lock().truth().omega_rad_s - target).abs() < within })
+        .await
+        .expect("settles at the target");
+    stack
+}
+
 fn set(stack: &Stack, f: impl FnOnce(&mut Faults)) {
     f(&mut stack.sim.lock().faults);
 }
@@ -205,12 +218,7 @@ async fn a_restarted_server_is_reconnected_within_a_second() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_drive_in_local_mode_raises_an_alarm_and_no_overspeed_follows() {
     let run = async {
-        let speed =
-            "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 40.0\nmax_hz = 50.0\nramp_hz_per_s = 20.0\n";
-        let stack = Stack::start(5.0, 10, speed).await;
-        wait_for(Duration::from_secs(10), || async { (stack.sim.lock().truth().omega_rad_s - 40.0).abs() < 2.0 })
-            .await
-            .expect("settles at the target");
+        let stack = settled_in_speed_mode(40.0, 2.0).await;
         set(&stack, |f| f.local_hz = Some(10.0));
         wait_for(Duration::from_secs(15), || async { stack.status().await["status"]["not_following"] == true })
             .await
@@ -253,12 +261,7 @@ async fn a_drive_in_local_mode_raises_an_alarm_and_no_overspeed_follows() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_drive_run_faster_in_local_mode_is_not_chased_down() {
     let run = async {
-        let speed =
-            "[drives.control]\nmode = \"speed\"\ntarget_omega_rad_s = 30.0\nmax_hz = 50.0\nramp_hz_per_s = 20.0\n";
-        let stack = Stack::start(5.0, 10, speed).await;
-        wait_for(Duration::from_secs(10), || async { (stack.sim.lock().truth().omega_rad_s - 30.0).abs() < 1.0 })
-            .await
-            .expect("settles at the target");
+        let stack = settled_in_speed_mode(30.0, 1.0).await;
         stack.wait_polls(100, "settled").await;
         let before = stack.sim.lock().truth().f_set_hz;
         set(&stack, |f| f.local_hz = Some(40.0));
