@@ -17,11 +17,16 @@ fn model_path() -> PathBuf {
 }
 
 fn run_estimate(rec: &Path, out: &Path, method: &str) -> Output {
+    estimate_with(rec, &model_path(), out, &["--method", method])
+}
+
+/// `hydrolens estimate REC --model MODEL --out OUT` with `extra` arguments.
+fn estimate_with(rec: &Path, model: &Path, out: &Path, extra: &[&str]) -> Output {
     Command::new(support::bin())
         .arg("estimate")
         .arg(rec)
-        .args(["--model".as_ref(), model_path().as_os_str(), "--out".as_ref(), out.as_os_str()])
-        .args(["--method", method])
+        .args(["--model".as_ref(), model.as_os_str(), "--out".as_ref(), out.as_os_str()])
+        .args(extra)
         .output()
         .expect("run hydrolens")
 }
@@ -363,18 +368,7 @@ fn a_model_without_a_speed_noise_is_said() {
     assert_ne!(without, text, "the model had a speed noise to take out");
     let model = dir.path().join("no-noise.toml");
     std::fs::write(&model, without).expect("write");
-    let run = |model: &Path, extra: &[&str]| {
-        Command::new(support::bin())
-            .arg("estimate")
-            .arg(&rec)
-            .arg("--model")
-            .arg(model)
-            .arg("--out")
-            .arg(dir.path().join("est.csv"))
-            .args(extra)
-            .output()
-            .expect("run hydrolens")
-    };
+    let run = |model: &Path, extra: &[&str]| estimate_with(&rec, model, &dir.path().join("est.csv"), extra);
     let said = |o: &Output| String::from_utf8_lossy(&o.stderr).contains("gives no speed noise");
     let o = run(&model, &[]);
     assert!(o.status.success() && said(&o), "{}", String::from_utf8_lossy(&o.stderr));
