@@ -18,7 +18,8 @@
 //!   current J (the regression uses measured speed, not ω̂). Guards: a window whose load does not fit the nuisance
 //!   (two steps, a fast sine) is rejected; a window that disagrees with θ beyond both uncertainties is rejected,
 //!   and when most informative windows are rejected θ is wrong, so P is widened back to the prior and J, B
-//!   re-learn. J and B forget only along what a window excites (no wind-up); P stays symmetric positive definite
+//!   re-learn; where the newest windows agree on a J far from the older ones' (`pool::WindowPool::changed`), the
+//!   plant changed, and the RLS starts again from their J. J and B forget only along what a window excites (no wind-up); P stays symmetric positive definite
 //!   and never wider than the prior; θ is projected into the physical bounds, and a clamped parameter gets its
 //!   prior uncertainty back (never silently at a bound). P is the parameter covariance (residuals are weighed by
 //!   the speed noise), so `inertia_sd_kg_m2` is a standard deviation.
@@ -259,6 +260,11 @@ impl RlsSgd {
                 let (_, score) = self.rls.learn(&mut self.windows[i], i, self.s.speed_noise_rad_s, hypotheses);
                 if let Some((n, a, noise)) = score {
                     self.validation.score(n, a, noise);
+                }
+                if self.rls.take_change() {
+                    // a new plant: the old one's wins and the estimate's moves to it are no evidence now
+                    self.drift = Drift::default();
+                    self.validation = Validation::default();
                 }
                 changed = true;
                 learnt = true;

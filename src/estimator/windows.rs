@@ -6,7 +6,7 @@
 use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
 
 use super::covariance::condition;
-use super::pool::{HUBER_Z, OVERLAP, WindowPool};
+use super::pool::{CHANGE_WINDOWS, HUBER_Z, OVERLAP, WindowPool};
 use super::settings::Resolved;
 
 /// Informative windows remembered for the consistency check, and how many of them rejected mean "wrong".
@@ -247,6 +247,8 @@ pub(crate) struct WindowRls {
     /// J from the same windows, pooled as B is, rejected windows included: the RLS leaves out the windows that
     /// contradict it, so its own covariance is surer than the windows are (guard: `RlsSgd::credible`).
     pub inertia: WindowPool,
+    /// Whether the plant changed at the last window ([`WindowRls::restart_at`]), until `rls_sgd.rs` takes it.
+    changed: bool,
     s: Resolved,
 }
 
@@ -278,6 +280,7 @@ impl WindowRls {
                 1.0,
             ),
             inertia: WindowPool::new(j, (s.inertia_prior_sd * j).powi(2), s.inertia_bounds_kg_m2, OVERLAP),
+            changed: false,
             s,
         }
     }
@@ -433,7 +436,33 @@ impl WindowRls {
                 _ => 0.0,
             };
             self.inertia.add(self.j0 / t0, gj.dot(&(c * gj)), direction);
+            if let Some((j, var)) = self.inertia.changed() {
+                self.restart_at(j, var);
+            }
         }
+    }
+
+    /// The plant changed ([`WindowPool::changed`]): the older windows are another plant's. The J pool keeps the
+    /// newest windows only, and the RLS starts again from their J, as sure of it as they are (B where it was, with
+    /// its prior's uncertainty). Without it, after J tripled (a reviewer's coupled mass) the old J stayed identified
+    /// 12.8 s, until five of eight windows were rejected, and the new one was never identified: the pool's 40 windows
+    /// of the old plant kept the old J the credible one (`estimator::a_plant_whose_inertia_changes_is_followed`).
+    fn restart_at(&mut self, j: f64, var: f64) {
+        self.inertia.keep_newest(CHANGE_WINDOWS);
+        let b = self.theta[1] * self.b0 / self.theta[0];
+        self.theta = self.project(self.theta_of(j, b));
+        let g = self.j0 / (j * j);
+        self.p = self.prior;
+        self.p[(0, 0)] = (g * g * var).min(self.prior[(0, 0)]);
+        self.recent = 0;
+        self.recorded = 0;
+        self.changed = true;
+    }
+
+    /// Whether the plant changed since the last call: what the older windows backed (the sign test, the drift) is
+    /// then forgotten too.
+    pub(super) fn take_change(&mut self) -> bool {
+        std::mem::take(&mut self.changed)
     }
 
     /// Adds a window's estimate `x` of θ with information `info` (inverse covariance), robustly.
