@@ -2,7 +2,7 @@
 # Each mechanism of rls-sgd off in turn (docs/estimator.md, "Each mechanism, off in turn"): applies ablate.patch (one
 # switch per mechanism, read from HL_ABLATE) to a copy of HEAD's tree, builds the battery there, runs the twelve seed
 # sets of the six and the new families with each mechanism off, and prints the table. The service's code has no such
-# switches. About 17 minutes on two cores (a cold release build, then 35–50 s a row).
+# switches. About 30 minutes on two cores (a cold release build, then about 50 s a row).
 #   bash bench/ablation/run.sh OUT_DIR [MECHANISM...]    (default: every mechanism of the patch)
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
