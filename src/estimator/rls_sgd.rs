@@ -19,10 +19,10 @@
 //!   (two steps, a fast sine) is rejected; a window that disagrees with θ beyond both uncertainties is rejected,
 //!   and when most informative windows are rejected θ is wrong, so P is widened back to the prior and J, B
 //!   re-learn; where the newest windows agree on a J far from the older ones' (`pool::WindowPool::changed`), the
-//!   plant changed, and the RLS starts again from their J. J and B forget only along what a window excites (no wind-up); P stays symmetric positive definite
-//!   and never wider than the prior; θ is projected into the physical bounds, and a clamped parameter gets its
-//!   prior uncertainty back (never silently at a bound). P is the parameter covariance (residuals are weighed by
-//!   the speed noise), so `inertia_sd_kg_m2` is a standard deviation.
+//!   plant changed, and the RLS starts again from their J. J and B forget only along what a window excites (no
+//!   wind-up); P stays symmetric positive definite and never wider than the prior; θ is projected into the
+//!   physical bounds, and a clamped parameter gets its prior uncertainty back (never silently at a bound). P is the
+//!   parameter covariance (residuals are weighed by the speed noise), so `inertia_sd_kg_m2` is a standard deviation.
 //! - B (reported, and used by the load tracker) is the same windows' B pooled as a random-effects mean
 //!   (`pool::WindowPool`): under a smooth load the windows' B scatter far beyond what each claims, and the pool's
 //!   `viscous_sd_nm_s_rad` says so instead of trusting whichever windows came first.
@@ -118,6 +118,7 @@ const VISCOUS_IDENTIFIED_SD: f64 = 0.25;
 /// `IDENTIFIED_HOLD_Z`. Without it the state flaps within a second of first being reached, as z and the credible
 /// standard deviation wander about their thresholds (docs/estimator.md, "J / B fell back").
 const IDENTIFIED_HOLD_SD_FACTOR: f64 = 1.3;
+const IDENTIFIED_HOLD_Z: f64 = 0.0;
 /// A B closer to the nominal than this share of it is no evidence against it, whatever its sd: the windows' B is off
 /// by about that much where their nuisance does not follow the load, before the periodic fit or the pool's scatter
 /// shows it ([`RlsSgd::backed`]).
@@ -130,7 +131,6 @@ const ONE_WAY_J_WINDOWS: usize = 2;
 /// A J the sign test has not backed stands away from the nominal only once a speed-up and a slow-down window have
 /// each known it to this share ([`RlsSgd::backed`]).
 const UNBACKED_J_WAY_SD: f64 = 0.3;
-const IDENTIFIED_HOLD_Z: f64 = 0.0;
 /// B stands before it is known to its limit where the data put the nominal B this many of its standard deviations
 /// away, the windows say the adapted values predict better (the sign test at `IDENTIFIED_Z`) and their B shows no
 /// hint of a speed dependence: a B of ±30 % is still nearer the truth than a nominal 6 sd off it (reserve seed 19004,
