@@ -862,6 +862,41 @@ fn a_j_seen_one_way_only_does_not_stand_before_it_is_backed() {
     assert!(load(&rls) <= 1.02 * load(&kalman), "{} against {}", load(&rls), load(&kalman));
 }
 
+/// A fan (57 N·m at 60 rad/s) with Coulomb friction (2.9 N·m) on a large motor (J 0.284, B 0.183; a reviewer's
+/// plant), estimated at 1 ms on the exact model without the Coulomb friction: the windows that moved the speed were
+/// few (10 in 40 s) and their B's slope on the speed 0.8 standard errors up (odds 1.3: they could not tell a fan from
+/// friction), while the load tracked with their B followed the speed from 10 s on. B ×2.8 stood from 41 to 52 s
+/// (9 000 rows above ×1.5), T̂_L 2.5× the Kalman filter's on the same model over the 60 s. Where the windows' odds
+/// cannot tell, the load's character decides (docs/estimator.md, "What stands"): now 1.08×, B never above ×1.5.
+#[test]
+fn a_b_yields_where_the_load_it_leaves_still_follows_the_speed() {
+    let plant = "[drive]\npole_pairs = 2\nramp_hz_per_s = 25.0\ntime_constant_s = 0.02\nmax_hz = 80.0\n\
+                 [pump]\ndisplacement_cm3 = 40.0\n\
+                 [motor]\ndisplacement_cm3 = 50.0\ninertia_kg_m2 = 0.28404\nviscous_nm_s_rad = 0.18283\n\
+                 [hydraulics]\nvolume_l = 0.3\nbulk_modulus_bar = 15000.0\nback_pressure_bar = 3.0\n\
+                 leakage_l_min_per_bar = 0.02\n\
+                 [sensors]\npressure_noise_bar = 0.3\nspeed_noise_rad_s = 0.8\nload_noise_nm = 0.2\nsample_ms = 1.0\n\
+                 [load]\nkind = \"centrifugal\"\ntorque_nm = 57.02\nat_rad_s = 60.0\n\
+                 [effects.coulomb_friction]\ntorque_nm = 2.90\n";
+    let truth = PlantModel::parse(plant, "a fan with Coulomb friction").expect("plant");
+    let rec = simulated::test_stand(&truth, 60.0, 9103, &mut |_| {}).expect("simulate");
+    let mut model = truth.clone();
+    model.load = LoadSpec::default();
+    model.effects = Default::default();
+    let (rls, kalman) = (replayed(&rec, &model, Method::RlsSgd), replayed(&rec, &model, Method::Kalman));
+    let load = |e: &[Estimate]| load_rmse(&rec, e);
+    let stood = rls.iter().filter(|e| e.viscous_hat_nm_s_rad > 1.5 * 0.18283).count();
+    eprintln!(
+        "fan with Coulomb friction at 1 ms: T̂_L RMSE rls-sgd {:.3}, Kalman {:.3} N·m; rows with B above ×1.5: {stood}",
+        load(&rls),
+        load(&kalman)
+    );
+    assert_eq!(stood, 0, "B above ×1.5 of the truth stood");
+    // the rest is J's: +6 %, identified, the part of the fan and the Coulomb steps the windows' nuisance does not
+    // follow (docs/estimator.md, "Limits")
+    assert!(load(&rls) <= 1.1 * load(&kalman), "{} against {}", load(&rls), load(&kalman));
+}
+
 /// A trend load (2.1 N·m rising 0.26 N·m/s to 8 N·m) on a plant of five times the reference's B and a fifth of its
 /// J (J 0.0148, B 0.195, a 20 cm³ motor, max 80 Hz; a reviewer's random plant 265), polled at 20 ms and estimated on a
 /// model 7 % off in J and 1 % in B: the first windows' B came out 4 % above the nominal with an sd of 1.1 %, and it
