@@ -38,15 +38,35 @@ pub(super) fn fit_baseline(
     let base_model = if s.family == Family::Flow {
         start.clone()
     } else {
-        search::fit_mechanics(start, s, nominal_terms).ok_or_else(|| {
+        fit_nominal_mechanics(start, s, nominal_terms, &[(0, s.split)]).ok_or_else(|| {
             BadInput(format!(
-                "recording {}: inertia and viscous friction cannot be fitted: the speed hardly changes on the \
-                 fitting segment (it needs accelerations and several speeds)",
+                "recording {}: inertia and viscous friction cannot be fitted on the fitting segment: the data do not \
+                 determine them or give them unphysical (it needs accelerations and several speeds)",
                 source
             ))
         })?
     };
     Scored::evaluate(base_model, nominal_terms, s)
+}
+
+/// J, B and the nominal model's own dry friction fitted on `ranges`. A Coulomb friction the nominal model has but
+/// the recording does not comes out of least squares a little below zero, which is no friction: its optimum within
+/// the bound is on it, the fit without the term, and the model keeps the term at 0 N·m (a reviewer's model with
+/// `[effects.coulomb_friction] torque_nm = 0` on a recording without it was refused as a speed that hardly changes).
+fn fit_nominal_mechanics(
+    start: &PlantModel,
+    s: &Series,
+    terms: MechTerms,
+    ranges: &[(usize, usize)],
+) -> Option<PlantModel> {
+    search::fit_mechanics_on(start, s, terms, ranges).or_else(|| {
+        if !terms.coulomb || terms.stribeck {
+            return None;
+        }
+        let mut m = search::fit_mechanics_on(start, s, MechTerms { coulomb: false, ..terms }, ranges)?;
+        m.effects.coulomb_friction = Some(crate::plant::effects::CoulombFriction { torque_nm: 0.0 });
+        Some(m)
+    })
 }
 
 /// The greedy forward selection over the catalogue: the model so far and its fold models, what was kept and why,
@@ -102,7 +122,7 @@ impl<'a> Selection<'a> {
                 if family == Family::Flow {
                     Some((start.clone(), nominal_terms))
                 } else {
-                    search::fit_mechanics_on(start, s, nominal_terms, &r.ls).map(|m| (m, nominal_terms))
+                    fit_nominal_mechanics(start, s, nominal_terms, &r.ls).map(|m| (m, nominal_terms))
                 }
             })
             .collect();
