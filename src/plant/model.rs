@@ -115,6 +115,13 @@ pub const MIN_SAMPLE_MS: f64 = 0.1;
 pub const MAX_SAMPLE_MS: f64 = 1000.0;
 /// The longest watchdog timeout of the simulated drive.
 pub const MAX_COMM_TIMEOUT_MS: u64 = 3_600_000;
+/// Upper bounds beyond any plant (a helper's black-box run took `inertia_kg_m2 = 1e308` and
+/// `speed_noise_rad_s = 1e308`: `estimate` wrote J 1e308 on every row, `simulate` speeds of ±1e308 that its own
+/// `estimate` then refused): the inertia of a ship's shaft line is about 1e5 kg·m², a tachometer's noise a few rad/s.
+pub const MAX_INERTIA_KG_M2: f64 = 1e6;
+pub const MAX_SPEED_NOISE_RAD_S: f64 = 1e3;
+pub const MAX_PRESSURE_NOISE_BAR: f64 = 1e3;
+pub const MAX_LOAD_NOISE_NM: f64 = 1e6;
 
 /// The parts a pressure-driven simulation needs, borrowed from a model that has them all.
 #[derive(Debug, Clone, Copy)]
@@ -235,7 +242,11 @@ impl PlantModel {
         if let Some(d) = self.motor.displacement_cm3 {
             positive("motor.displacement_cm3", d)?;
         }
+        fn at_most(key: &str, v: f64, max: f64) -> Result<(), KeyError> {
+            if v <= max { Ok(()) } else { Err(KeyError::new(key.into(), format!("must be ≤ {max:e}, got {v:e}"))) }
+        }
         positive("motor.inertia_kg_m2", self.motor.inertia_kg_m2)?;
+        at_most("motor.inertia_kg_m2", self.motor.inertia_kg_m2, MAX_INERTIA_KG_M2)?;
         nonneg("motor.viscous_nm_s_rad", self.motor.viscous_nm_s_rad)?;
         if let Some(h) = &self.hydraulics {
             positive("hydraulics.volume_l", h.volume_l)?;
@@ -246,6 +257,9 @@ impl PlantModel {
         nonneg("sensors.pressure_noise_bar", self.sensors.pressure_noise_bar)?;
         nonneg("sensors.speed_noise_rad_s", self.sensors.speed_noise_rad_s)?;
         nonneg("sensors.load_noise_nm", self.sensors.load_noise_nm)?;
+        at_most("sensors.pressure_noise_bar", self.sensors.pressure_noise_bar, MAX_PRESSURE_NOISE_BAR)?;
+        at_most("sensors.speed_noise_rad_s", self.sensors.speed_noise_rad_s, MAX_SPEED_NOISE_RAD_S)?;
+        at_most("sensors.load_noise_nm", self.sensors.load_noise_nm, MAX_LOAD_NOISE_NM)?;
         let ms = self.sensors.sample_ms;
         if !(ms.is_finite() && (MIN_SAMPLE_MS..=MAX_SAMPLE_MS).contains(&ms)) {
             return Err(KeyError::new(
@@ -287,6 +301,22 @@ mod tests {
         assert!(m.hydraulic().is_ok());
         let again = PlantModel::parse(&m.to_toml(), "round trip").expect("own output parses");
         assert_eq!(again, m);
+    }
+
+    #[test]
+    fn a_model_beyond_any_plant_is_refused_naming_the_key() {
+        let refused = |edit: &dyn Fn(&mut PlantModel)| {
+            let mut m = PlantModel::reference();
+            edit(&mut m);
+            m.validate().expect_err("refused").key
+        };
+        assert_eq!(refused(&|m| m.motor.inertia_kg_m2 = 1e308), "motor.inertia_kg_m2");
+        assert_eq!(refused(&|m| m.sensors.speed_noise_rad_s = 1e308), "sensors.speed_noise_rad_s");
+        assert_eq!(refused(&|m| m.sensors.pressure_noise_bar = 1e308), "sensors.pressure_noise_bar");
+        assert_eq!(refused(&|m| m.sensors.load_noise_nm = 1e308), "sensors.load_noise_nm");
+        let mut big = PlantModel::reference();
+        (big.motor.inertia_kg_m2, big.sensors.speed_noise_rad_s) = (MAX_INERTIA_KG_M2, MAX_SPEED_NOISE_RAD_S);
+        big.validate().expect("at the bounds");
     }
 
     const WORN: &str =
