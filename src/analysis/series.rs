@@ -327,6 +327,16 @@ impl Speed {
         } else if let Some(theta) = cols.col("theta_rad") {
             let cutoff = POSITION_CUTOFF_HZ.min(0.2 * sample_hz);
             let w = derivative(&filtfilt_butter4(&theta, cutoff, sample_hz), t_s);
+            // a position that jumps (an encoder reset, a corrupt run of cells) is a speed no plant has: refused here,
+            // naming the column, rather than by the model's free run, which blamed the model file
+            let (max_speed, _) = crate::plant::simulate::PHYSICAL_LIMITS;
+            if let Some(k) = w.iter().position(|v| !v.is_finite() || v.abs() > max_speed) {
+                return Err(BadInput(format!(
+                    "recording {}: column `theta_rad` jumps near t = {:.3} s: the speed it gives there, {:.2e} rad/s, is \
+                     beyond any plant; take the jump out (an encoder reset?) or cut the recording there",
+                    cols.src, t_s[k], w[k]
+                )));
+            }
             (w.clone(), w, cutoff, "theta_rad")
         } else {
             return Err(BadInput(format!(

@@ -597,4 +597,14 @@ fn a_corrupt_position_a_long_pause_and_a_stretched_clock_are_handled_or_refused(
     let (code, err, _) = emps_edited(|_, r| r[0] *= 1e6);
     assert_eq!(code, Some(2), "{err}");
     assert!(err.contains("r.csv") && err.contains("t_s") && err.contains("unit"), "{err}");
+    // θ jumping by 10⁶ rad from row 10 000 on (an encoder reset): refused naming the recording, the column and when
+    // (a helper's black-box run: the model's free run left any physical range, blaming the model file)
+    let (code, err, _) = emps_edited(|k, r| {
+        if k >= 10_000 {
+            r[1] += 1e6;
+        }
+    });
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("r.csv") && err.contains("theta_rad") && err.contains("jumps near t = "), "{err}");
+    assert!(!err.contains("model file"), "{err}");
 }
