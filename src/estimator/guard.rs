@@ -405,10 +405,13 @@ impl Character {
         let speed: Vec<[f64; 3]> = b.iter().map(|x| [1.0, x.omega, x.omega * x.omega.abs()]).collect();
         let (r2, explained_sd) = explained(&tracked, &speed);
         self.follows_speed = r2 >= FOLLOWS_SPEED_R2 && explained_sd >= FOLLOWS_SPEED_NM;
-        let changes: Vec<f64> = tracked.windows(2).map(|p| p[1] - p[0]).collect();
-        let speed_changes: Vec<[f64; 3]> =
-            speed.windows(2).map(|p| [1.0, p[1][1] - p[0][1], p[1][2] - p[0][2]]).collect();
-        self.changes_follow_speed = explained(&changes, &speed_changes).0 >= CHANGES_FOLLOW_SPEED_R2;
+        // only where the levels follow the speed: the changes are asked nothing else
+        self.changes_follow_speed = self.follows_speed && {
+            let changes: Vec<f64> = tracked.windows(2).map(|p| p[1] - p[0]).collect();
+            let speed_changes: Vec<[f64; 3]> =
+                speed.windows(2).map(|p| [1.0, p[1][1] - p[0][1], p[1][2] - p[0][2]]).collect();
+            explained(&changes, &speed_changes).0 >= CHANGES_FOLLOW_SPEED_R2
+        };
         let load: Vec<f64> = b.iter().map(|x| x.load).collect();
         let mean = load.iter().sum::<f64>() / load.len() as f64;
         let sd = (load.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / load.len() as f64).sqrt();
