@@ -66,6 +66,25 @@ fn load_rmse(rec: &Recording, e: &[Estimate]) -> f64 {
     scored_rmse(&l, rec.column("true_load_nm").expect("column"), rec.t_s())
 }
 
+/// A test-stand run of `truth` (`seconds` from `seed`) replayed through rls-sgd and the Kalman filter on `model`:
+/// rls-sgd's estimates, and the T̂_L RMSE of each.
+fn against_the_kalman_filter(
+    truth: &PlantModel,
+    model: &PlantModel,
+    seconds: f64,
+    seed: u64,
+) -> (Vec<Estimate>, f64, f64) {
+    let rec = simulated::test_stand(truth, seconds, seed, &mut |_| {}).expect("simulate");
+    let (rls, kalman) = (replayed(&rec, model, Method::RlsSgd), replayed(&rec, model, Method::Kalman));
+    let (l_rls, l_kalman) = (load_rmse(&rec, &rls), load_rmse(&rec, &kalman));
+    (rls, l_rls, l_kalman)
+}
+
+/// `truth` as its nominal model: its J and B, without its load and effects.
+fn exact_mechanics(truth: &PlantModel) -> PlantModel {
+    PlantModel { load: LoadSpec::default(), effects: Default::default(), ..truth.clone() }
+}
+
 fn assert_rls_targets(s: &Score, what: &str, j_tol: f64) {
     let j = s.last.inertia_hat_kg_m2 / 0.08 - 1.0;
     let b = s.last.viscous_hat_nm_s_rad / 0.04 - 1.0;
@@ -847,19 +866,13 @@ fn a_j_seen_one_way_only_does_not_stand_before_it_is_backed() {
     }
     truth.load = LoadSpec::Speed { constant_nm: 3.88, linear_nm_s_rad: 0.0, quadratic_nm_s2_rad2: 0.00394 };
     truth.effects.coulomb_friction = Some(hydrolens::plant::effects::CoulombFriction { torque_nm: 1.87 });
-    let rec = simulated::test_stand(&truth, 60.0, 167, &mut |_| {}).expect("simulate");
-    let mut model = truth.clone();
-    model.load = LoadSpec::default();
-    model.effects = Default::default();
-    let (rls, kalman) = (replayed(&rec, &model, Method::RlsSgd), replayed(&rec, &model, Method::Kalman));
-    let load = |e: &[Estimate]| load_rmse(&rec, e);
+    let (rls, l_rls, l_kalman) = against_the_kalman_filter(&truth, &exact_mechanics(&truth), 60.0, 167);
     let far = rls.iter().filter(|e| e.inertia_hat_kg_m2 > 1.3 * 0.08).count();
     eprintln!(
-        "fan with Coulomb friction at 2 ms: T̂_L RMSE rls-sgd {:.3}, Kalman {:.3} N·m; rows with J above ×1.3: {far}",
-        load(&rls),
-        load(&kalman)
+        "fan with Coulomb friction at 2 ms: T̂_L RMSE rls-sgd {l_rls:.3}, Kalman {l_kalman:.3} N·m; rows with J above \
+         ×1.3: {far}"
     );
-    assert!(load(&rls) <= 1.02 * load(&kalman), "{} against {}", load(&rls), load(&kalman));
+    assert!(l_rls <= 1.02 * l_kalman, "{l_rls} against {l_kalman}");
 }
 
 /// A fan (57 N·m at 60 rad/s) with Coulomb friction (2.9 N·m) on a large motor (J 0.284, B 0.183; a reviewer's
@@ -879,22 +892,16 @@ fn a_b_yields_where_the_load_it_leaves_still_follows_the_speed() {
                  [load]\nkind = \"centrifugal\"\ntorque_nm = 57.02\nat_rad_s = 60.0\n\
                  [effects.coulomb_friction]\ntorque_nm = 2.90\n";
     let truth = PlantModel::parse(plant, "a fan with Coulomb friction").expect("plant");
-    let rec = simulated::test_stand(&truth, 60.0, 9103, &mut |_| {}).expect("simulate");
-    let mut model = truth.clone();
-    model.load = LoadSpec::default();
-    model.effects = Default::default();
-    let (rls, kalman) = (replayed(&rec, &model, Method::RlsSgd), replayed(&rec, &model, Method::Kalman));
-    let load = |e: &[Estimate]| load_rmse(&rec, e);
+    let (rls, l_rls, l_kalman) = against_the_kalman_filter(&truth, &exact_mechanics(&truth), 60.0, 9103);
     let stood = rls.iter().filter(|e| e.viscous_hat_nm_s_rad > 1.5 * 0.18283).count();
     eprintln!(
-        "fan with Coulomb friction at 1 ms: T̂_L RMSE rls-sgd {:.3}, Kalman {:.3} N·m; rows with B above ×1.5: {stood}",
-        load(&rls),
-        load(&kalman)
+        "fan with Coulomb friction at 1 ms: T̂_L RMSE rls-sgd {l_rls:.3}, Kalman {l_kalman:.3} N·m; rows with B above \
+         ×1.5: {stood}"
     );
     assert_eq!(stood, 0, "B above ×1.5 of the truth stood");
     // the rest is J's: +6 %, identified, the part of the fan and the Coulomb steps the windows' nuisance does not
     // follow (docs/estimator.md, "Limits")
-    assert!(load(&rls) <= 1.1 * load(&kalman), "{} against {}", load(&rls), load(&kalman));
+    assert!(l_rls <= 1.1 * l_kalman, "{l_rls} against {l_kalman}");
 }
 
 /// A trend load (2.1 N·m rising 0.26 N·m/s to 8 N·m) on a plant of five times the reference's B and a fifth of its
@@ -913,20 +920,16 @@ fn a_b_near_the_nominal_does_not_stand_on_its_sd_alone() {
         d.max_hz = 80.0;
     }
     truth.load = LoadSpec::Trend { start_nm: 2.07, rate_nm_per_s: 0.259, max_nm: 7.96 };
-    let rec = simulated::test_stand(&truth, 60.0, 265, &mut |_| {}).expect("simulate");
-    let mut model = truth.clone();
-    model.load = LoadSpec::default();
+    let mut model = exact_mechanics(&truth);
     model.motor.inertia_kg_m2 = 0.01579;
     model.motor.viscous_nm_s_rad = 0.19333;
-    let (rls, kalman) = (replayed(&rec, &model, Method::RlsSgd), replayed(&rec, &model, Method::Kalman));
-    let load = |e: &[Estimate]| load_rmse(&rec, e);
+    let (rls, l_rls, l_kalman) = against_the_kalman_filter(&truth, &model, 60.0, 265);
     let stood = rls.iter().filter(|e| (e.viscous_hat_nm_s_rad - 0.19333).abs() > 1e-9).count();
     eprintln!(
-        "trend on a plant of B 0.195 at 20 ms: T̂_L RMSE rls-sgd {:.3}, Kalman {:.3} N·m; rows with an adapted B {stood}",
-        load(&rls),
-        load(&kalman)
+        "trend on a plant of B 0.195 at 20 ms: T̂_L RMSE rls-sgd {l_rls:.3}, Kalman {l_kalman:.3} N·m; rows with an \
+         adapted B {stood}"
     );
-    assert!(load(&rls) <= 1.02 * load(&kalman), "{} against {}", load(&rls), load(&kalman));
+    assert!(l_rls <= 1.02 * l_kalman, "{l_rls} against {l_kalman}");
 }
 
 /// Two sines of unrelated periods (10 N·m ± 3 at 1.3 s and ± 3 at 4.7 s): the windows' nuisance does not follow the
