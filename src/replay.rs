@@ -179,6 +179,8 @@ pub struct Replayer<'e> {
     rows: u64,
     /// Rows whose speed (or its position) was missing or not finite, and rows whose torque (or a pressure) was.
     without: [u64; 2],
+    /// Rows with ω̂ beyond any plant's speed, and the time of the first ([`Replayed::diverged`]).
+    diverged: (u64, f64),
     /// The check of the recording's time step, while it waits for its rows.
     time_step: Option<TimeStepCheck>,
     /// Why the replay cannot stand, found on the way (its time step).
@@ -234,13 +236,16 @@ impl TimeStepCheck {
 }
 
 /// What a replay went through.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Replayed {
     pub rows: u64,
     /// Rows without a speed: ω̂ there is the model's prediction alone.
     pub without_speed: u64,
     /// Rows without a drive torque: the last one is held there.
     pub without_torque: u64,
+    /// Rows whose ω̂ left any physical range ([`crate::plant::simulate::PHYSICAL_LIMITS`]), and the time of the first:
+    /// an estimator that diverged (paper-literal with the paper's sign, PHYSICS.md §2), written finite but said.
+    pub diverged: (u64, f64),
 }
 
 impl Replayed {
@@ -253,6 +258,12 @@ impl Replayed {
         }
         if self.without_torque > 0 {
             said += &format!("; {} without a drive torque (the last one held there)", self.without_torque);
+        }
+        if let (rows @ 1.., first_t_s) = self.diverged {
+            said += &format!(
+                "; {rows} with ω̂ beyond any plant's speed, from t = {first_t_s:.3} s: the estimate diverged (paper-literal: \
+                 the paper's sign, docs/estimator.md \"The erratum\")"
+            );
         }
         said
     }
@@ -284,6 +295,7 @@ impl<'e> Replayer<'e> {
             held: [false; 3],
             rows: 0,
             without: [0; 2],
+            diverged: (0, f64::NAN),
             time_step: None,
             refused: None,
             recording: recording.to_string(),
@@ -343,7 +355,14 @@ impl<'e> Replayer<'e> {
             self.without[1] += u64::from(!drive_torque_nm.is_finite());
             let m = Measurement { dt_s: t - self.prev_t_s, omega_rad_s, drive_torque_nm };
             self.prev_t_s = t;
-            out(t, &self.estimator.update(&m));
+            let e = self.estimator.update(&m);
+            if e.omega_hat_rad_s.is_nan() || e.omega_hat_rad_s.abs() > crate::plant::simulate::PHYSICAL_LIMITS.0 {
+                if self.diverged.0 == 0 {
+                    self.diverged.1 = t;
+                }
+                self.diverged.0 += 1;
+            }
+            out(t, &e);
         }
     }
 
@@ -373,7 +392,7 @@ impl<'e> Replayer<'e> {
             return Err(no_speed(&self.recording));
         }
         let [without_speed, without_torque] = self.without;
-        Ok(Replayed { rows: self.rows, without_speed, without_torque })
+        Ok(Replayed { rows: self.rows, without_speed, without_torque, diverged: self.diverged })
     }
 }
 

@@ -379,6 +379,26 @@ fn a_model_without_a_speed_noise_is_said() {
     assert!(o.status.success() && !said(&o), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
+/// An estimate that diverges is said, with when: the paper's estimator as printed (its "+" sign) took ω̂ to ±1.8e308
+/// on a test-stand run of seed 6, written finite (clamped), without a word (a helper's black-box run). rls-sgd on the
+/// same rows says nothing of the kind.
+#[test]
+fn a_diverging_estimate_is_said() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let rec = dir.path().join("rec.csv");
+    let run = simulated::test_stand(&PlantModel::reference(), 20.0, 6, &mut |_| {}).expect("simulate");
+    std::fs::write(&rec, csv_of(&run)).expect("write");
+    let said = |method: &str| {
+        let o = run_estimate(&rec, &dir.path().join("est.csv"), method);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let paper = said("paper-literal");
+    assert!(paper.contains("beyond any plant's speed, from t = ") && paper.contains("diverged"), "{paper}");
+    let rls = said("rls-sgd");
+    assert!(!rls.contains("diverged"), "{rls}");
+}
+
 /// `estimate` reads its recording once: from a pipe (standard input here; a FIFO and `<(…)` alike) it writes the same
 /// estimates as from the file, and a pipe whose clock is in the wrong unit is refused naming the time step. It read
 /// the recording twice (a look at its time step first): a small pipe hung on the second open, a larger one was
