@@ -235,7 +235,7 @@ impl LoadSpec {
 
     /// Checks the parameters, naming the key of the first bad one.
     pub fn validate(&self) -> Result<(), KeyError> {
-        let all_finite = |vals: &[f64]| vals.iter().all(|v| v.is_finite());
+        let all_finite = |vals: &[f64]| vals.iter().all(|v| v.abs() <= MAX_LOAD_MAGNITUDE);
         match self {
             LoadSpec::Steps { levels_nm, period_s } => {
                 if levels_nm.is_empty() || !all_finite(levels_nm) {
@@ -250,7 +250,7 @@ impl LoadSpec {
                 positive("period_s", *period_s)?;
             }
             LoadSpec::Ramp { from_nm, to_nm, start_s, duration_s } => {
-                if !all_finite(&[*from_nm, *to_nm, *start_s]) {
+                if !all_finite(&[*from_nm, *to_nm]) || !start_s.is_finite() {
                     return bad("from_nm", "from_nm, to_nm and start_s must be finite".into());
                 }
                 nonneg("duration_s", *duration_s)?;
@@ -279,6 +279,7 @@ impl LoadSpec {
             LoadSpec::Random { mean_nm, sd_nm, correlation_s, .. } => {
                 finite("mean_nm", *mean_nm)?;
                 nonneg("sd_nm", *sd_nm)?;
+                finite("sd_nm", *sd_nm)?;
                 positive("correlation_s", *correlation_s)?;
             }
             LoadSpec::Impacts { base_nm, peak_nm, width_s, mean_interval_s, .. } => {
@@ -326,9 +327,17 @@ fn bad(key: &str, msg: String) -> Result<(), KeyError> {
     Err(KeyError::new(format!("load.{key}"), msg))
 }
 
-/// `load.<key>` must be finite.
+/// The largest magnitude of a load's torque or coefficient: beyond any plant (a constant load of 1e300 N·m was taken,
+/// and `analyze --model-out` wrote it into a model that `simulate` then refused).
+pub const MAX_LOAD_MAGNITUDE: f64 = 1e6;
+
+/// `load.<key>` must be finite, within ±[`MAX_LOAD_MAGNITUDE`].
 fn finite(key: &str, v: f64) -> Result<(), KeyError> {
-    if v.is_finite() { Ok(()) } else { bad(key, format!("must be finite, got {v}")) }
+    if v.abs() <= MAX_LOAD_MAGNITUDE {
+        Ok(())
+    } else {
+        bad(key, format!("must be a finite number within ±{MAX_LOAD_MAGNITUDE:e}, got {v:e}"))
+    }
 }
 
 /// `load.<key>` must be finite and > 0.
@@ -539,6 +548,12 @@ mod tests {
             "load.correlation_s"
         );
         assert_eq!(key(LoadSpec::Random { mean_nm: 1.0, sd_nm: -1.0, correlation_s: 1.0, seed: 1 }), "load.sd_nm");
+        // magnitudes beyond any plant (a constant load of 1e300 N·m was taken, and copied by `analyze --model-out`
+        // into a model `simulate` refused)
+        assert_eq!(key(LoadSpec::Constant { torque_nm: 1e300 }), "load.torque_nm");
+        assert_eq!(key(LoadSpec::Random { mean_nm: 1.0, sd_nm: 1e300, correlation_s: 1.0, seed: 1 }), "load.sd_nm");
+        assert_eq!(key(LoadSpec::Steps { levels_nm: vec![1.0, -1e7], period_s: 1.0 }), "load.levels_nm");
+        LoadSpec::Constant { torque_nm: -MAX_LOAD_MAGNITUDE }.validate().expect("at the bound");
         assert_eq!(
             key(LoadSpec::Impacts { base_nm: 1.0, peak_nm: 9.0, width_s: 0.0, mean_interval_s: 1.0, seed: 1 }),
             "load.width_s"
