@@ -452,11 +452,16 @@ impl WindowRls {
         let b = self.theta[1] * self.b0 / self.theta[0];
         self.theta = self.project(self.theta_of(j, b));
         let g = self.j0 / (j * j);
-        self.p = self.prior;
+        self.start_again();
         self.p[(0, 0)] = (g * g * var).min(self.prior[(0, 0)]);
+        self.changed = true;
+    }
+
+    /// P back to the prior and the consistency record forgotten: learning starts again from θ.
+    fn start_again(&mut self) {
+        self.p = self.prior;
         self.recent = 0;
         self.recorded = 0;
-        self.changed = true;
     }
 
     /// Whether the plant changed since the last call: what the older windows backed (the sign test, the drift) is
@@ -522,9 +527,7 @@ impl WindowRls {
         if self.recorded == RECENT_WINDOWS && (self.recent & mask).count_ones() >= REJECTED_MEANS_WRONG {
             // The data keep contradicting the estimate beyond its uncertainty: start learning again from here, as
             // uncertain as the prior.
-            self.p = self.prior;
-            self.recent = 0;
-            self.recorded = 0;
+            self.start_again();
         }
     }
 

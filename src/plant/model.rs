@@ -222,6 +222,9 @@ impl PlantModel {
                 Err(KeyError::new(key.into(), format!("must be finite and ≥ 0, got {v}")))
             }
         }
+        fn at_most(key: &str, v: f64, max: f64) -> Result<(), KeyError> {
+            if v <= max { Ok(()) } else { Err(KeyError::new(key.into(), format!("must be ≤ {max:e}, got {v:e}"))) }
+        }
         if let Some(d) = &self.drive {
             if d.pole_pairs == 0 {
                 return Err(KeyError::new("drive.pole_pairs".into(), "must be ≥ 1, got 0".into()));
@@ -241,9 +244,6 @@ impl PlantModel {
         }
         if let Some(d) = self.motor.displacement_cm3 {
             positive("motor.displacement_cm3", d)?;
-        }
-        fn at_most(key: &str, v: f64, max: f64) -> Result<(), KeyError> {
-            if v <= max { Ok(()) } else { Err(KeyError::new(key.into(), format!("must be ≤ {max:e}, got {v:e}"))) }
         }
         positive("motor.inertia_kg_m2", self.motor.inertia_kg_m2)?;
         at_most("motor.inertia_kg_m2", self.motor.inertia_kg_m2, MAX_INERTIA_KG_M2)?;
