@@ -10,6 +10,7 @@ use clap::{Parser, Subcommand};
 mod commands;
 
 use commands::{DemoPlant, SimTransport, analyze, demo, estimate, serve, sim, simulate};
+use hydrolens::output::dash_is_stdout;
 
 #[derive(Parser)]
 #[command(name = "hydrolens", version, about = "Watch, estimate, regulate and explain an electro-hydraulic drive")]
@@ -58,6 +59,7 @@ enum Command {
         duration: f64,
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// The recording CSV to write (`-`: the standard output).
         #[arg(long)]
         out: PathBuf,
     },
@@ -68,6 +70,7 @@ enum Command {
         /// Nominal plant model: displacement, initial J and B, optional `[estimator]` settings.
         #[arg(long)]
         model: PathBuf,
+        /// The estimates CSV to write (`-`: the standard output).
         #[arg(long)]
         out: PathBuf,
         #[command(flatten)]
@@ -85,7 +88,7 @@ enum Command {
         /// The nominal plant model.
         #[arg(long)]
         model: PathBuf,
-        /// Where to write the analysis JSON.
+        /// Where to write the analysis JSON (`-`: the standard output).
         #[arg(long)]
         json: PathBuf,
         /// A self-contained HTML report with SVG plots.
@@ -208,10 +211,20 @@ fn run(cli: Cli) -> anyhow::Result<()> {
             };
             sim(&model, &listen, seed, transport, &units)
         }
-        Command::Simulate { model, duration, seed, out } => simulate(&model, duration, seed, &out),
-        Command::Estimate { recording, model, out, flags } => estimate(&recording, &model, &out, &flags),
+        Command::Simulate { model, duration, seed, out } => simulate(&model, duration, seed, &dash_is_stdout(out)),
+        Command::Estimate { recording, model, out, flags } => {
+            estimate(&recording, &model, &dash_is_stdout(out), &flags)
+        }
         Command::Analyze { recording, drive, model, json, report, model_out } => {
-            analyze(&recording, drive.as_deref(), &model, &json, report.as_deref(), model_out.as_deref())
+            let (report, model_out) = (report.map(dash_is_stdout), model_out.map(dash_is_stdout));
+            analyze(
+                &recording,
+                drive.as_deref(),
+                &model,
+                &dash_is_stdout(json),
+                report.as_deref(),
+                model_out.as_deref(),
+            )
         }
         Command::Serve { config, http } => serve(&config, http.as_deref()),
         Command::Demo { http, modbus, recordings, target, hold, plant, seed } => {

@@ -14,6 +14,11 @@ use std::path::{Path, PathBuf};
 
 use crate::error::BadInput;
 
+/// `-`, as an output, is the standard output (the commands' messages go to the standard error).
+pub fn dash_is_stdout(path: std::path::PathBuf) -> std::path::PathBuf {
+    if path.as_os_str() == "-" { PathBuf::from("/dev/stdout") } else { path }
+}
+
 /// Checks the outputs of a run (`(flag, path)`) against its inputs and each other; see the module's doc.
 pub fn check(inputs: &[&Path], outputs: &[(&str, &Path)]) -> Result<(), BadInput> {
     let bad = |flag: &str, path: &Path, what: String| Err(BadInput(format!("{flag} {}: {what}", path.display())));
@@ -84,8 +89,13 @@ fn same_file(a: &Path, b: &Path) -> bool {
 
 /// The most this process may write to one file at `path`: the room left on its disk for an unprivileged writer, and
 /// the file-size limit (`ulimit -f`), where the system says.
+/// None for an output written in place (a pipe, `/dev/null`, `/dev/stdout`): its room is not the room of the disk
+/// its name is on (in a container `/dev` is a tmpfs of 64 MB, and `simulate --out /dev/null` was refused by it).
 #[cfg(target_os = "linux")]
 pub fn free_bytes(path: &Path) -> Option<u64> {
+    if written_in_place(path) {
+        return None;
+    }
     let disk = rustix::fs::statvfs(parent(path)).ok().and_then(|s| s.f_bavail.checked_mul(s.f_frsize));
     let limit = rustix::process::getrlimit(rustix::process::Resource::Fsize).current;
     match (disk, limit) {
@@ -262,6 +272,19 @@ pub(crate) fn file_names(dir: &Path) -> Vec<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn the_room_of_an_output_written_in_place_is_not_its_directorys() {
+        // `/dev` is a tmpfs of 64 MB in a container: `simulate --out /dev/null` was refused by its free space
+        for path in ["/dev/null", "/dev/stdout"] {
+            assert_eq!(free_bytes(Path::new(path)), None, "{path}");
+        }
+        let dir = tempfile::tempdir().expect("tmp");
+        assert!(free_bytes(&dir.path().join("new.csv")).is_some());
+        assert_eq!(dash_is_stdout(PathBuf::from("-")), Path::new("/dev/stdout"));
+        assert_eq!(dash_is_stdout(PathBuf::from("./-")), Path::new("./-"));
+    }
 
     #[test]
     fn an_output_that_is_an_input_or_another_output_or_nowhere_is_refused_by_flag() {

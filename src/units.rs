@@ -24,6 +24,12 @@ macro_rules! columns {
 }
 pub(crate) use columns;
 
+/// A number for a message, every digit kept: as `{}` prints it where that is short, in exponent form beyond 1e9 and
+/// below 1e-3 (`{}` printed a `t_s` of 1e308 as 309 digits).
+pub fn shown(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() || (1e-3..1e9).contains(&v.abs()) { format!("{v}") } else { format!("{v:e}") }
+}
+
 /// Pascal per bar.
 pub const PA_PER_BAR: f64 = 1e5;
 

@@ -294,7 +294,8 @@ fn within_any_plant(nominal: &PlantModel, s: &Series) -> Result<(), BadInput> {
                 "model: its free run on the recording's inputs left any physical range at t = {} s ({what} = \
                  {:e}): the model's magnitudes (torques, displacements, pressures) are beyond any plant; check their \
                  values and units",
-                s.t_s[k], values[k]
+                crate::units::shown(s.t_s[k]),
+                values[k]
             )));
         }
     }

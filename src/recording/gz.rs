@@ -73,7 +73,9 @@ pub fn decoder<R: BufRead>(input: R, origin: &str) -> WholeLines<Members<R>> {
 
 /// The members of a gzip file one after the other (as `gzip -d` reads them), and what may follow the last: zero
 /// bytes (the block padding of a tape, `dd` or a transfer tool) end the data, as `gzip` takes them; anything else
-/// after them is corrupt data. A file padded so was refused as "invalid gzip header".
+/// that does not start as a gzip member, before or after them, is corrupt data (a damaged header would hide the
+/// rows behind it). A file padded so was refused as "invalid gzip header"; a few bytes of rubbish after the end
+/// were taken for a member cut short.
 pub struct Members<R: BufRead> {
     /// The member being read; None once the data have ended.
     member: Option<GzDecoder<R>>,
@@ -90,7 +92,9 @@ impl<R: BufRead> Read for Members<R> {
             }
             // the member ended: another one follows, or the end, or padding
             let mut rest = self.member.take().map(GzDecoder::into_inner).expect("a member was read");
-            if rest.fill_buf()?.first().is_some_and(|&b| b != 0) {
+            let head = rest.fill_buf()?;
+            // a member starts with the magic (of which a buffer's end may show only the first byte)
+            if head.starts_with(&GZIP_MAGIC) || *head == GZIP_MAGIC[..1] {
                 self.member = Some(GzDecoder::new(rest));
                 continue;
             }
@@ -106,9 +110,10 @@ impl<R: BufRead> Read for Members<R> {
                 }
                 let k = buf.iter().take_while(|&&b| b == 0).count();
                 if k == 0 {
+                    let padding = if zeros > 0 { format!(" and {zeros} zero bytes of padding") } else { String::new() };
                     return Err(std::io::Error::new(
                         ErrorKind::InvalidData,
-                        format!("data after the compressed stream's end and {zeros} zero bytes of padding"),
+                        format!("data that is not gzip after the compressed stream's end{padding}"),
                     ));
                 }
                 rest.consume(k);
@@ -296,6 +301,20 @@ mod tests {
         let e = read_all(bad).expect_err("data after the padding");
         assert_eq!(e.kind(), ErrorKind::InvalidData, "{e}");
         assert!(e.to_string().contains("10 zero bytes"), "{e}");
+        // a few bytes of rubbish straight after a complete stream: not a member cut short (it was read so, and
+        // the warning blamed an interrupted write); a damaged second member's header likewise
+        for rubbish in [&b"xyz"[..], b"\n", b"rubbish and more rubbish", b"\x1f\x00abcdefghijkl"] {
+            let mut bad = gzip(b"t_s,x\n0,1\n");
+            bad.extend(rubbish);
+            let e = read_all(bad).expect_err("rubbish after the end");
+            assert_eq!(e.kind(), ErrorKind::InvalidData, "{rubbish:?}: {e}");
+            assert!(e.to_string().contains("not gzip after the compressed stream's end"), "{e}");
+            assert!(e.to_string().contains("after line 2"), "{e}");
+        }
+        // the magic, then the end: a member cut short in its header
+        let mut cut = gzip(b"t_s,x\n0,1\n");
+        cut.extend(GZIP_MAGIC);
+        assert_eq!(read_all(cut).expect("a cut member"), "t_s,x\n0,1\n");
     }
 
     #[test]

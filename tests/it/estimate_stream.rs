@@ -283,6 +283,17 @@ fn outputs_written_in_place_get_every_row_once() {
     let o = run_estimate(&rec, Path::new("/dev/stdout"), "rls-sgd");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(o.stdout == expected, "/dev/stdout: {} bytes, expected {}", o.stdout.len(), expected.len());
+    // `-` is the standard output too (it wrote a file named `-` in the working directory)
+    let o = Command::new(support::bin())
+        .current_dir(dir.path())
+        .arg("estimate")
+        .arg(&rec)
+        .args(["--model".as_ref(), model_path().as_os_str(), "--out".as_ref(), "-".as_ref()])
+        .output()
+        .expect("run hydrolens");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(o.stdout == expected, "-: {} bytes, expected {}", o.stdout.len(), expected.len());
+    assert!(!dir.path().join("-").exists(), "a file named - was written");
     // a named pipe, read as it is written
     let fifo = dir.path().join("fifo");
     assert!(Command::new("mkfifo").arg(&fifo).status().expect("mkfifo").success());

@@ -5,28 +5,33 @@ use std::borrow::Cow;
 
 use super::*;
 
-/// The cells of a line, by the grammar's rules on commas and quotes (not yet trimmed).
-pub(super) fn fields(line: &[u8]) -> Vec<Cow<'_, [u8]>> {
+/// The cells of a line, by the grammar's rules on commas and quotes (not yet trimmed); `Err(k)` where cell `k`
+/// (from 0) opens a quote that does not close on the line.
+pub(super) fn fields(line: &[u8]) -> Result<Vec<Cow<'_, [u8]>>, usize> {
     let mut out = Vec::new();
     let mut i = 0;
     loop {
-        let (cell, end) = field(line, i);
+        let (cell, end) = field(line, i).ok_or(out.len())?;
         out.push(cell);
         if end == line.len() {
-            return out;
+            return Ok(out);
         }
         i = end + 1;
     }
 }
 
-/// The cell that starts at `line[i]`, and where it ends (at a comma or the end of the line).
-pub(super) fn field(line: &[u8], i: usize) -> (Cow<'_, [u8]>, usize) {
+/// What a cell whose quote does not close on its line is told (a spreadsheet's cell of several lines, or a cut one).
+pub(super) const UNCLOSED_QUOTE: &str = "a quote opens and does not close on its line (a cell may not span lines)";
+
+/// The cell that starts at `line[i]`, and where it ends (at a comma or the end of the line); None where it opens a
+/// quote that does not close on the line.
+pub(super) fn field(line: &[u8], i: usize) -> Option<(Cow<'_, [u8]>, usize)> {
     let next_comma = |from: usize| memchr::memchr(b',', &line[from..]).map_or(line.len(), |k| from + k);
     let skip_space = |from: usize| from + line[from..].iter().take_while(|b| b.is_ascii_whitespace()).count();
     let first = skip_space(i);
     if line.get(first) != Some(&b'"') {
         let end = next_comma(i);
-        return (Cow::Borrowed(&line[i..end]), end);
+        return Some((Cow::Borrowed(&line[i..end]), end));
     }
     let mut text = Vec::new();
     let mut k = first + 1;
@@ -39,17 +44,16 @@ pub(super) fn field(line: &[u8], i: usize) -> (Cow<'_, [u8]>, usize) {
             }
             let after = skip_space(k + 1);
             if after == line.len() || line[after] == b',' {
-                return (Cow::Owned(text), after);
+                return Some((Cow::Owned(text), after));
             }
             // text after the closing quote: the cell is its text, up to the next comma
             let end = next_comma(after);
-            return (Cow::Borrowed(&line[i..end]), end);
+            return Some((Cow::Borrowed(&line[i..end]), end));
         }
         text.push(line[k]);
         k += 1;
     }
-    // not closed on its line: the rest of the line is the cell's text
-    (Cow::Borrowed(&line[i..]), line.len())
+    None
 }
 
 /// A line by the grammar, checked in its order (number of cells, `t_s`, the other cells): the row's `t_s`, with the
@@ -63,7 +67,19 @@ pub(super) fn row(
     origin: &str,
     batch: &mut Batch,
 ) -> Result<f64, RecordingError> {
-    let cells = fields(line);
+    let cells = fields(line).map_err(|k| match names.get(k) {
+        Some(column) => RecordingError::Cell {
+            path: origin.into(),
+            line: number,
+            column: column.clone(),
+            message: UNCLOSED_QUOTE.into(),
+        },
+        None => RecordingError::Line {
+            path: origin.into(),
+            line: number,
+            message: format!("cell {} (the header has {} names): {UNCLOSED_QUOTE}", k + 1, names.len()),
+        },
+    })?;
     if cells.len() != names.len() {
         return Err(RecordingError::Line {
             path: origin.into(),
@@ -139,7 +155,11 @@ pub(super) fn check_time(t: f64, last_t: f64, origin: &str, line: u64) -> Result
             path: origin.into(),
             line,
             column: "t_s".into(),
-            message: format!("time goes backwards or repeats: {t} after {last_t} (must strictly increase)"),
+            message: format!(
+                "time goes backwards or repeats: {} after {} (must strictly increase)",
+                crate::units::shown(t),
+                crate::units::shown(last_t)
+            ),
         });
     }
     Ok(())

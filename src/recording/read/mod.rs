@@ -9,7 +9,8 @@
 //! - Every other line is a row with one cell per name. A cell is trimmed of ASCII whitespace; empty, it is a missing
 //!   value (NaN); otherwise it must be a number as `str::parse::<f64>` reads one (`1.5`, `-2e-3`, `nan`, `inf`).
 //! - A cell may be quoted, as spreadsheets write them (`"1.5"`): inside the quotes a comma is text and `""` is one
-//!   quote. A quote closes on its line; a cell that is not a well-formed quoted cell is taken as its text.
+//!   quote. A quote closes on its line (a cell that opens one and does not is an error naming it: a cell of several
+//!   lines); text after a closing quote makes the cell its whole text, quotes and all.
 //! - `t_s` is finite in every row and strictly increasing.
 //!
 //! A row is checked in this order: its number of cells, `t_s`, the other cells in file order, then `t_s` against the
@@ -289,7 +290,12 @@ impl<R: Read> StreamReader<R> {
             None => header_names(Vec::new(), 0, origin)?,
             Some((a, b, number)) => {
                 let mut names = Vec::new();
-                for cell in fields(&lines.buf[a..b]) {
+                let cells = fields(&lines.buf[a..b]).map_err(|k| RecordingError::Line {
+                    path: origin.into(),
+                    line: number,
+                    message: format!("the header's name {}: {}", k + 1, cells::UNCLOSED_QUOTE),
+                })?;
+                for cell in cells {
                     let Ok(name) = std::str::from_utf8(&cell) else {
                         return Err(RecordingError::Line {
                             path: origin.into(),

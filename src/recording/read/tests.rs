@@ -160,6 +160,11 @@ fn bad_input_names_line_and_column() {
     assert!(e.contains("line 3") && e.contains("1 fields, expected 2"), "{e}");
     let e = err("t_s,omega_rad_s\n0,1\n0.002,1\n0.001,1\n");
     assert!(e.contains("line 4") && e.contains("`t_s`") && e.contains("backwards"), "{e}");
+    // times far from any recording's are said in exponent form, every digit kept (1e308 was 309 digits)
+    let e = err("t_s,omega_rad_s\n0,1\n1e308,1\n1.5e-7,1\n");
+    assert!(e.contains("1.5e-7 after 1e308"), "{e}");
+    let e = err("t_s,omega_rad_s\n0,1\n0.0015000000001,1\n0.0015,1\n");
+    assert!(e.contains("0.0015 after 0.0015000000001"), "{e}");
     let e = err("t_s,omega_rad_s\n0,1\n,1\n");
     assert!(e.contains("line 3") && e.contains("`t_s`") && e.contains("missing"), "{e}");
     // in the grammar's order: t_s before the other cells of its row
@@ -184,8 +189,16 @@ fn bad_input_names_line_and_column() {
     assert!(e.contains("line 3") && e.contains("`omega_rad_s`") && e.contains("2,5"), "{e}");
     let e = err("t_s,omega_rad_s\n0,1\n0.001,\"2\"x\n");
     assert!(e.contains("line 3") && e.contains("`omega_rad_s`"), "{e}");
+    // a quote that does not close on its line: the cell is named, also in a column nobody reads (it was taken as
+    // text there, and a spreadsheet's note of two lines then failed on its second line as a count of fields)
     let e = err("t_s,omega_rad_s\n0,1\n\"0.001,2\n");
-    assert!(e.contains("line 3") && e.contains("1 fields, expected 2"), "{e}");
+    assert!(e.contains("line 3") && e.contains("`t_s`") && e.contains("does not close on its line"), "{e}");
+    let e = err("t_s,omega_rad_s,note\n0,1,a\n0.001,2,\"two\nlines\"\n");
+    assert!(e.contains("line 3") && e.contains("`note`") && e.contains("does not close on its line"), "{e}");
+    let e = err("t_s,omega_rad_s\n0,1\n0.001,2,\"x\n");
+    assert!(e.contains("line 3") && e.contains("cell 3 (the header has 2 names)"), "{e}");
+    let e = err("t_s,\"omega_rad_s\n0,1\n");
+    assert!(e.contains("line 1") && e.contains("name 2") && e.contains("does not close"), "{e}");
     // a byte-order mark only starts the file
     let e = err("t_s,omega_rad_s\n0,1\n\u{feff}0.001,2\n");
     assert!(e.contains("line 3") && e.contains("`t_s`"), "{e}");
