@@ -6,7 +6,8 @@ use axum::response::Response;
 use super::{ApiError, AppState, Segment, json_response};
 
 pub(super) async fn condition(State(s): State<AppState>, Segment(name): Segment) -> Result<Response, ApiError> {
-    let c = s.service.condition(&name).ok_or_else(|| ApiError::not_found(format!("no drive {name:?}")))?;
+    let c =
+        s.service.condition(&name).ok_or_else(|| ApiError::not_found(format!("no drive {}", super::echo(&name))))?;
     let body = c.to_json();
     Ok(json_response(&body, 4096))
 }

@@ -48,8 +48,14 @@ pub struct AppState {
     pub auth: Arc<AuthThrottle>,
     /// A permit per open `/api/events` stream (`http.max_event_streams`).
     pub event_streams: Arc<tokio::sync::Semaphore>,
+    /// Open `/api/events` streams per client address ([`event_share`]).
+    pub event_clients: Arc<std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, usize>>>,
+    /// The most event streams one address may hold: [`event_share`] of `http.max_event_streams`.
+    pub event_share: usize,
     /// A permit per `/api/history` reply being built or sent ([`MAX_HISTORY_REPLIES`]).
     pub history_replies: Arc<tokio::sync::Semaphore>,
+    /// A permit per recording being downloaded ([`MAX_DOWNLOADS`]).
+    pub downloads: Arc<tokio::sync::Semaphore>,
     /// This side's own families, in the service's registry.
     pub metrics: HttpMetrics,
     /// The MQTT publisher's health, when one runs beside this outlet ([`AppState::with_mqtt`]).
@@ -76,7 +82,10 @@ impl AppState {
             status_cache: Default::default(),
             auth: Default::default(),
             event_streams: Arc::new(tokio::sync::Semaphore::new(http.max_event_streams)),
+            event_clients: Default::default(),
+            event_share: event_share(http.max_event_streams),
             history_replies: Arc::new(tokio::sync::Semaphore::new(MAX_HISTORY_REPLIES)),
+            downloads: Arc::new(tokio::sync::Semaphore::new(MAX_DOWNLOADS)),
             mqtt: None,
             loopback_only: false,
         }
@@ -244,16 +253,33 @@ async fn loopback_host(
         };
         name.eq_ignore_ascii_case("localhost") || name.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_loopback())
     };
-    let refused = (request.headers().get(header::HOST))
+    // every `Host` counts, and the host an absolute-form request line names (`GET http://host/…`): only the first
+    // header was looked at, and `Host: 127.0.0.1` then `Host: evil.example` was answered
+    let hosts = request.headers().get_all(header::HOST).iter().map(|h| h.to_str().unwrap_or("\u{fffd}"));
+    let refused = hosts
+        .chain(request.uri().authority().map(|a| a.as_str()))
         .filter(|_| s.loopback_only)
-        .map(|h| h.to_str().unwrap_or("\u{fffd}"))
-        .filter(|h| !named(h))
-        .map(|h| format!("this service listens on loopback and answers requests for a loopback host only, not {h:?}"));
+        .find(|h| !named(h))
+        .map(|h| {
+            format!("this service listens on loopback and answers requests for a loopback host only, not {}", echo(h))
+        });
     match refused {
         Some(why) => ApiError::new(StatusCode::MISDIRECTED_REQUEST, why).into_response(),
         None => next.run(request).await,
     }
 }
+
+/// What a client sent, for an error message: quoted, at most [`ECHOED_CHARS`] characters (a 20 kB drive name came
+/// back whole).
+pub(crate) fn echo(text: &str) -> String {
+    match text.char_indices().nth(ECHOED_CHARS) {
+        Some((cut, _)) => format!("{:?}… ({} bytes)", &text[..cut], text.len()),
+        None => format!("{text:?}"),
+    }
+}
+
+/// See [`echo`].
+const ECHOED_CHARS: usize = 64;
 
 /// Serves the router on an already-bound listener until `state.shutdown` fires, within the default
 /// [`ConnLimits`].
@@ -281,7 +307,7 @@ async fn static_file_owned(path: String) -> Response {
         Some((_, mime, body)) => {
             ([(header::CONTENT_TYPE, *mime), (header::CACHE_CONTROL, "no-cache")], *body).into_response()
         }
-        None => ApiError::not_found(format!("no static file {path:?}")).into_response(),
+        None => ApiError::not_found(format!("no static file {}", echo(&path))).into_response(),
     }
 }
 
@@ -381,7 +407,7 @@ async fn history(
     if !(1..=100_000).contains(&q.max_points) {
         return Err(ApiError::bad_request(format!("max_points must be 1 ..= 100000, got {}", q.max_points)));
     }
-    let drive = s.service.drive(&q.drive).ok_or_else(|| ApiError::not_found(format!("no drive {:?}", q.drive)))?;
+    let drive = s.service.drive(&q.drive).ok_or_else(|| ApiError::not_found(format!("no drive {}", echo(&q.drive))))?;
     let Ok(permit) = s.history_replies.clone().try_acquire_owned() else {
         s.metrics.refused.get_or_create(&ReasonLabel { reason: "history_replies" }).inc();
         return Ok(conn::busy("too many history replies in flight: try again in a moment", 1));
@@ -409,10 +435,17 @@ pub const MAX_HISTORY_REPLIES: usize = 8;
 /// The SSE period: about 10 Hz.
 const EVENT_PERIOD: Duration = Duration::from_millis(100);
 
-/// Holds an event stream's permit and counts it open while it lives.
+/// The event streams one client address may hold of `max` (three quarters, at least one): the rest stay for the
+/// others. One address held all 64 with streams it did not read, and every other client got 503 for minutes.
+pub fn event_share(max: usize) -> usize {
+    (max * 3 / 4).max(1)
+}
+
+/// Holds an event stream's permit and its address's count, and counts it open while it lives.
 struct StreamSlot {
     _permit: tokio::sync::OwnedSemaphorePermit,
     open: prometheus_client::metrics::gauge::Gauge,
+    _client: ClientStream,
 }
 
 impl Drop for StreamSlot {
@@ -421,16 +454,53 @@ impl Drop for StreamSlot {
     }
 }
 
-/// A snapshot every [`EVENT_PERIOD`], while fewer than `http.max_event_streams` are open; 503 at once beyond, so a
-/// crowd of tabs (or a flood) cannot hold every connection. A client that stops reading is closed by the accept
-/// loop (see [`conn`]).
-async fn events(State(s): State<AppState>) -> Response {
+/// One stream counted against its address's share until dropped.
+struct ClientStream {
+    clients: Arc<std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, usize>>>,
+    ip: std::net::IpAddr,
+}
+
+impl Drop for ClientStream {
+    fn drop(&mut self) {
+        let mut m = self.clients.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(n) = m.get_mut(&self.ip) {
+            *n = n.saturating_sub(1);
+            if *n == 0 {
+                m.remove(&self.ip);
+            }
+        }
+    }
+}
+
+/// A snapshot every [`EVENT_PERIOD`], while fewer than `http.max_event_streams` are open, and fewer than
+/// [`event_share`] of them from the client's address; 503 at once beyond, so a crowd of tabs (or a flood) cannot hold
+/// every connection, nor one address every stream. A client that stops reading is closed by the accept loop (see
+/// [`conn`]).
+async fn events(State(s): State<AppState>, client: ClientAddr) -> Response {
+    // requests without an address (in-process tests) share one entry
+    let ip = throttle::key(client.0.map_or(std::net::IpAddr::from([0, 0, 0, 0]), |a| a.ip()));
+    let refused = |reason: &'static str, message: &str| {
+        s.metrics.refused.get_or_create(&ReasonLabel { reason }).inc();
+        conn::busy(message, 5)
+    };
+    {
+        let mut m = s.event_clients.lock().unwrap_or_else(|e| e.into_inner());
+        let held = m.entry(ip).or_default();
+        if *held >= s.event_share {
+            return refused(
+                "event_share",
+                "this address holds its share of the event streams (three quarters of http.max_event_streams): \
+                 try again later",
+            );
+        }
+        *held += 1;
+    }
+    let client = ClientStream { clients: s.event_clients.clone(), ip };
     let Ok(permit) = s.event_streams.clone().try_acquire_owned() else {
-        s.metrics.refused.get_or_create(&ReasonLabel { reason: "event_streams" }).inc();
-        return conn::busy("too many event streams open (http.max_event_streams): try again later", 5);
+        return refused("event_streams", "too many event streams open (http.max_event_streams): try again later");
     };
     s.metrics.event_streams.inc();
-    let slot = StreamSlot { _permit: permit, open: s.metrics.event_streams.clone() };
+    let slot = StreamSlot { _permit: permit, open: s.metrics.event_streams.clone(), _client: client };
     let stop = s.shutdown.clone();
     let mut tick = tokio::time::interval(EVENT_PERIOD);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
@@ -460,7 +530,7 @@ fn authorize(s: &AppState, headers: &HeaderMap, client: &ClientAddr) -> Result<(
         // the scheme is case-insensitive (RFC 9110 §11.1): `bearer` and `BEARER` are the same
         .and_then(|v| v.split_once(' ').filter(|(scheme, _)| scheme.eq_ignore_ascii_case("bearer")))
         .map(|(_, t)| t.trim());
-    if given.is_some_and(|g| bool::from(g.as_bytes().ct_eq(token.as_bytes()))) {
+    if given.is_some_and(|g| same_token(g.as_bytes(), token.as_bytes())) {
         return Ok(());
     }
     // requests without an address (in-process tests) share one entry
@@ -484,6 +554,17 @@ fn authorize(s: &AppState, headers: &HeaderMap, client: &ClientAddr) -> Result<(
     Err(ApiError::new(StatusCode::UNAUTHORIZED, "wrong token"))
 }
 
+/// `given == token` in a time that depends on the token's length only: `ct_eq` on slices answers at once where the
+/// lengths differ, which tells a guesser the token's length. Every byte of the token is compared with the given
+/// one at its place (or a zero past the given's end), and the lengths in constant time too.
+fn same_token(given: &[u8], token: &[u8]) -> bool {
+    let mut equal = (given.len() as u64).ct_eq(&(token.len() as u64));
+    for (k, t) in token.iter().enumerate() {
+        equal &= given.get(k).copied().unwrap_or(0).ct_eq(t);
+    }
+    bool::from(equal)
+}
+
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct TargetBody {
@@ -498,7 +579,7 @@ async fn set_target(
     body: Result<Bytes, BytesRejection>,
 ) -> Result<Json<serde_json::Value>, ApiError> {
     authorize(&s, &headers, &client)?;
-    let drive = s.service.drive(&name).ok_or_else(|| ApiError::not_found(format!("no drive {name:?}")))?;
+    let drive = s.service.drive(&name).ok_or_else(|| ApiError::not_found(format!("no drive {}", echo(&name))))?;
     let body = body?;
     let expected =
         |e: &dyn std::fmt::Display| ApiError::bad_request(format!("expected {{\"target_omega_rad_s\": number}}: {e}"));
@@ -533,14 +614,19 @@ async fn set_target(
     Ok(Json(serde_json::json!({ "drive": name, "target_omega_rad_s": t.target_omega_rad_s })))
 }
 
+/// The body, which a reset does not need, is read (within `max_body_bytes`) before the answer: answered first, the
+/// connection was dropped under the body still coming, and the client's next request on it failed (a client that
+/// retries would reset twice).
 async fn reset(
     State(s): State<AppState>,
     Segment(name): Segment,
     client: ClientAddr,
     headers: HeaderMap,
+    body: Result<Bytes, BytesRejection>,
 ) -> Result<(StatusCode, Json<serde_json::Value>), ApiError> {
+    body?;
     authorize(&s, &headers, &client)?;
-    let drive = s.service.drive(&name).ok_or_else(|| ApiError::not_found(format!("no drive {name:?}")))?;
+    let drive = s.service.drive(&name).ok_or_else(|| ApiError::not_found(format!("no drive {}", echo(&name))))?;
     if drive.mode == Mode::Monitor {
         return Err(ApiError::new(StatusCode::CONFLICT, format!("drive {name:?} is in monitor mode: it never writes")));
     }
@@ -609,14 +695,26 @@ fn content_type(name: &str) -> &'static str {
 }
 
 /// The read buffer of a download: what a client's download holds in memory, however large the file and however
-/// slowly it reads (the rest waits in the file).
+/// slowly it reads (the rest waits in the file), beside the connection's write buffer (`conn::WRITE_BUFFER_BYTES`
+/// in hyper and in the kernel).
 const DOWNLOAD_CHUNK: usize = 64 * 1024;
+
+/// Recordings downloaded at once; the next gets 503 with `Retry-After`. 512 slow downloads held every connection (the
+/// dashboard's routes answered 503 for 10–20 s at a time) and took the service from 12 to 310 MB.
+pub const MAX_DOWNLOADS: usize = 8;
 
 async fn recording_file(State(s): State<AppState>, Segment(file): Segment) -> Result<Response, ApiError> {
     if !valid_file_name(&file) {
-        return Err(ApiError::bad_request(format!("{file:?} is not a recording name such as pump1-1700000000000.csv")));
+        return Err(ApiError::bad_request(format!(
+            "{} is not a recording name such as pump1-1700000000000.csv",
+            echo(&file)
+        )));
     }
     let Some(dir) = &s.service.recording_dir else { return Err(ApiError::not_found("recording is off")) };
+    let Ok(permit) = s.downloads.clone().try_acquire_owned() else {
+        s.metrics.refused.get_or_create(&ReasonLabel { reason: "downloads" }).inc();
+        return Ok(conn::busy("too many recordings being downloaded: try again in a moment", 5));
+    };
     let (dir, name) = (dir.clone(), file.clone());
     let opened = tokio::task::spawn_blocking(move || files::open_regular(&dir, &name))
         .await
@@ -625,8 +723,12 @@ async fn recording_file(State(s): State<AppState>, Segment(file): Segment) -> Re
         Ok(Some((f, len))) => {
             // streamed, as long as the file was when opened (the open recording grows meanwhile)
             let reader = tokio::io::AsyncReadExt::take(tokio::fs::File::from_std(f), len);
-            let body =
-                axum::body::Body::from_stream(tokio_util::io::ReaderStream::with_capacity(reader, DOWNLOAD_CHUNK));
+            // the permit goes with the last chunk (or a client gone)
+            let chunks = tokio_util::io::ReaderStream::with_capacity(reader, DOWNLOAD_CHUNK).map(move |chunk| {
+                let _held = &permit;
+                chunk
+            });
+            let body = axum::body::Body::from_stream(chunks);
             Ok((
                 [
                     // a compressed recording goes as the file it is (no Content-Encoding: saved, it stays .csv.gz)
@@ -638,7 +740,7 @@ async fn recording_file(State(s): State<AppState>, Segment(file): Segment) -> Re
             )
                 .into_response())
         }
-        Ok(None) => Err(ApiError::not_found(format!("no recording {file:?}"))),
+        Ok(None) => Err(ApiError::not_found(format!("no recording {}", echo(&file)))),
         Err(e) => Err(ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, format!("reading {file}: {e}"))),
     }
 }
@@ -687,5 +789,27 @@ mod tests {
         for bad in ["../etc/passwd", "a/b.csv", ".hidden.csv", "x..csv", "x.txt", "%2e%2e.csv", ""] {
             assert!(!valid_file_name(bad), "{bad}");
         }
+    }
+
+    #[test]
+    fn a_token_is_the_same_only_whole() {
+        let token = b"s3cret-Token-0123456789";
+        assert!(same_token(token, token));
+        for given in
+            [&b""[..], b"s", b"s3cret-Token-012345678", b"s3cret-Token-01234567890", b"S3cret-Token-0123456789"]
+        {
+            assert!(!same_token(given, token), "{given:?}");
+        }
+        // a zero past the given one's end is no match for a token that has zeros there
+        assert!(!same_token(b"ab", b"ab\0"));
+    }
+
+    #[test]
+    fn what_a_client_sent_is_echoed_short() {
+        assert_eq!(echo("pump1"), "\"pump1\"");
+        let long = "x".repeat(20_000);
+        let e = echo(&long);
+        assert!(e.len() < 100 && e.ends_with("… (20000 bytes)"), "{e}");
+        assert!(echo(&"é".repeat(100)).starts_with("\"éé"), "cut on a character's boundary");
     }
 }

@@ -67,6 +67,77 @@ async fn history_replies_in_flight_are_bounded_until_read() {
     stop.cancel();
 }
 
+/// Recordings downloaded at once are bounded ([`hydrolens::http::MAX_DOWNLOADS`]) as history replies are: a download
+/// holds its permit until its body is read or dropped, and one beyond gets 503 with `Retry-After`. 512 slow
+/// downloads held every connection and took the service from 12 to 310 MB.
+#[tokio::test]
+async fn downloads_at_once_are_bounded_until_read() {
+    use hydrolens::http::MAX_DOWNLOADS;
+    let (state, stop, dir) = make_state(None, "monitor");
+    std::fs::write(dir.path().join("pump1-1.csv"), "t_s,omega_rad_s\n0,1\n").expect("a recording");
+    let permits = state.downloads.clone();
+    let app = router(state);
+    let download = || app.clone().oneshot(get("/api/recordings/pump1-1.csv"));
+    let mut unread = Vec::new();
+    for _ in 0..MAX_DOWNLOADS {
+        let resp = download().await.expect("infallible");
+        assert_eq!(resp.status(), StatusCode::OK);
+        unread.push(resp);
+    }
+    let busy = download().await.expect("infallible");
+    assert_eq!(busy.status(), StatusCode::SERVICE_UNAVAILABLE);
+    assert!(busy.headers().contains_key(header::RETRY_AFTER));
+    let read = unread.pop().expect("a download").into_body();
+    let bytes = axum::body::to_bytes(read, usize::MAX).await.expect("body");
+    assert_eq!(&bytes[..], b"t_s,omega_rad_s\n0,1\n");
+    assert_eq!(permits.available_permits(), 1, "a download read to its end frees its permit");
+    drop(unread);
+    assert_eq!(permits.available_permits(), MAX_DOWNLOADS, "a client gone frees its download's");
+    assert_eq!(download().await.expect("infallible").status(), StatusCode::OK);
+    stop.cancel();
+}
+
+/// One client address holds at most [`hydrolens::http::event_share`] of the event streams; the rest stay for the
+/// others, up to `http.max_event_streams` in all. One address held all 64 with streams it did not read, and every
+/// other client got 503.
+#[tokio::test]
+async fn one_address_holds_at_most_its_share_of_the_event_streams() {
+    let (state, stop, _dir) = make_state(None, "monitor");
+    let (max, share) = (64, hydrolens::http::event_share(64));
+    assert_eq!(share, 48);
+    let app = router(state);
+    let from = |ip: [u8; 4]| {
+        let mut req = get("/api/events");
+        req.extensions_mut().insert(axum::extract::ConnectInfo(std::net::SocketAddr::from((ip, 40000))));
+        app.clone().oneshot(req)
+    };
+    let (a, b) = ([127, 0, 0, 2], [127, 0, 0, 3]);
+    let mut open_a = Vec::new();
+    for _ in 0..share {
+        let resp = from(a).await.expect("infallible");
+        assert_eq!(resp.status(), StatusCode::OK);
+        open_a.push(resp);
+    }
+    let (status, body) = {
+        let resp = from(a).await.expect("infallible");
+        let status = resp.status();
+        (status, axum::body::to_bytes(resp.into_body(), usize::MAX).await.expect("body"))
+    };
+    assert_eq!(status, StatusCode::SERVICE_UNAVAILABLE, "beyond its share");
+    assert!(String::from_utf8_lossy(&body).contains("share"), "{body:?}");
+    let mut open_b = Vec::new();
+    for _ in share..max {
+        let resp = from(b).await.expect("infallible");
+        assert_eq!(resp.status(), StatusCode::OK, "another address gets the rest");
+        open_b.push(resp);
+    }
+    assert_eq!(from(b).await.expect("infallible").status(), StatusCode::SERVICE_UNAVAILABLE, "all taken");
+    drop(open_a.pop());
+    assert_eq!(from(a).await.expect("infallible").status(), StatusCode::OK, "a stream gone frees its place");
+    drop((open_a, open_b));
+    stop.cancel();
+}
+
 async fn call(app: &axum::Router, req: Request<Body>) -> (StatusCode, serde_json::Value) {
     let resp = app.clone().oneshot(req).await.expect("infallible");
     let status = resp.status();
@@ -309,6 +380,36 @@ async fn on_loopback_only_requests_for_a_loopback_host_are_answered() {
             let status = reply.split_whitespace().nth(1).unwrap_or("");
             assert_eq!(status, code, "Host: {host}: {reply}");
         }
+        // every Host counts, and the host an absolute-form request line names (only the first header was looked at)
+        for (head, code) in [
+            ("GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\nHost: evil.example\r\n", "421"),
+            ("GET http://evil.example/api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n", "421"),
+            ("GET http://127.0.0.1/api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n", "200"),
+        ] {
+            let mut c = tokio::net::TcpStream::connect(&addr).await.expect("connects");
+            c.write_all(format!("{head}Connection: close\r\n\r\n").as_bytes()).await.expect("write");
+            let mut reply = String::new();
+            c.read_to_string(&mut reply).await.expect("read");
+            let status = reply.split_whitespace().nth(1).unwrap_or("");
+            assert_eq!(status, code, "{head:?}: {reply}");
+        }
+        // a reset with a body reads it before answering: the connection goes on (answered first, it was dropped
+        // under the body still coming, and the next request on it failed)
+        let mut c = tokio::net::TcpStream::connect(&addr).await.expect("connects");
+        let body = "x".repeat(3000);
+        let reset = format!(
+            "POST /api/drives/pump1/reset HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {TOKEN}\r\n\
+             Content-Length: {}\r\n\r\n",
+            body.len()
+        );
+        c.write_all(reset.as_bytes()).await.expect("write");
+        tokio::time::sleep(Duration::from_millis(50)).await; // the head first, as a client's socket sends it
+        c.write_all(body.as_bytes()).await.expect("the body");
+        c.write_all(b"GET /healthz HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n").await.expect("next");
+        let mut reply = String::new();
+        c.read_to_string(&mut reply).await.expect("both answers");
+        assert_eq!(reply.matches("HTTP/1.1 ").count(), 2, "two answers on one connection: {reply}");
+        assert!(reply.contains("\"status\":\"ok\""), "{reply}");
         stack.stop().await;
     };
     tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
