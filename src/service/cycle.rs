@@ -17,7 +17,7 @@ use tokio::time::Instant;
 
 use super::config::DriveSettings;
 use super::freshness::{
-    CounterCheck, CounterVerdict, FrozenSpeed, Rejected, SpeedMatch, ValidRanges, implausible_jump,
+    CounterCheck, CounterVerdict, FrozenSpeed, NO_TURN_HZ, Rejected, SpeedMatch, ValidRanges, implausible_jump,
 };
 use super::owner::{Echo, Finding};
 use super::state::{Commands, DriveStatus, Measured, Point};
@@ -279,17 +279,20 @@ impl DriveCycle {
         let plant = self.law.feed_forward;
         let dp_pa = (m.p_in_bar - m.p_out_bar) * crate::units::PA_PER_BAR;
         if writing {
-            let expected = plant.omega_at_dp(m.f_drive_hz, dp_pa);
-            if let Some(r) = self.speed_match.observe(m.omega_rad_s, expected, m.f_drive_hz, now.into_std()) {
+            let speeds = (plant.omega_at_dp(m.f_drive_hz, dp_pa), plant.omega_rad_s(NO_TURN_HZ));
+            if let Some(r) = self.speed_match.observe(m.omega_rad_s, speeds, m.f_drive_hz, now.into_std()) {
                 return nothing(Verdict::Rejected(r));
             }
         }
         self.last_valid = Some((now, sample.measured));
-        if self.frozen.showing_no_turn() || self.speed_match.mismatched() {
+        if self.frozen.showing_no_turn() || (self.speed_match.mismatched() && !self.speed_match.read_back_only()) {
             // a speed of 0 (or against the drive) while the drive runs, or one the drive's frequency cannot give:
             // held back, not written from, until it fits again or, after a second, the samples are rejected
             return nothing(Verdict::Stale);
         }
+        // a read-back below what the turning shaft allows is not what the drive runs at (`read_back_only`): the law
+        // goes on without it, from its last setpoint
+        let drive_hz = if self.speed_match.mismatched() { f64::NAN } else { m.f_drive_hz };
         // timely: this reply came within stale_ms of the request of the sample before (so within stale_ms of its
         // own request too): the data never aged past stale_ms on the way, as readiness measures the age (from the
         // request of the newest fresh sample). Asking each of the reply's time and the gap alone within stale_ms, a
@@ -330,7 +333,7 @@ impl DriveCycle {
                 tripped: self.tripped(),
                 omega_hat_rad_s: est.omega_hat_rad_s,
                 load_hat_nm: est.load_hat_nm,
-                drive_hz: m.f_drive_hz,
+                drive_hz,
                 drive_running: running,
                 resumed,
             })
@@ -802,6 +805,39 @@ mod tests {
         let after = c.step(&sample(373, 30.0, last, status::READY | status::RUNNING), at, at + MS);
         let first = written(&after).expect("writes").0;
         assert!(first - last <= 20.0 * 0.01 + 0.011, "{last} → {first}");
+    }
+
+    /// A hostile PLC's read-back of 0 Hz under a shaft still turning at 30 rad/s, after a 0.26 s outage (a gateway
+    /// that serves zeros until it has polled the drive again): taken as what the drive runs at, the ramp started
+    /// again from it and one write took the drive from 19.9 to 0.2 Hz with RUN on. Now the read-back is not believed:
+    /// the setpoint goes on from the last one; and a read-back of 0 that lasts is refused after a second (nothing
+    /// written: the drive's watchdog takes over).
+    #[test]
+    fn a_read_back_of_zero_under_a_turning_shaft_is_not_what_the_drive_runs_at() {
+        let (mut c, t0) = cycle("mode = \"manual\"\nfixed_hz = 20.0\nramp_hz_per_s = 20.0");
+        let running = status::READY | status::RUNNING;
+        let before = run(&mut c, t0, 0, 150, 30.0, running);
+        let last = before.iter().filter_map(written).next_back().expect("writes").0;
+        assert!((last - 20.0).abs() < 1e-9, "{last}");
+        let step = |c: &mut DriveCycle, k: u64, f: f64| {
+            let at = t0 + MS * (10 * k as u32);
+            // a live tachometer: it moves a quantum or two
+            let s = c.step(&sample(k, 30.0 + 0.01 * (k % 3) as f64, f, running), at, at + MS);
+            c.confirm(true);
+            s
+        };
+        // 0.25 s without replies, three read-backs of 0, then the drive's own again
+        let zeros: Vec<Step> = (175..178).map(|k| step(&mut c, k, 0.0)).collect();
+        assert_eq!(zeros[0].verdict, Verdict::Stale, "the first after the gap: nothing to judge its age by");
+        assert!(written(&zeros[1]).is_some(), "the next ones are written from");
+        let after: Vec<Step> = (178..300).map(|k| step(&mut c, k, 20.0)).collect();
+        let hz: Vec<f64> = zeros.iter().chain(&after).filter_map(written).map(|w| w.0).collect();
+        assert!(!hz.is_empty() && hz.iter().all(|&f| (f - 20.0).abs() <= 0.2 + 1e-9), "no dive: {hz:?}");
+        // a read-back of 0 for longer than a second: refused, nothing written
+        let lasting: Vec<Step> = (300..450).map(|k| step(&mut c, k, 0.0)).collect();
+        assert!(lasting[120..].iter().all(|s| s.writes.is_empty()), "nothing written after a second");
+        assert!(lasting.iter().filter_map(written).all(|w| w.0 >= 19.8), "and no dive before");
+        assert!(matches!(lasting[149].verdict, Verdict::Rejected(Rejected::Mismatch { .. })));
     }
 
     /// A gateway that answers reads from a cache refreshed every few polls shows our value before the last: that is

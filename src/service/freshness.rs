@@ -163,33 +163,53 @@ pub struct SpeedMatch {
     since: Option<std::time::Instant>,
     /// Since when it has been back inside the band, while `since` stands.
     back_since: Option<std::time::Instant>,
+    /// The last sample outside the band had the drive's frequency below [`NO_TURN_HZ`] and the shaft turning faster
+    /// than that frequency allows: a read-back too low (see [`SpeedMatch::read_back_only`]).
+    read_back_low: bool,
 }
 
 impl SpeedMatch {
-    /// The speed lay outside the band and has not been back in it for [`MISMATCH_S`]: nothing may be written from
-    /// it. A sample back in the band for less proves nothing: a tachometer at half the speed, its noise crossing the
-    /// band's edge one sample in thirty, was written from at each crossing, and the setpoint crept up 3.4 Hz in 2 s.
+    /// The speed lay outside the band and has not been back in it for [`MISMATCH_S`]: the drive's frequency and the
+    /// speed disagree, and the read-back is not to be trusted. Unless [`SpeedMatch::read_back_only`], nothing may be
+    /// written from them either. A sample back in the band for less proves nothing: a tachometer at half the speed,
+    /// its noise crossing the band's edge one sample in thirty, was written from at each crossing, and the setpoint
+    /// crept up 3.4 Hz in 2 s.
     pub fn mismatched(&self) -> bool {
         self.since.is_some()
     }
 
-    /// The verdict on one sample: `expected_rad_s` is the speed the drive's frequency `f_drive_hz` gives. Only
-    /// while the drive runs at [`NO_TURN_HZ`] or more (below, a motor breaking away or a start proves nothing).
+    /// Whether the disagreement is a read-back below [`NO_TURN_HZ`] under a shaft that turns faster than that
+    /// frequency allows (a PLC that puts 0 in the register when its link to the drive fails, a gateway that serves
+    /// zeros until it has polled the drive again): the speed regulator may go on from its last setpoint, on the
+    /// speed, without the read-back, for [`MISMATCH_S`]. Taken as what the drive runs at, that 0 restarted the ramp
+    /// from the bottom, and one write took a running drive from 19.9 to 0.2 Hz (a reviewer's hostile PLC); the
+    /// speed regulator on a shaft faster than the drive's frequency can only lower the setpoint.
+    pub fn read_back_only(&self) -> bool {
+        self.read_back_low
+    }
+
+    /// The verdict on one sample: `expected_rad_s` is the speed the drive's frequency `f_drive_hz` gives, and
+    /// `turning_rad_s` the speed [`NO_TURN_HZ`] gives. Only while the drive runs at [`NO_TURN_HZ`] or more, or the
+    /// shaft turns faster than that (below both, a motor breaking away or a start proves nothing).
     pub fn observe(
         &mut self,
         omega_rad_s: f64,
-        expected_rad_s: f64,
+        (expected_rad_s, turning_rad_s): (f64, f64),
         f_drive_hz: f64,
         at: std::time::Instant,
     ) -> Option<Rejected> {
-        let off = f_drive_hz.abs() >= NO_TURN_HZ
+        let turning = f_drive_hz.abs() >= NO_TURN_HZ || omega_rad_s.abs() > turning_rad_s.abs();
+        let off = turning
             && expected_rad_s.is_finite()
             && (omega_rad_s - expected_rad_s).abs() > MISMATCH_SHARE * expected_rad_s.abs() + MISMATCH_RAD_S;
+        if off {
+            self.read_back_low = f_drive_hz.abs() < NO_TURN_HZ;
+        }
         if !off {
             if self.since.is_some() {
                 let back = *self.back_since.get_or_insert(at);
                 if at.saturating_duration_since(back).as_secs_f64() > MISMATCH_S {
-                    (self.since, self.back_since) = (None, None);
+                    (self.since, self.back_since, self.read_back_low) = (None, None, false);
                 }
             }
             return None;
@@ -363,16 +383,37 @@ mod tests {
         let t0 = std::time::Instant::now();
         let at = |ms: u64| t0 + std::time::Duration::from_millis(ms);
         let mut m = SpeedMatch::default();
-        assert_eq!(m.observe(15.0, 30.0, 20.0, at(0)), None);
+        assert_eq!(m.observe(15.0, (30.0, 7.7), 20.0, at(0)), None);
         assert!(m.mismatched(), "held back at once");
-        assert!(m.observe(15.0, 30.0, 20.0, at(1100)).is_some(), "refused after a second");
-        assert_eq!(m.observe(16.6, 30.0, 20.0, at(1110)), None, "inside the band");
+        assert!(m.observe(15.0, (30.0, 7.7), 20.0, at(1100)).is_some(), "refused after a second");
+        assert_eq!(m.observe(16.6, (30.0, 7.7), 20.0, at(1110)), None, "inside the band");
         assert!(m.mismatched(), "one sample back in the band proves nothing");
-        assert!(m.observe(15.0, 30.0, 20.0, at(1120)).is_some(), "off again: still refused");
+        assert!(m.observe(15.0, (30.0, 7.7), 20.0, at(1120)).is_some(), "off again: still refused");
         for k in 0..=110 {
-            m.observe(29.0, 30.0, 20.0, at(1130 + 10 * k));
+            m.observe(29.0, (30.0, 7.7), 20.0, at(1130 + 10 * k));
         }
         assert!(!m.mismatched(), "a second back in the band clears it");
+        assert!(!m.read_back_only());
+        // a read-back of 0 under a shaft that turns (a PLC's 0 for a drive it cannot reach): the read-back is not
+        // believed, at once, and the samples are refused after a second; below the speed 5 Hz gives, nothing is said
+        let mut m = SpeedMatch::default();
+        assert_eq!(m.observe(5.0, (-0.1, 7.7), 0.0, at(0)), None, "a shaft that barely turns proves nothing");
+        assert!(!m.mismatched());
+        assert_eq!(m.observe(30.0, (-0.1, 7.7), 0.0, at(10)), None);
+        assert!(m.mismatched() && m.read_back_only(), "the read-back is not believed");
+        assert!(m.observe(30.0, (-0.1, 7.7), 0.0, at(1100)).is_some(), "refused after a second");
+        // a tachometer too slow for the drive's frequency is still held back from the first sample
+        assert_eq!(
+            m.observe(15.0, (30.0, 7.7), 20.0, at(1110)),
+            Some(Rejected::Mismatch {
+                entry: "shaft_speed_rpm",
+                value: 15.0,
+                expected: 30.0,
+                f_drive_hz: 20.0,
+                held_s: 1.1
+            })
+        );
+        assert!(!m.read_back_only());
     }
 
     #[test]
