@@ -42,59 +42,50 @@ fn make_state(token: Option<&str>, mode: &str) -> (AppState, CancellationToken, 
 /// until read, 120 replies nobody read took the service to 1.3 GB.
 #[tokio::test]
 async fn history_replies_in_flight_are_bounded_until_read() {
-    use hydrolens::http::MAX_HISTORY_REPLIES;
     let (state, stop, _dir) = make_state(None, "monitor");
     let permits = state.history_replies.clone();
-    let app = router(state);
-    let history = || app.clone().oneshot(get("/api/history?drive=pump1&seconds=5"));
+    assert_eq!(permits.available_permits(), hydrolens::http::MAX_HISTORY_REPLIES);
+    let body = bounded_until_read(router(state), "/api/history?drive=pump1&seconds=5", &permits).await;
+    let json: serde_json::Value = serde_json::from_slice(&body).expect("json");
+    assert_eq!(json["drive"], "pump1");
+    stop.cancel();
+}
+
+/// Recordings downloaded at once are bounded ([`hydrolens::http::MAX_DOWNLOADS`]) as history replies are. 512 slow
+/// downloads held every connection and took the service from 12 to 310 MB.
+#[tokio::test]
+async fn downloads_at_once_are_bounded_until_read() {
+    let (state, stop, dir) = make_state(None, "monitor");
+    std::fs::write(dir.path().join("pump1-1.csv"), "t_s,omega_rad_s\n0,1\n").expect("a recording");
+    let permits = state.downloads.clone();
+    assert_eq!(permits.available_permits(), hydrolens::http::MAX_DOWNLOADS);
+    let body = bounded_until_read(router(state), "/api/recordings/pump1-1.csv", &permits).await;
+    assert_eq!(&body[..], b"t_s,omega_rad_s\n0,1\n");
+    stop.cancel();
+}
+
+/// Asks `uri` as often as `permits` allow without reading the answers; the next gets 503 with `Retry-After`; a reply
+/// read to its end frees its permit, and the others dropped (their clients gone) free theirs. The body read.
+async fn bounded_until_read(app: axum::Router, uri: &str, permits: &tokio::sync::Semaphore) -> axum::body::Bytes {
+    let max = permits.available_permits();
+    let ask = || app.clone().oneshot(get(uri));
     let mut unread = Vec::new();
-    for _ in 0..MAX_HISTORY_REPLIES {
-        let resp = history().await.expect("infallible");
+    for _ in 0..max {
+        let resp = ask().await.expect("infallible");
         assert_eq!(resp.status(), StatusCode::OK);
         unread.push(resp);
     }
     assert_eq!(permits.available_permits(), 0);
-    let busy = history().await.expect("infallible");
+    let busy = ask().await.expect("infallible");
     assert_eq!(busy.status(), StatusCode::SERVICE_UNAVAILABLE);
     assert!(busy.headers().contains_key(header::RETRY_AFTER));
     let read = unread.pop().expect("a reply").into_body();
     let bytes = axum::body::to_bytes(read, usize::MAX).await.expect("body");
-    let json: serde_json::Value = serde_json::from_slice(&bytes).expect("json");
-    assert_eq!(json["drive"], "pump1");
     assert_eq!(permits.available_permits(), 1, "a reply read to its end frees its permit");
     drop(unread);
-    assert_eq!(permits.available_permits(), MAX_HISTORY_REPLIES, "a client gone frees its reply's");
-    stop.cancel();
-}
-
-/// Recordings downloaded at once are bounded ([`hydrolens::http::MAX_DOWNLOADS`]) as history replies are: a download
-/// holds its permit until its body is read or dropped, and one beyond gets 503 with `Retry-After`. 512 slow
-/// downloads held every connection and took the service from 12 to 310 MB.
-#[tokio::test]
-async fn downloads_at_once_are_bounded_until_read() {
-    use hydrolens::http::MAX_DOWNLOADS;
-    let (state, stop, dir) = make_state(None, "monitor");
-    std::fs::write(dir.path().join("pump1-1.csv"), "t_s,omega_rad_s\n0,1\n").expect("a recording");
-    let permits = state.downloads.clone();
-    let app = router(state);
-    let download = || app.clone().oneshot(get("/api/recordings/pump1-1.csv"));
-    let mut unread = Vec::new();
-    for _ in 0..MAX_DOWNLOADS {
-        let resp = download().await.expect("infallible");
-        assert_eq!(resp.status(), StatusCode::OK);
-        unread.push(resp);
-    }
-    let busy = download().await.expect("infallible");
-    assert_eq!(busy.status(), StatusCode::SERVICE_UNAVAILABLE);
-    assert!(busy.headers().contains_key(header::RETRY_AFTER));
-    let read = unread.pop().expect("a download").into_body();
-    let bytes = axum::body::to_bytes(read, usize::MAX).await.expect("body");
-    assert_eq!(&bytes[..], b"t_s,omega_rad_s\n0,1\n");
-    assert_eq!(permits.available_permits(), 1, "a download read to its end frees its permit");
-    drop(unread);
-    assert_eq!(permits.available_permits(), MAX_DOWNLOADS, "a client gone frees its download's");
-    assert_eq!(download().await.expect("infallible").status(), StatusCode::OK);
-    stop.cancel();
+    assert_eq!(permits.available_permits(), max, "a client gone frees its reply's");
+    assert_eq!(ask().await.expect("infallible").status(), StatusCode::OK);
+    bytes
 }
 
 /// One client address holds at most [`hydrolens::http::event_share`] of the event streams; the rest stay for the
