@@ -247,6 +247,8 @@ fn interval_messages(topics: &mut [DriveTopics]) -> Vec<Message> {
 
 /// The longest wait between two connection attempts.
 const MAX_BACKOFF: Duration = Duration::from_secs(2);
+/// A connection that lasted this long held: the back-off starts again from its shortest after it.
+const CONNECTION_HELD: Duration = Duration::from_secs(10);
 
 async fn run(
     settings: MqttSettings,
@@ -335,14 +337,22 @@ async fn drive_connection(
     let mut backoff = Duration::from_millis(100);
     // the failure last logged as a warning: the same one again (every 2 s while it lasts) goes to debug
     let mut last_failure: Option<String> = None;
+    // when the broker last accepted the connection, and whether connections are being closed soon after (a
+    // broker that takes each one and drops it at once: said once, then at debug, until one holds)
+    let mut connected_at: Option<std::time::Instant> = None;
+    let mut flapping = false;
     loop {
         match eventloop.poll().await {
             Ok(Event::Incoming(Packet::ConnAck(_))) => {
-                tracing::info!(url = %settings.url, "MQTT connected");
+                if flapping {
+                    tracing::debug!(url = %settings.url, "MQTT connected");
+                } else {
+                    tracing::info!(url = %settings.url, "MQTT connected");
+                }
                 last_failure = None;
+                connected_at = Some(std::time::Instant::now());
                 health.set_connected(true);
                 resend.store(true, Ordering::Relaxed);
-                backoff = Duration::from_millis(100);
                 // queued behind at most the channel's few messages; rumqttc's channel never loses it
                 let c = client.clone();
                 let topic = online_topic.to_string();
@@ -358,7 +368,21 @@ async fn drive_connection(
             Ok(_) => {}
             Err(e) => {
                 let error = e.to_string();
-                if health.connected.load(Ordering::Relaxed) {
+                // the back-off starts again only after a connection that held: reset at every CONNACK, a broker
+                // that closed each connection at once was reconnected to 10 times a second (a hostile tester's)
+                let held = connected_at.take().map(|at| at.elapsed() >= CONNECTION_HELD);
+                if held == Some(true) {
+                    backoff = Duration::from_millis(100);
+                    flapping = false;
+                }
+                if held == Some(false) && !flapping {
+                    flapping = true;
+                    tracing::warn!(url = %settings.url, error,
+                        "MQTT connection lost soon after the broker accepted it: retrying with back-off, and \
+                         said again only once a connection holds");
+                } else if held.is_some() && flapping {
+                    tracing::debug!(url = %settings.url, error, "MQTT connection lost");
+                } else if health.connected.load(Ordering::Relaxed) {
                     tracing::warn!(url = %settings.url, error, "MQTT connection lost");
                 } else if last_failure.as_ref() != Some(&error) {
                     tracing::warn!(url = %settings.url, error, "MQTT connection attempt failed");

@@ -269,22 +269,43 @@ impl DriveClient {
     }
 
     /// Runs one request on the open connection (connecting first if needed), under the timeout.
+    ///
+    /// On an RTU line, a reply from another device that comes first (late: its own request timed out, and this
+    /// device was asked meanwhile) is not this device's fault: the port is opened again, its input cleared, and the
+    /// request sent once more. Charged to this device, a neighbour answering 15 ms past its timeout gave a healthy
+    /// drive one protocol error for each of its own, and a write gap of 0.72 s (a hostile tester's line).
     async fn call<T, F>(&mut self, f: F) -> Result<T, ClientError>
     where
-        F: for<'a> FnOnce(&'a mut Context) -> futures::future::BoxFuture<'a, tokio_modbus::Result<T>>,
+        F: for<'a> Fn(&'a mut Context) -> futures::future::BoxFuture<'a, tokio_modbus::Result<T>>,
     {
-        if self.ctx.is_none() {
-            self.connect().await?;
-        }
-        if let (Some(gap), Some(quiet)) = (self.gap, self.line_quiet_since) {
-            // RTU: a frame ends with 3.5 characters of silence; a request sent sooner would run into the last reply
-            tokio::time::sleep_until(quiet + gap).await;
-        }
-        let Some(ctx) = self.ctx.as_mut() else { return Err(ClientError::Backoff(self.backoff)) };
-        let result = timeout(self.call_timeout, f(ctx)).await;
-        if self.gap.is_some() {
-            self.line_quiet_since = Some(Instant::now());
-        }
+        let mut stray_cleared = false;
+        let result = loop {
+            if self.ctx.is_none() {
+                self.connect().await?;
+            }
+            if let (Some(gap), Some(quiet)) = (self.gap, self.line_quiet_since) {
+                // RTU: a frame ends with 3.5 characters of silence; a request sent sooner would run into the last
+                // reply
+                tokio::time::sleep_until(quiet + gap).await;
+            }
+            let Some(ctx) = self.ctx.as_mut() else { return Err(ClientError::Backoff(self.backoff)) };
+            let result = timeout(self.call_timeout, f(ctx)).await;
+            if self.gap.is_some() {
+                self.line_quiet_since = Some(Instant::now());
+            }
+            match &result {
+                Ok(Err(tokio_modbus::Error::Protocol(tokio_modbus::ProtocolError::HeaderMismatch {
+                    message, ..
+                }))) if self.gap.is_some() && !stray_cleared => {
+                    tracing::debug!(address = %self.endpoint.name(), unit_id = self.unit_id, message,
+                        "a reply from another device on the line: cleared, the request sent again");
+                    stray_cleared = true;
+                    self.ctx = None;
+                    self.next_attempt = None;
+                }
+                _ => break result,
+            }
+        };
         match result {
             Ok(Ok(Ok(v))) => Ok(v),
             Ok(Ok(Err(code))) => Err(ClientError::Exception(code)),
@@ -300,7 +321,7 @@ impl DriveClient {
             Table::Input => Request::ReadInputRegisters(start, count),
             Table::Holding => Request::ReadHoldingRegisters(start, count),
         };
-        let response = self.call(move |ctx| Box::pin(ctx.call(request))).await?;
+        let response = self.call(move |ctx| Box::pin(ctx.call(request.clone()))).await?;
         let words = match response {
             Response::ReadInputRegisters(w) | Response::ReadHoldingRegisters(w) => w,
             other => return Err(self.failed(ClientError::Protocol(format!("unexpected reply {other:?}")))),
@@ -320,7 +341,7 @@ impl DriveClient {
             [w] => Request::WriteSingleRegister(start, *w),
             _ => Request::WriteMultipleRegisters(start, std::borrow::Cow::Owned(words.to_vec())),
         };
-        let response = self.call(move |ctx| Box::pin(ctx.call(request))).await?;
+        let response = self.call(move |ctx| Box::pin(ctx.call(request.clone()))).await?;
         let echoed = match response {
             Response::WriteSingleRegister(a, w) => a == start && words == [w],
             Response::WriteMultipleRegisters(a, n) => a == start && usize::from(n) == words.len(),

@@ -493,6 +493,41 @@ async fn tls_broker_gets_status_and_an_untrusted_ca_is_refused() {
 
 /// Issue 29, finding 9: a broker that takes the connection but never reads nor answers receives nothing, and nothing
 /// is counted published (before, every message handed to the client was).
+/// A broker that accepts each connection (CONNACK) and closes it at once is reconnected to with a growing back-off:
+/// it started again from 0.1 s at every CONNACK, 10 connections a second for as long as it lasted (a hostile
+/// tester's broker). The waits between attempts are a lower bound on the time eight connections take, whatever the
+/// machine's load: 0.1 + 0.2 + 0.4 + 0.8 + 1.6 + 2 + 2 s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_broker_that_drops_each_connection_at_once_is_retried_with_a_growing_back_off() {
+    use tokio::io::AsyncWriteExt;
+    let run = async {
+        let broker = tokio::net::TcpListener::bind("127.0.0.1:0").await.expect("bind");
+        let port = broker.local_addr().expect("addr").port();
+        let (tx, mut accepted) = tokio::sync::mpsc::unbounded_channel();
+        let dropper = tokio::spawn(async move {
+            while let Ok((mut c, _)) = broker.accept().await {
+                let _ = tx.send(std::time::Instant::now());
+                // CONNACK, session not present, accepted; then gone
+                let _ = c.write_all(&[0x20, 0x02, 0x00, 0x00]).await;
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+        });
+        let mqtt = format!("\n[mqtt]\nurl = \"mqtt://127.0.0.1:{port}\"\ntopic_prefix = \"hl\"\ninterval_ms = 100\n");
+        let stack = Stack::start(5.0, 10, &format!("[drives.control]\nmode = \"monitor\"\n{mqtt}")).await;
+        let first = accepted.recv().await.expect("a first connection");
+        let mut last = first;
+        for _ in 1..8 {
+            last = accepted.recv().await.expect("a connection");
+        }
+        let took = last - first;
+        eprintln!("eight connections to a broker that drops each at once: {took:?}");
+        assert!(took >= Duration::from_secs(7), "the back-off grows across the connections: {took:?}");
+        stack.stop().await;
+        dropper.abort();
+    };
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_broker_that_never_answers_gets_nothing_counted_as_published() {
     let run = async {

@@ -536,3 +536,69 @@ async fn sim_serves_rtu_on_a_serial_device_from_the_command_line() {
     }
     result.expect("within 20 s");
 }
+
+/// Noise on an RTU line (the device's end sending random bytes without a pause) fills the log at the service's own
+/// pace only: tokio-modbus logged every frame it could not decode, with its bytes, at WARN and ERROR: 730 lines a
+/// second (a hostile tester's line), past the service's once-per-10-s warning of the same fault.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn noise_on_the_line_does_not_flood_the_log() {
+    let dir = tempfile::tempdir().expect("tmp");
+    let line = SocatLine::plug(dir.path());
+    let text = service_text(&dir.path().join("rec"), &rtu_drive("vfd1", &line.end("a"), 1, 40, 30.0));
+    let s = crate::support::ServeProcess::start(dir.path(), &text);
+    let device = line.end("b");
+    // 3 s of noise (a bounded loop; the assertions are on what the log holds, not on time)
+    let noise = std::thread::spawn(move || {
+        use std::io::Write;
+        let mut port = std::fs::OpenOptions::new().write(true).open(device).expect("the device's end");
+        let mut x: u64 = 0x9e37_79b9_7f4a_7c15;
+        for _ in 0..3000 {
+            let bytes: Vec<u8> = (0..32)
+                .map(|_| {
+                    x ^= x << 13;
+                    x ^= x >> 7;
+                    x ^= x << 17;
+                    x as u8
+                })
+                .collect();
+            let _ = port.write_all(&bytes);
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    });
+    tokio::task::spawn_blocking(move || noise.join()).await.expect("join").expect("the noise");
+    let errors = |m: String| -> f64 {
+        let total = m.lines().filter(|l| l.starts_with("hydrolens_errors_total{") && l.contains("vfd1"));
+        total.filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok()).sum()
+    };
+    let counted = wait_for(Duration::from_secs(10), || async { errors(s.metrics().await) > 0.0 }).await;
+    assert!(counted.is_some(), "the noise is counted as errors: {}", s.metrics().await);
+    let log = s.log();
+    let lines = log.lines().count();
+    eprintln!("3 s of noise on the line: {lines} log lines");
+    assert!(!log.contains("tokio_modbus"), "the library's own lines: {}", &log[..log.len().min(2000)]);
+    assert!(lines < 200, "{lines} lines: {}", &log[..log.len().min(2000)]);
+}
+
+/// A neighbour that answers past its timeout (130 ms against 100): its late reply comes while the healthy drive is
+/// asked, and is not that drive's error. Charged to it, a hostile tester's healthy drive counted one protocol error
+/// ("mismatching headers: expected slave_id 1, actual slave_id 2") for each of the late one's timeouts. Counted, not
+/// timed: vfd2's timeouts against vfd1's errors over the same stretch.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_neighbours_late_reply_is_not_the_healthy_drives_error() {
+    let run = async {
+        let pair = TwoOnOneLine::regulating().await;
+        let url = pair.service.url.clone();
+        let errors = |i: usize| link_count(&url, i, "errors");
+        let (one_before, two_before) = (errors(0).await, errors(1).await);
+        pair.two.lock().faults.reply_delay = Some(Duration::from_millis(130));
+        let late = wait_for(Duration::from_secs(30), || async { errors(1).await >= two_before + 5 }).await;
+        assert!(late.is_some(), "vfd2's late replies time out: {}", status(&url).await);
+        pair.two.lock().faults.reply_delay = None;
+        let (one, two) = (errors(0).await - one_before, errors(1).await - two_before);
+        eprintln!("vfd2 timed out {two} times; vfd1 counted {one} errors meanwhile");
+        let s = status(&url).await;
+        assert_eq!(one, 0, "vfd1 is not charged with vfd2's late replies: {}", s["drives"][0]["link"]);
+        pair.stop().await;
+    };
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("within 120 s");
+}

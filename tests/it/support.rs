@@ -304,8 +304,9 @@ impl ServeProcess {
     /// Runs `command` and reads its stderr until it announces its URL (which it must).
     fn spawn(mut command: std::process::Command) -> ServeProcess {
         use std::io::{BufRead, BufReader};
+        // the log's own default filter (not the caller's RUST_LOG)
         let mut child = command
-            .env("RUST_LOG", "info")
+            .env_remove("RUST_LOG")
             .env("NO_COLOR", "1")
             .stdout(std::process::Stdio::null())
             .stderr(std::process::Stdio::piped())

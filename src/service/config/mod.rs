@@ -324,13 +324,35 @@ pub fn load(path: &Path) -> Result<Settings, ConfigError> {
 
 /// Parses and validates config text; `origin` names it in errors, `base` resolves relative model paths.
 pub fn parse(text: &str, origin: &str, base: Option<&Path>) -> Result<Settings, ConfigError> {
-    let raw: RawConfig = toml::from_str(text)
-        .map_err(|e| ConfigError::Syntax { path: origin.to_string(), message: e.to_string().trim_end().to_string() })?;
+    let raw: RawConfig = toml::from_str(text).map_err(|e| ConfigError::Syntax {
+        path: origin.to_string(),
+        message: without_secrets(e.to_string().trim_end()),
+    })?;
     validate(raw, base).map_err(|KeyError { key, message }| ConfigError::Invalid {
         path: origin.to_string(),
         key,
         message,
     })
+}
+
+/// A TOML error's text with the value cut from any quoted source line whose key names a secret (`password`,
+/// `token`, `secret`, any case or spelling around them): the error quotes the line it is on, and a typo there put
+/// the MQTT password or the HTTP token in the journal.
+fn without_secrets(rendered: &str) -> String {
+    let secret = |key: &str| {
+        let key = key.to_ascii_lowercase();
+        ["pass", "token", "secret", "pwd"].iter().any(|k| key.contains(k))
+    };
+    let lines = rendered.lines().map(|line| {
+        // a quoted source line: `23 | password = "…`
+        let Some((gutter, source)) = line.split_once(" | ") else { return line.to_string() };
+        let quoted = !gutter.trim().is_empty() && gutter.trim().bytes().all(|b| b.is_ascii_digit());
+        match source.split_once('=') {
+            Some((key, _)) if quoted && secret(key) => format!("{gutter} | {}= … (a secret: not repeated)", key),
+            _ => line.to_string(),
+        }
+    });
+    lines.collect::<Vec<_>>().join("\n")
 }
 
 type Invalid = KeyError;

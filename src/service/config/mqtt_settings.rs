@@ -81,8 +81,13 @@ fn parse_url(url: &str) -> Result<(bool, String, u16), String> {
         return Err(format!("{url:?} is not a URL such as mqtt://127.0.0.1:1883 or mqtts://broker.plant:8883"));
     };
     let rest = rest.strip_suffix('/').unwrap_or(rest);
-    if rest.contains('@') {
-        return Err(format!("{url:?}: put credentials in mqtt.username and mqtt.password, not in the URL"));
+    if let Some((_, host)) = rest.rsplit_once('@') {
+        // the credentials are not repeated (the message goes to the journal)
+        let (scheme, _) = url.split_once("://").unwrap_or((url, ""));
+        return Err(format!(
+            "\"{scheme}://…@{host}\": put credentials in mqtt.username and mqtt.password, not in the URL (not \
+             repeated here)"
+        ));
     }
     if rest.contains(['/', '?', '#']) {
         return Err(format!("{url:?}: a broker URL has no path or query (mqtt://host:port)"));

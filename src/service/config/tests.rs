@@ -325,3 +325,23 @@ fn a_token_no_client_can_send_is_refused() {
     let ok = parse(&format!("[http]\ntoken = \"0123456789abcdef-_.~+/=\"\n{MINIMAL}"), "t.toml", None).expect("valid");
     assert_eq!(ok.http.token.as_deref(), Some("0123456789abcdef-_.~+/="));
 }
+
+/// A config error never repeats a secret: the broker URL's credentials (the check that keeps them out of the URL
+/// echoed them), nor the value on a quoted source line whose key names one (a typo on the `password` or `token` line
+/// put it in the journal).
+#[test]
+fn errors_do_not_repeat_secrets() {
+    let url = format!("{MINIMAL}[mqtt]\nurl = \"mqtt://hluser:UrlSecretPw55@127.0.0.1:1883\"\n");
+    let e = err(&url);
+    assert!(e.contains("mqtt.url") && e.contains("127.0.0.1:1883") && !e.contains("UrlSecretPw55"), "{e}");
+    for line in ["password = \"SuperSecretPw9876", "passwd = \"SuperSecretPw9876\"", "Password = 'SuperSecretPw9876' x"]
+    {
+        let e = err(&format!("{MINIMAL}[mqtt]\nurl = \"mqtt://127.0.0.1:1883\"\n{line}\n"));
+        assert!(e.contains("line 7") && !e.contains("SuperSecretPw9876"), "{line}: {e}");
+    }
+    let e = err(&format!("[http]\ntoken = \"HttpSecretToken42{MINIMAL}"));
+    assert!(!e.contains("HttpSecretToken42"), "{e}");
+    // other lines are quoted as they are
+    let e = err(&format!("{MINIMAL}poll_ms = \"ten\"\n"));
+    assert!(e.contains("\"ten\""), "{e}");
+}
