@@ -235,7 +235,14 @@ impl DriveClient {
                 // the back-off stays: a device that accepts and then answers garbage must not be reconnected
                 // to at full rate; [`DriveClient::good_poll`] resets it
                 self.next_attempt = None;
-                tracing::info!(address = %self.endpoint.name(), unit_id = self.unit_id, "modbus connected");
+                // at most every WARN_EVERY at INFO (the rest at debug): a line of noise, or a neighbour answering
+                // late, reopened the port 10 times a second
+                match self.loud.allow("connected", Instant::now()) {
+                    Some(more_since_last) => tracing::info!(address = %self.endpoint.name(), unit_id = self.unit_id,
+                        more_since_last, "modbus connected"),
+                    None => tracing::debug!(address = %self.endpoint.name(), unit_id = self.unit_id,
+                        "modbus connected"),
+                }
                 Ok(())
             }
             Ok(Err(e)) => {
