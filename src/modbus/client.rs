@@ -277,28 +277,31 @@ impl DriveClient {
 
     /// Runs one request on the open connection (connecting first if needed), under the timeout.
     ///
-    /// On an RTU line, a reply from another device that comes first (late: its own request timed out, and this
-    /// device was asked meanwhile) is not this device's fault: the port is opened again, its input cleared, and the
-    /// request sent once more. Charged to this device, a neighbour answering 15 ms past its timeout gave a healthy
-    /// drive one protocol error for each of its own, and a write gap of 0.72 s (a hostile tester's line).
+    /// On an RTU line a late reply must not answer the next request: after a request that timed out, the line is
+    /// left alone for [`DriveClient::late_reply_grace`] and the port opened again with its input cleared (the
+    /// silence before a request is waited out before the port is opened). A reply from another device that still
+    /// comes first is not this device's fault either: the same wait and clearing, and the request goes once more.
+    /// Charged to this device, a neighbour answering 15 ms past its timeout gave a healthy drive one protocol error
+    /// for each of its own, and a write gap of 0.72 s (a hostile tester's line).
     async fn call<T, F>(&mut self, f: F) -> Result<T, ClientError>
     where
         F: for<'a> Fn(&'a mut Context) -> futures::future::BoxFuture<'a, tokio_modbus::Result<T>>,
     {
         let mut stray_cleared = false;
         let result = loop {
-            if self.ctx.is_none() {
-                self.connect().await?;
-            }
             if let (Some(gap), Some(quiet)) = (self.gap, self.line_quiet_since) {
                 // RTU: a frame ends with 3.5 characters of silence; a request sent sooner would run into the last
                 // reply
                 tokio::time::sleep_until(quiet + gap).await;
             }
+            if self.ctx.is_none() {
+                self.connect().await?;
+            }
             let Some(ctx) = self.ctx.as_mut() else { return Err(ClientError::Backoff(self.backoff)) };
             let result = timeout(self.call_timeout, f(ctx)).await;
             if self.gap.is_some() {
-                self.line_quiet_since = Some(Instant::now());
+                let grace = if result.is_err() { self.late_reply_grace() } else { Duration::ZERO };
+                self.line_quiet_since = Some(Instant::now() + grace);
             }
             match &result {
                 Ok(Err(tokio_modbus::Error::Protocol(tokio_modbus::ProtocolError::HeaderMismatch {
@@ -309,6 +312,7 @@ impl DriveClient {
                     stray_cleared = true;
                     self.ctx = None;
                     self.next_attempt = None;
+                    self.line_quiet_since = Some(Instant::now() + self.late_reply_grace());
                 }
                 _ => break result,
             }
@@ -320,6 +324,13 @@ impl DriveClient {
             Ok(Err(tokio_modbus::Error::Protocol(e))) => Err(self.failed(ClientError::Protocol(e.to_string()))),
             Err(_) => Err(self.failed(ClientError::Timeout(self.call_timeout))),
         }
+    }
+
+    /// How long an RTU line is left alone after a request timed out, or a stray reply came, before the port is
+    /// cleared for the next request: half the call timeout, so that a reply that late is dropped rather than taken
+    /// for the next one's.
+    fn late_reply_grace(&self) -> Duration {
+        self.call_timeout / 2
     }
 
     /// Reads `count` registers of a table from `start` in one request.
