@@ -203,7 +203,10 @@ impl SpeedMatch {
             && expected_rad_s.is_finite()
             && (omega_rad_s - expected_rad_s).abs() > MISMATCH_SHARE * expected_rad_s.abs() + MISMATCH_RAD_S;
         if off {
-            self.read_back_low = f_drive_hz.abs() < NO_TURN_HZ;
+            // for the whole stretch: one sample of a speed the drive's frequency cannot give (a tachometer at half)
+            // holds the writes back until the stretch ends, whatever the read-back does after it
+            let low = f_drive_hz.abs() < NO_TURN_HZ;
+            self.read_back_low = low && (self.since.is_none() || self.read_back_low);
         }
         if !off {
             if self.since.is_some() {
@@ -414,6 +417,12 @@ mod tests {
             })
         );
         assert!(!m.read_back_only());
+        // a stretch that began with a tachometer too slow stays held back, whatever the read-back does next (a
+        // tachometer at half, then a read-back of 0: the regulator would raise the setpoint on the slow tachometer)
+        let mut m = SpeedMatch::default();
+        assert_eq!(m.observe(15.0, (30.0, 7.7), 20.0, at(0)), None);
+        assert_eq!(m.observe(15.0, (-0.1, 7.7), 0.0, at(10)), None);
+        assert!(m.mismatched() && !m.read_back_only());
     }
 
     #[test]
