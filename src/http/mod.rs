@@ -247,6 +247,10 @@ async fn loopback_host(
     next: axum::middleware::Next,
 ) -> Response {
     let named = |h: &str| {
+        // `127.0.0.1:1@evil.example` names evil.example
+        if h.contains('@') {
+            return false;
+        }
         let name = match h.strip_prefix('[') {
             Some(v6) => v6.split(']').next().unwrap_or(""),
             None => h.rsplit_once(':').map_or(h, |(name, _)| name),

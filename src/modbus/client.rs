@@ -300,7 +300,8 @@ impl DriveClient {
             let Some(ctx) = self.ctx.as_mut() else { return Err(ClientError::Backoff(self.backoff)) };
             let result = timeout(self.call_timeout, f(ctx)).await;
             if self.gap.is_some() {
-                let grace = if result.is_err() { self.late_reply_grace() } else { Duration::ZERO };
+                // anything but a whole reply (a timeout, a garbled or stray frame) may have one still coming
+                let grace = if matches!(result, Ok(Ok(_))) { Duration::ZERO } else { self.late_reply_grace() };
                 self.line_quiet_since = Some(Instant::now() + grace);
             }
             match &result {

@@ -291,8 +291,9 @@ impl DriveCycle {
             return nothing(Verdict::Stale);
         }
         // a read-back below what the turning shaft allows is not what the drive runs at (`read_back_only`): the law
-        // goes on without it, from its last setpoint
-        let drive_hz = if self.speed_match.mismatched() { f64::NAN } else { m.f_drive_hz };
+        // goes on without it, from its last setpoint; with no setpoint to go on from (the first cycle, or the first
+        // after a gap, when the ramp starts again from the read-back), nothing is written until the read-back fits
+        let drive_hz = if self.speed_match.off_now() { f64::NAN } else { m.f_drive_hz };
         // timely: this reply came within stale_ms of the request of the sample before (so within stale_ms of its
         // own request too): the data never aged past stale_ms on the way, as readiness measures the age (from the
         // request of the newest fresh sample). Asking each of the reply's time and the gap alone within stale_ms, a
@@ -307,6 +308,10 @@ impl DriveCycle {
         // the first fresh cycle, or the first after a gap (longer than the data may age: a PLC that refreshes its
         // registers every few polls is no gap): the setpoint ramps from what the drive runs at, one poll's step
         let resumed = first || dt > self.stale_after.min(RESUME_AFTER).max(2 * self.poll);
+        if writing && drive_hz.is_nan() && (resumed || self.law.last_hz().is_none()) {
+            // (a reviewer's reading: restarted from nothing, the first write was min_hz and a ramp step, with RUN)
+            return nothing(Verdict::Stale);
+        }
         // a drive this service sent RUN that is not running after a stale stretch (its own watchdog stopped it, or
         // it lost power before it showed running, its counter moving on) is not started again unasked either: a
         // restarted simulator that had not yet shown running got RUN again under load
@@ -826,18 +831,39 @@ mod tests {
             c.confirm(true);
             s
         };
-        // 0.25 s without replies, three read-backs of 0, then the drive's own again
+        // 0.25 s without replies, three read-backs of 0, then the drive's own again: nothing is written while the
+        // ramp would start again from a read-back that is not believed, then it starts from the one that fits
         let zeros: Vec<Step> = (175..178).map(|k| step(&mut c, k, 0.0)).collect();
-        assert_eq!(zeros[0].verdict, Verdict::Stale, "the first after the gap: nothing to judge its age by");
-        assert!(written(&zeros[1]).is_some(), "the next ones are written from");
+        assert!(
+            zeros.iter().all(|s| s.writes.is_empty()),
+            "{:?}",
+            zeros.iter().map(|s| &s.verdict).collect::<Vec<_>>()
+        );
         let after: Vec<Step> = (178..300).map(|k| step(&mut c, k, 20.0)).collect();
-        let hz: Vec<f64> = zeros.iter().chain(&after).filter_map(written).map(|w| w.0).collect();
+        let hz: Vec<f64> = after.iter().filter_map(written).map(|w| w.0).collect();
         assert!(!hz.is_empty() && hz.iter().all(|&f| (f - 20.0).abs() <= 0.2 + 1e-9), "no dive: {hz:?}");
+        // a read-back of 0 for a few polls without a gap: the setpoint goes on from the last one
+        let mut short: Vec<Step> = (300..310).map(|k| step(&mut c, k, 0.0)).collect();
+        short.extend((310..320).map(|k| step(&mut c, k, 20.0)));
+        let hz: Vec<f64> = short.iter().filter_map(written).map(|w| w.0).collect();
+        assert!(hz.iter().all(|&f| (f - 20.0).abs() <= 0.2 + 1e-9), "no dive: {hz:?}");
         // a read-back of 0 for longer than a second: refused, nothing written
-        let lasting: Vec<Step> = (300..450).map(|k| step(&mut c, k, 0.0)).collect();
+        let lasting: Vec<Step> = (320..470).map(|k| step(&mut c, k, 0.0)).collect();
         assert!(lasting[120..].iter().all(|s| s.writes.is_empty()), "nothing written after a second");
         assert!(lasting.iter().filter_map(written).all(|w| w.0 >= 19.8), "and no dive before");
         assert!(matches!(lasting[149].verdict, Verdict::Rejected(Rejected::Mismatch { .. })));
+        // a service that starts while the read-back reads 0 under the turning shaft writes nothing (restarted from
+        // nothing, its first write was min_hz and a ramp step, with RUN)
+        let (mut fresh, t0) = cycle("mode = \"manual\"\nfixed_hz = 20.0\nramp_hz_per_s = 20.0");
+        let first: Vec<Step> = (0..50)
+            .map(|k| {
+                let at = t0 + MS * (10 * k as u32);
+                let s = fresh.step(&sample(k, 30.0 + 0.01 * (k % 3) as f64, 0.0, running), at, at + MS);
+                fresh.confirm(true);
+                s
+            })
+            .collect();
+        assert!(first.iter().all(|s| s.writes.is_empty()), "nothing written from a read-back not believed");
     }
 
     /// A gateway that answers reads from a cache refreshed every few polls shows our value before the last: that is

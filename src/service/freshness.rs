@@ -166,6 +166,8 @@ pub struct SpeedMatch {
     /// The last sample outside the band had the drive's frequency below [`NO_TURN_HZ`] and the shaft turning faster
     /// than that frequency allows: a read-back too low (see [`SpeedMatch::read_back_only`]).
     read_back_low: bool,
+    /// The last sample lay outside the band.
+    off_now: bool,
 }
 
 impl SpeedMatch {
@@ -188,6 +190,12 @@ impl SpeedMatch {
         self.read_back_low
     }
 
+    /// Whether the last sample lay outside the band (its read-back not to be believed now; one back inside may be,
+    /// though the stretch has not ended).
+    pub fn off_now(&self) -> bool {
+        self.off_now
+    }
+
     /// The verdict on one sample: `expected_rad_s` is the speed the drive's frequency `f_drive_hz` gives, and
     /// `turning_rad_s` the speed [`NO_TURN_HZ`] gives. Only while the drive runs at [`NO_TURN_HZ`] or more, or the
     /// shaft turns faster than that (below both, a motor breaking away or a start proves nothing).
@@ -202,6 +210,7 @@ impl SpeedMatch {
         let off = turning
             && expected_rad_s.is_finite()
             && (omega_rad_s - expected_rad_s).abs() > MISMATCH_SHARE * expected_rad_s.abs() + MISMATCH_RAD_S;
+        self.off_now = off;
         if off {
             // for the whole stretch: one sample of a speed the drive's frequency cannot give (a tachometer at half)
             // holds the writes back until the stretch ends, whatever the read-back does after it

@@ -376,6 +376,7 @@ async fn on_loopback_only_requests_for_a_loopback_host_are_answered() {
             ("GET /api/status HTTP/1.1\r\nHost: 127.0.0.1\r\nHost: evil.example\r\n", "421"),
             ("GET http://evil.example/api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n", "421"),
             ("GET http://127.0.0.1/api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n", "200"),
+            ("GET http://127.0.0.1:1@evil.example/api/status HTTP/1.1\r\nHost: 127.0.0.1\r\n", "421"),
         ] {
             let mut c = tokio::net::TcpStream::connect(&addr).await.expect("connects");
             c.write_all(format!("{head}Connection: close\r\n\r\n").as_bytes()).await.expect("write");

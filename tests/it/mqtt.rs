@@ -491,8 +491,6 @@ async fn tls_broker_gets_status_and_an_untrusted_ca_is_refused() {
     tokio::time::timeout(Duration::from_secs(60), run).await.expect("bounded");
 }
 
-/// Issue 29, finding 9: a broker that takes the connection but never reads nor answers receives nothing, and nothing
-/// is counted published (before, every message handed to the client was).
 /// A broker that accepts each connection (CONNACK) and closes it at once is reconnected to with a growing back-off:
 /// it started again from 0.1 s at every CONNACK, 10 connections a second for as long as it lasted (a hostile
 /// tester's broker). The waits between attempts are a lower bound on the time eight connections take, whatever the
@@ -528,6 +526,8 @@ async fn a_broker_that_drops_each_connection_at_once_is_retried_with_a_growing_b
     tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
 
+/// Issue 29, finding 9: a broker that takes the connection but never reads nor answers receives nothing, and nothing
+/// is counted published (before, every message handed to the client was).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_broker_that_never_answers_gets_nothing_counted_as_published() {
     let run = async {

@@ -78,7 +78,12 @@ fn parse_url(url: &str) -> Result<(bool, String, u16), String> {
     } else if lower.starts_with("mqtts://") {
         (true, &url["mqtts://".len()..])
     } else {
-        return Err(format!("{url:?} is not a URL such as mqtt://127.0.0.1:1883 or mqtts://broker.plant:8883"));
+        // credentials in it are not repeated (the message goes to the journal)
+        let shown = match url.rsplit_once('@') {
+            Some((_, host)) => format!("\"…@{host}\""),
+            None => format!("{url:?}"),
+        };
+        return Err(format!("{shown} is not a URL such as mqtt://127.0.0.1:1883 or mqtts://broker.plant:8883"));
     };
     let rest = rest.strip_suffix('/').unwrap_or(rest);
     if let Some((_, host)) = rest.rsplit_once('@') {

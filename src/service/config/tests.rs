@@ -334,6 +334,8 @@ fn errors_do_not_repeat_secrets() {
     let url = format!("{MINIMAL}[mqtt]\nurl = \"mqtt://hluser:UrlSecretPw55@127.0.0.1:1883\"\n");
     let e = err(&url);
     assert!(e.contains("mqtt.url") && e.contains("127.0.0.1:1883") && !e.contains("UrlSecretPw55"), "{e}");
+    let e = err(&url.replace("mqtt://", "tcp://"));
+    assert!(e.contains("mqtt.url") && !e.contains("UrlSecretPw55"), "{e}");
     for line in ["password = \"SuperSecretPw9876", "passwd = \"SuperSecretPw9876\"", "Password = 'SuperSecretPw9876' x"]
     {
         let e = err(&format!("{MINIMAL}[mqtt]\nurl = \"mqtt://127.0.0.1:1883\"\n{line}\n"));
