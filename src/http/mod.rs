@@ -294,6 +294,13 @@ pub async fn serve(listener: tokio::net::TcpListener, state: AppState) -> std::i
 /// The client's address, when the request came through [`serve_with`] (not in `oneshot` tests).
 pub struct ClientAddr(Option<std::net::SocketAddr>);
 
+impl ClientAddr {
+    /// The client's IP; requests without an address (in-process tests) share 0.0.0.0.
+    fn ip(&self) -> std::net::IpAddr {
+        self.0.map_or(std::net::IpAddr::from([0, 0, 0, 0]), |a| a.ip())
+    }
+}
+
 impl<S: Send + Sync> axum::extract::FromRequestParts<S> for ClientAddr {
     type Rejection = Infallible;
 
@@ -481,8 +488,7 @@ impl Drop for ClientStream {
 /// every connection, nor one address every stream. A client that stops reading is closed by the accept loop (see
 /// [`conn`]).
 async fn events(State(s): State<AppState>, client: ClientAddr) -> Response {
-    // requests without an address (in-process tests) share one entry
-    let ip = throttle::key(client.0.map_or(std::net::IpAddr::from([0, 0, 0, 0]), |a| a.ip()));
+    let ip = throttle::key(client.ip());
     let refused = |reason: &'static str, message: &str| {
         s.metrics.refused.get_or_create(&ReasonLabel { reason }).inc();
         conn::busy(message, 5)
@@ -537,8 +543,7 @@ fn authorize(s: &AppState, headers: &HeaderMap, client: &ClientAddr) -> Result<(
     if given.is_some_and(|g| same_token(g.as_bytes(), token.as_bytes())) {
         return Ok(());
     }
-    // requests without an address (in-process tests) share one entry
-    let ip = client.0.map_or(std::net::IpAddr::from([0, 0, 0, 0]), |a| a.ip());
+    let ip = client.ip();
     let now = std::time::Instant::now();
     if let Some(wait) = s.auth.blocked(ip, now) {
         s.metrics.auth_throttled.inc();

@@ -277,10 +277,11 @@ impl DriveClient {
 
     /// Runs one request on the open connection (connecting first if needed), under the timeout.
     ///
-    /// On an RTU line a late reply must not answer the next request: after a request that timed out, the line is
-    /// left alone for [`DriveClient::late_reply_grace`] and the port opened again with its input cleared (the
-    /// silence before a request is waited out before the port is opened). A reply from another device that still
-    /// comes first is not this device's fault either: the same wait and clearing, and the request goes once more.
+    /// On an RTU line a late reply must not answer the next request: after anything but a whole reply (a timeout,
+    /// a garbled or stray frame), the line is left alone for [`DriveClient::late_reply_grace`] and the port opened
+    /// again with its input cleared (the silence before a request is waited out before the port is opened). A reply
+    /// from another device that still comes first is not this device's fault either: after the same wait and
+    /// clearing, the request goes once more.
     /// Charged to this device, a neighbour answering 15 ms past its timeout gave a healthy drive one protocol error
     /// for each of its own, and a write gap of 0.72 s (a hostile tester's line).
     async fn call<T, F>(&mut self, f: F) -> Result<T, ClientError>
@@ -313,7 +314,6 @@ impl DriveClient {
                     stray_cleared = true;
                     self.ctx = None;
                     self.next_attempt = None;
-                    self.line_quiet_since = Some(Instant::now() + self.late_reply_grace());
                 }
                 _ => break result,
             }

@@ -235,28 +235,28 @@ impl LoadSpec {
 
     /// Checks the parameters, naming the key of the first bad one.
     pub fn validate(&self) -> Result<(), KeyError> {
-        let all_finite = |vals: &[f64]| vals.iter().all(|v| v.abs() <= MAX_LOAD_MAGNITUDE);
+        let all_within = |vals: &[f64]| vals.iter().all(|v| v.abs() <= MAX_LOAD_MAGNITUDE);
         match self {
             LoadSpec::Steps { levels_nm, period_s } => {
-                if levels_nm.is_empty() || !all_finite(levels_nm) {
+                if levels_nm.is_empty() || !all_within(levels_nm) {
                     return bad("levels_nm", "must be a non-empty list of finite numbers".into());
                 }
                 positive("period_s", *period_s)?;
             }
             LoadSpec::Sine { mean_nm, amplitude_nm, period_s } => {
-                if !all_finite(&[*mean_nm, *amplitude_nm]) {
+                if !all_within(&[*mean_nm, *amplitude_nm]) {
                     return bad("amplitude_nm", "mean_nm and amplitude_nm must be finite".into());
                 }
                 positive("period_s", *period_s)?;
             }
             LoadSpec::Ramp { from_nm, to_nm, start_s, duration_s } => {
-                if !all_finite(&[*from_nm, *to_nm]) || !start_s.is_finite() {
+                if !all_within(&[*from_nm, *to_nm]) || !start_s.is_finite() {
                     return bad("from_nm", "from_nm, to_nm and start_s must be finite".into());
                 }
                 nonneg("duration_s", *duration_s)?;
             }
             LoadSpec::Trend { start_nm, rate_nm_per_s, max_nm }
-                if !all_finite(&[*start_nm, *rate_nm_per_s]) || max_nm.is_nan() =>
+                if !all_within(&[*start_nm, *rate_nm_per_s]) || max_nm.is_nan() =>
             {
                 return bad("rate_nm_per_s", "start_nm, rate_nm_per_s and max_nm must be numbers".into());
             }
@@ -271,7 +271,7 @@ impl LoadSpec {
                 positive("at_rad_s", *at_rad_s)?;
             }
             LoadSpec::ShaftAngle { mean_nm, amplitude_nm, cycles_per_rev } => {
-                if !all_finite(&[*mean_nm, *amplitude_nm]) {
+                if !all_within(&[*mean_nm, *amplitude_nm]) {
                     return bad("amplitude_nm", "mean_nm and amplitude_nm must be finite".into());
                 }
                 positive("cycles_per_rev", *cycles_per_rev)?;
@@ -283,7 +283,7 @@ impl LoadSpec {
                 positive("correlation_s", *correlation_s)?;
             }
             LoadSpec::Impacts { base_nm, peak_nm, width_s, mean_interval_s, .. } => {
-                if !all_finite(&[*base_nm, *peak_nm]) {
+                if !all_within(&[*base_nm, *peak_nm]) {
                     return bad("peak_nm", "base_nm and peak_nm must be finite".into());
                 }
                 positive("width_s", *width_s)?;
@@ -302,7 +302,7 @@ impl LoadSpec {
             }
             LoadSpec::Sines { mean_nm, amplitudes_nm, periods_s } => {
                 finite("mean_nm", *mean_nm)?;
-                if amplitudes_nm.is_empty() || !all_finite(amplitudes_nm) {
+                if amplitudes_nm.is_empty() || !all_within(amplitudes_nm) {
                     return bad("amplitudes_nm", "must be a non-empty list of finite numbers".into());
                 }
                 if periods_s.len() != amplitudes_nm.len() || !periods_s.iter().all(|p| *p > 0.0 && p.is_finite()) {

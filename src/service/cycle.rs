@@ -824,13 +824,14 @@ mod tests {
         let before = run(&mut c, t0, 0, 150, 30.0, running);
         let last = before.iter().filter_map(written).next_back().expect("writes").0;
         assert!((last - 20.0).abs() < 1e-9, "{last}");
-        let step = |c: &mut DriveCycle, k: u64, f: f64| {
+        // sample k at k·10 ms after `t0`, the drive's frequency `f`, a live tachometer (it moves a quantum or two)
+        let live = |c: &mut DriveCycle, t0: Instant, k: u64, f: f64| {
             let at = t0 + MS * (10 * k as u32);
-            // a live tachometer: it moves a quantum or two
             let s = c.step(&sample(k, 30.0 + 0.01 * (k % 3) as f64, f, running), at, at + MS);
             c.confirm(true);
             s
         };
+        let step = |c: &mut DriveCycle, k: u64, f: f64| live(c, t0, k, f);
         // 0.25 s without replies, three read-backs of 0, then the drive's own again: nothing is written while the
         // ramp would start again from a read-back that is not believed, then it starts from the one that fits
         let zeros: Vec<Step> = (175..178).map(|k| step(&mut c, k, 0.0)).collect();
@@ -854,15 +855,8 @@ mod tests {
         assert!(matches!(lasting[149].verdict, Verdict::Rejected(Rejected::Mismatch { .. })));
         // a service that starts while the read-back reads 0 under the turning shaft writes nothing (restarted from
         // nothing, its first write was min_hz and a ramp step, with RUN)
-        let (mut fresh, t0) = cycle("mode = \"manual\"\nfixed_hz = 20.0\nramp_hz_per_s = 20.0");
-        let first: Vec<Step> = (0..50)
-            .map(|k| {
-                let at = t0 + MS * (10 * k as u32);
-                let s = fresh.step(&sample(k, 30.0 + 0.01 * (k % 3) as f64, 0.0, running), at, at + MS);
-                fresh.confirm(true);
-                s
-            })
-            .collect();
+        let (mut fresh, t1) = cycle("mode = \"manual\"\nfixed_hz = 20.0\nramp_hz_per_s = 20.0");
+        let first: Vec<Step> = (0..50).map(|k| live(&mut fresh, t1, k, 0.0)).collect();
         assert!(first.iter().all(|s| s.writes.is_empty()), "nothing written from a read-back not believed");
     }
 

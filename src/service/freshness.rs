@@ -163,8 +163,8 @@ pub struct SpeedMatch {
     since: Option<std::time::Instant>,
     /// Since when it has been back inside the band, while `since` stands.
     back_since: Option<std::time::Instant>,
-    /// The last sample outside the band had the drive's frequency below [`NO_TURN_HZ`] and the shaft turning faster
-    /// than that frequency allows: a read-back too low (see [`SpeedMatch::read_back_only`]).
+    /// Every sample outside the band in this stretch had the drive's frequency below [`NO_TURN_HZ`] and the shaft
+    /// turning faster than that frequency allows: a read-back too low (see [`SpeedMatch::read_back_only`]).
     read_back_low: bool,
     /// The last sample lay outside the band.
     off_now: bool,
@@ -184,8 +184,9 @@ impl SpeedMatch {
     /// frequency allows (a PLC that puts 0 in the register when its link to the drive fails, a gateway that serves
     /// zeros until it has polled the drive again): the speed regulator may go on from its last setpoint, on the
     /// speed, without the read-back, for [`MISMATCH_S`]. Taken as what the drive runs at, that 0 restarted the ramp
-    /// from the bottom, and one write took a running drive from 19.9 to 0.2 Hz (a reviewer's hostile PLC); the
-    /// speed regulator on a shaft faster than the drive's frequency can only lower the setpoint.
+    /// from the bottom, and one write took a running drive from 19.9 to 0.2 Hz (a reviewer's hostile PLC). The
+    /// regulator still acts on the speed, ramp limited, from its last setpoint; a tachometer too slow (which would
+    /// raise it) holds the writes back for the whole stretch.
     pub fn read_back_only(&self) -> bool {
         self.read_back_low
     }

@@ -71,6 +71,16 @@ pub struct MqttSettings {
 
 /// `mqtt://host[:port]` (port 1883 by default) or `mqtts://host[:port]` (TLS, port 8883 by default) into TLS or
 /// not, host and port.
+/// `url` quoted for a message, what stands before its last `@` (credentials) left out: the message goes to the
+/// journal, and the check that keeps credentials out of the URL echoed them.
+fn without_credentials(url: &str) -> String {
+    match (url.rsplit_once('@'), url.split_once("://")) {
+        (Some((_, host)), Some((scheme, _))) => format!("\"{scheme}://…@{host}\""),
+        (Some((_, host)), None) => format!("\"…@{host}\""),
+        (None, _) => format!("{url:?}"),
+    }
+}
+
 fn parse_url(url: &str) -> Result<(bool, String, u16), String> {
     let lower = url.to_ascii_lowercase();
     let (tls, rest) = if lower.starts_with("mqtt://") {
@@ -78,20 +88,16 @@ fn parse_url(url: &str) -> Result<(bool, String, u16), String> {
     } else if lower.starts_with("mqtts://") {
         (true, &url["mqtts://".len()..])
     } else {
-        // credentials in it are not repeated (the message goes to the journal)
-        let shown = match url.rsplit_once('@') {
-            Some((_, host)) => format!("\"…@{host}\""),
-            None => format!("{url:?}"),
-        };
-        return Err(format!("{shown} is not a URL such as mqtt://127.0.0.1:1883 or mqtts://broker.plant:8883"));
+        return Err(format!(
+            "{} is not a URL such as mqtt://127.0.0.1:1883 or mqtts://broker.plant:8883",
+            without_credentials(url)
+        ));
     };
     let rest = rest.strip_suffix('/').unwrap_or(rest);
-    if let Some((_, host)) = rest.rsplit_once('@') {
-        // the credentials are not repeated (the message goes to the journal)
-        let (scheme, _) = url.split_once("://").unwrap_or((url, ""));
+    if rest.contains('@') {
         return Err(format!(
-            "\"{scheme}://…@{host}\": put credentials in mqtt.username and mqtt.password, not in the URL (not \
-             repeated here)"
+            "{}: put credentials in mqtt.username and mqtt.password, not in the URL (not repeated here)",
+            without_credentials(url)
         ));
     }
     if rest.contains(['/', '?', '#']) {
