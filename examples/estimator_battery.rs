@@ -22,6 +22,8 @@
 //! the seed): the nominal models a plant usually has, where adapting has least to gain and most to lose.
 //! `plant=J,B` runs every scenario on a plant whose J and B are these factors of the reference's (`plant=1,3`: J
 //! 0.08, B 0.12), the wrong and near starts relative to it: plants the battery was not tuned on.
+//! `viscous_prior_sd=S` sets the model's prior standard deviation of B (default 1.5): what a user who knows the
+//! friction to that share says (with `start=near`, 0.3), and with it how far from the nominal B is read as friction.
 
 use hydrolens::estimator::EstimatorSettings;
 use hydrolens::estimator::battery::{self, Run};
@@ -73,6 +75,13 @@ fn main() {
                 plant.motor.viscous_nm_s_rad *= b;
             }
             "periodic" => settings.periodic_load = v != "0",
+            "viscous_prior_sd" => match v.parse::<f64>() {
+                Ok(sd) if sd > 0.0 && sd.is_finite() => settings.viscous_prior_sd = sd,
+                _ => {
+                    eprintln!("viscous_prior_sd={v}: a positive number is needed");
+                    std::process::exit(2);
+                }
+            },
             "families" => {
                 let named: Vec<Family> = v.split(',').filter_map(Family::from_name).collect();
                 for n in v.split(',').filter(|n| Family::from_name(n).is_none()) {

@@ -82,17 +82,24 @@ pub struct RlsSgd {
 /// J's and B's identification, and whether the adapted J and B stand.
 type Judged = ((Identification, Identification), (bool, bool));
 
-/// How far from the nominal B a B can plausibly be friction: a B more than one sd beyond it either way is read as a
-/// load that follows the speed. The battery starts its models up to ×3.3 off (a reviewer's ×2.5); a load ∝ ω is as
-/// large as it likes. At ×4 on the point estimate, held-out linear 1023 on an exact model took B ×4.0 as friction,
-/// T̂_L 1.75–6.99× the nominal model's at 1, 5 and 10 ms (1.00× at ×3.5 by a sd,
-/// `estimator::a_b_beyond_the_plausible_bound_is_the_loads`); a sd's margin, not the point, lets a B near the bound
-/// stand while it still reaches inside it (unseen brake 7007, B ×2.97: at ×3.5 on the point, B was read as the
+/// How far from the nominal B a B can plausibly be friction, in the model's own prior standard deviations of B
+/// (`viscous_prior_sd`): a B more than one of its sd beyond 1 + 5/3 of them either way (×3.5 at the default 1.5) is
+/// read as a load that follows the speed. A user who knows the friction says so in the prior (0.3: ×1.5), and a load
+/// ∝ ω beyond it is then the load's, not friction's. At the default: the battery starts its models up to ×3.3 off (a
+/// reviewer's ×2.5); a load ∝ ω is as large as it likes. At ×4 on the point estimate, held-out linear 1023 on an
+/// exact model took B ×4.0 as friction, T̂_L 1.75–6.99× the nominal model's at 1, 5 and 10 ms (1.00× at ×3.5 by a
+/// sd, `estimator::a_b_beyond_the_plausible_bound_is_the_loads`); a sd's margin, not the point, lets a B near the
+/// bound stand while it still reaches inside it (unseen brake 7007, B ×2.97: at ×3.5 on the point, B was read as the
 /// load's all run at 5 ms, `estimator::a_b_whose_interval_reaches_plausible_friction_stands`). With 2 sd, 8 new-load
 /// runs more did harm; at ×3, 22 fewer, but models ×3.2 off lost B (last trend 15011, reserve ramp 19022).
-const PLAUSIBLE_VISCOUS_FACTOR: f64 = 3.5;
-/// Before the evidence is in, an adapted B stands only this near the nominal (either way).
-const UNEARNED_VISCOUS_FACTOR: f64 = 2.5;
+fn plausible_viscous_factor(prior_sd: f64) -> f64 {
+    (3.0 + 5.0 * prior_sd) / 3.0
+}
+/// Before the evidence is in, an adapted B stands only this near the nominal (either way): one prior sd of B (×2.5
+/// at the default).
+fn unearned_viscous_factor(prior_sd: f64) -> f64 {
+    1.0 + prior_sd
+}
 /// The likelihood ratio at which the windows' B against their speed counts as evidence, either way, between friction
 /// and a load that follows the speed and makes up B's distance from the nominal (`WindowPool::load_odds`): 3,
 /// "positive" evidence on Kass and Raftery's scale. Below it either way the windows cannot tell them apart: an
@@ -298,15 +305,15 @@ impl RlsSgd {
     }
 
     /// The load follows the speed: the adapted B (all the torque proportional to speed) lies beyond what friction
-    /// plausibly is (more than `PLAUSIBLE_VISCOUS_FACTOR` from the nominal either way, by a sd), or the windows' B
+    /// plausibly is (more than `plausible_viscous_factor` from the nominal either way, by a sd), or the windows' B
     /// depends on the speed they saw (a fan's slope grows with the speed; friction's does not), shown once and then
     /// kept while the slope stays clear of zero (`pool::SPEED_SLOPE_HOLD_Z`).
     fn load_follows_speed(&self) -> bool {
         let ((b, var), _) = self.combined;
         let reference = self.rls.b0;
         let margin = var.sqrt();
-        let implausible =
-            b - margin > PLAUSIBLE_VISCOUS_FACTOR * reference || b + margin < reference / PLAUSIBLE_VISCOUS_FACTOR;
+        let factor = plausible_viscous_factor(self.s.viscous_prior_sd);
+        let implausible = b - margin > factor * reference || b + margin < reference / factor;
         let ((_, shown), _) = self.judged;
         implausible
             || (self.speed_test_applies()
@@ -456,7 +463,7 @@ impl RlsSgd {
                 && inertia_var.sqrt() <= INERTIA_IDENTIFIED_SD * j
                 && credible_j_sd <= INERTIA_CONTRADICTED_SD * j);
         // B, before the evidence is in, where it is known to its limit and near enough the nominal
-        // (`UNEARNED_VISCOUS_FACTOR`) that friction is the likely reading, or where the data reject the nominal
+        // (`unearned_viscous_factor`) that friction is the likely reading, or where the data reject the nominal
         // (`NOMINAL_REJECTED_Z`); either only where the windows' B shows no hint that it moves with the speed and
         // favours friction over a load that made up its distance from the nominal by `LOAD_ODDS`
         // (`WindowPool::load_odds`; where `speed_test_applies`: under a periodic load the windows' B lines up with the
@@ -471,7 +478,8 @@ impl RlsSgd {
         // ×2.97: the windows' B 0.034 ± 0.009 hinted at a slope and stood only from 34 s, odds for friction 3.5,
         // 2.22×).
         let b0 = self.rls.b0;
-        let near = b <= UNEARNED_VISCOUS_FACTOR * b0 && b >= b0 / UNEARNED_VISCOUS_FACTOR;
+        let factor = unearned_viscous_factor(self.s.viscous_prior_sd);
+        let near = b <= factor * b0 && b >= b0 / factor;
         let b_nominal = self.nominal_parameters().1;
         let hint = self.rls.viscous.speed_hint();
         let friction_odds = self.rls.viscous.load_odds(b - b_nominal).is_some_and(|odds| odds <= 1.0 / LOAD_ODDS);

@@ -720,6 +720,30 @@ fn a_b_whose_interval_reaches_plausible_friction_stands() {
     }
 }
 
+/// How far B may plausibly be friction follows the model's prior of B (`viscous_prior_sd`): a user who knows the
+/// friction to 30 % says so, and a load ∝ ω that would take B beyond ×1.5 of the nominal is then the load's.
+/// Held-out linear 1016 (8.1 N·m + 0.082·ω, the true B 0.04) from a near model (J ×1.11, B ×1.18): at the default
+/// prior (1.5, ×3.5) B +206 % is taken as friction and T̂_L is 6.1× the nominal model's at 1 ms; at 0.3 the nominal
+/// B stands, said to be the load's, and T̂_L is the nominal model's.
+#[test]
+fn a_load_beyond_the_friction_the_model_vouches_for_is_the_loads() {
+    let s = Scenario { inertia_factor: 1.11, viscous_factor: 1.18, ..Scenario::generate(Family::Linear, 1016, 60.0) };
+    let run = |viscous_prior_sd| {
+        let settings = EstimatorSettings { viscous_prior_sd, ..EstimatorSettings::default() };
+        let r = battery::run(&PlantModel::reference(), &s, 1, battery::LOST_POLLS, &settings, &settings);
+        eprintln!("prior {viscous_prior_sd}: {}: T̂_L {:.2}× the nominal filter's", r.describe, r.nominal_ratio());
+        r
+    };
+    let default = run(EstimatorSettings::default().viscous_prior_sd);
+    assert!(default.nominal_ratio() > 2.0, "the default prior takes the load into B: {}", default.nominal_ratio());
+    let vouched = run(0.3);
+    assert!(vouched.nominal_ratio() <= battery::NOMINAL_RMSE_FACTOR, "{}", vouched.nominal_ratio());
+    let last = vouched.rls.last;
+    assert_eq!(last.viscous_identified, hydrolens::estimator::Identification::LoadFollowsSpeed.code(), "{last:?}");
+    let nominal = 1.18 * PlantModel::reference().motor.viscous_nm_s_rad;
+    assert!((last.viscous_hat_nm_s_rad / nominal - 1.0).abs() < 1e-9, "the nominal B stands: {last:?}");
+}
+
 /// Runs each battery case (family, seed, poll period in ms, share of the polls lost) and asks rls-sgd's T̂_L to be no
 /// worse than the Kalman filter's on the case's wrong model, with no adaptation (`battery::NOMINAL_RMSE_FACTOR`).
 fn no_harm_on(cases: &[(Family, u64, u32, f64)]) {
