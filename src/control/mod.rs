@@ -213,7 +213,15 @@ impl SpeedLaw {
         if within {
             self.progress_from = None;
         }
-        self.away_s = if within || ramping { 0.0 } else { self.away_s + dt };
+        // the grace counts only what the drive was seen to do: a stretch without a read-back believed (none read, or
+        // set aside by the freshness checks) is no time spent away, or the first one after it raised the alarm at once
+        self.away_s = if within || ramping {
+            0.0
+        } else if known {
+            self.away_s + dt
+        } else {
+            self.away_s
+        };
         self.followed_s = if within { self.followed_s + dt } else { 0.0 };
         if self.followed_s >= FOLLOWED_AGAIN_S {
             self.alarm = false;
@@ -376,6 +384,32 @@ mod tests {
             drive_running: true,
             resumed: false,
         }
+    }
+
+    /// Two seconds without a read-back believed, then one 4 Hz off a drive that stopped running: the grace
+    /// ([`FOLLOW_GRACE_S`]) starts at that read-back, not at the start of the stretch before it (the alarm came with
+    /// the first read-back seen).
+    #[test]
+    fn a_stretch_without_a_read_back_is_no_time_spent_away() {
+        let mut s = law(Mode::Speed);
+        s.target_omega_rad_s = 40.0;
+        s.start_from(20.0);
+        for _ in 0..200 {
+            s.step(&fresh(40.0, 5.0)).expect("writes");
+        }
+        assert!(!s.not_following(), "no read-back is no evidence either way");
+        let away = Inputs { drive_hz: 16.0, drive_running: false, ..fresh(40.0, 5.0) };
+        let mut found_after = None;
+        for k in 1..=100 {
+            s.step(&away).expect("writes");
+            if s.not_following() {
+                found_after = Some(k);
+                break;
+            }
+        }
+        let cycles = found_after.expect("a drive away and not running is found not following");
+        let grace = (FOLLOW_GRACE_S / 0.01).round() as usize;
+        assert!((grace..=grace + 2).contains(&cycles), "found after {cycles} cycles of 10 ms, grace {grace}");
     }
 
     /// A drive in local mode (answers the writes, runs 10 Hz) for 6 s under a target it cannot reach there: the
