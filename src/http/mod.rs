@@ -22,12 +22,14 @@ use crate::control::Mode;
 use crate::service::ServiceState;
 use crate::service::state::{DriveSnapshot, PointColumns};
 
+pub mod bounded;
 mod condition;
 pub mod conn;
 pub mod files;
 pub mod metrics;
 pub mod throttle;
 
+use bounded::{Bounded, Refused};
 pub use conn::{ConnLimits, serve_with};
 pub use metrics::HttpMetrics;
 use metrics::ReasonLabel;
@@ -46,16 +48,12 @@ pub struct AppState {
     pub status_cache: Arc<StatusCache>,
     /// Wrong tokens per client (see [`throttle`]).
     pub auth: Arc<AuthThrottle>,
-    /// A permit per open `/api/events` stream (`http.max_event_streams`).
-    pub event_streams: Arc<tokio::sync::Semaphore>,
-    /// Open `/api/events` streams per client address ([`event_share`]).
-    pub event_clients: Arc<std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, usize>>>,
-    /// The most event streams one address may hold: [`event_share`] of `http.max_event_streams`.
-    pub event_share: usize,
-    /// A permit per `/api/history` reply being built or sent ([`MAX_HISTORY_REPLIES`]).
-    pub history_replies: Arc<tokio::sync::Semaphore>,
-    /// A permit per recording being downloaded ([`MAX_DOWNLOADS`]).
-    pub downloads: Arc<tokio::sync::Semaphore>,
+    /// Open `/api/events` streams (`http.max_event_streams`, an address its [`bounded::address_share`]).
+    pub event_streams: Bounded,
+    /// `/api/history` replies being built or sent ([`MAX_HISTORY_REPLIES`], an address its share).
+    pub history_replies: Bounded,
+    /// Recordings being downloaded ([`MAX_DOWNLOADS`], an address its share).
+    pub downloads: Bounded,
     /// This side's own families, in the service's registry.
     pub metrics: HttpMetrics,
     /// The MQTT publisher's health, when one runs beside this outlet ([`AppState::with_mqtt`]).
@@ -81,11 +79,9 @@ impl AppState {
             shutdown,
             status_cache: Default::default(),
             auth: Default::default(),
-            event_streams: Arc::new(tokio::sync::Semaphore::new(http.max_event_streams)),
-            event_clients: Default::default(),
-            event_share: event_share(http.max_event_streams),
-            history_replies: Arc::new(tokio::sync::Semaphore::new(MAX_HISTORY_REPLIES)),
-            downloads: Arc::new(tokio::sync::Semaphore::new(MAX_DOWNLOADS)),
+            event_streams: Bounded::new(http.max_event_streams),
+            history_replies: Bounded::new(MAX_HISTORY_REPLIES),
+            downloads: Bounded::new(MAX_DOWNLOADS),
             mqtt: None,
             loopback_only: false,
         }
@@ -409,6 +405,7 @@ struct HistoryBody<'a> {
 
 async fn history(
     State(s): State<AppState>,
+    client: ClientAddr,
     q: Result<Query<HistoryQuery>, QueryRejection>,
 ) -> Result<Response, ApiError> {
     let Query(q) = q?;
@@ -419,9 +416,16 @@ async fn history(
         return Err(ApiError::bad_request(format!("max_points must be 1 ..= 100000, got {}", q.max_points)));
     }
     let drive = s.service.drive(&q.drive).ok_or_else(|| ApiError::not_found(format!("no drive {}", echo(&q.drive))))?;
-    let Ok(permit) = s.history_replies.clone().try_acquire_owned() else {
-        s.metrics.refused.get_or_create(&ReasonLabel { reason: "history_replies" }).inc();
-        return Ok(conn::busy("too many history replies in flight: try again in a moment", 1));
+    let permit = match s.history_replies.take(throttle::key(client.ip())) {
+        Ok(held) => held,
+        Err(why) => {
+            let (reason, message) = match why {
+                Refused::Share => ("history_share", "this address holds its share of the history replies in flight"),
+                Refused::All => ("history_replies", "too many history replies in flight"),
+            };
+            s.metrics.refused.get_or_create(&ReasonLabel { reason }).inc();
+            return Ok(conn::busy(&format!("{message}: try again in a moment"), 1));
+        }
     };
     let points = drive.history(q.seconds, q.max_points);
     let body = HistoryBody { drive: &q.drive, columns: PointColumns(&points) };
@@ -446,17 +450,10 @@ pub const MAX_HISTORY_REPLIES: usize = 8;
 /// The SSE period: about 10 Hz.
 const EVENT_PERIOD: Duration = Duration::from_millis(100);
 
-/// The event streams one client address may hold of `max` (three quarters, at least one): the rest stay for the
-/// others. One address held all 64 with streams it did not read, and every other client got 503 for minutes.
-pub fn event_share(max: usize) -> usize {
-    (max * 3 / 4).max(1)
-}
-
-/// Holds an event stream's permit and its address's count, and counts it open while it lives.
+/// Holds an event stream's place and counts it open while it lives.
 struct StreamSlot {
-    _permit: tokio::sync::OwnedSemaphorePermit,
+    _held: bounded::Held,
     open: prometheus_client::metrics::gauge::Gauge,
-    _client: ClientStream,
 }
 
 impl Drop for StreamSlot {
@@ -465,52 +462,30 @@ impl Drop for StreamSlot {
     }
 }
 
-/// One stream counted against its address's share until dropped.
-struct ClientStream {
-    clients: Arc<std::sync::Mutex<std::collections::HashMap<std::net::IpAddr, usize>>>,
-    ip: std::net::IpAddr,
-}
-
-impl Drop for ClientStream {
-    fn drop(&mut self) {
-        let mut m = self.clients.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(n) = m.get_mut(&self.ip) {
-            *n = n.saturating_sub(1);
-            if *n == 0 {
-                m.remove(&self.ip);
-            }
-        }
-    }
-}
-
 /// A snapshot every [`EVENT_PERIOD`], while fewer than `http.max_event_streams` are open, and fewer than
-/// [`event_share`] of them from the client's address; 503 at once beyond, so a crowd of tabs (or a flood) cannot hold
+/// [`bounded::address_share`] of them from the client's address; 503 at once beyond, so a crowd of tabs (or a flood) cannot hold
 /// every connection, nor one address every stream. A client that stops reading is closed by the accept loop (see
 /// [`conn`]).
 async fn events(State(s): State<AppState>, client: ClientAddr) -> Response {
-    let ip = throttle::key(client.ip());
-    let refused = |reason: &'static str, message: &str| {
-        s.metrics.refused.get_or_create(&ReasonLabel { reason }).inc();
-        conn::busy(message, 5)
-    };
-    {
-        let mut m = s.event_clients.lock().unwrap_or_else(|e| e.into_inner());
-        let held = m.entry(ip).or_default();
-        if *held >= s.event_share {
-            return refused(
-                "event_share",
-                "this address holds its share of the event streams (three quarters of http.max_event_streams): \
-                 try again later",
-            );
+    let held = match s.event_streams.take(throttle::key(client.ip())) {
+        Ok(held) => held,
+        Err(why) => {
+            let (reason, message) = match why {
+                Refused::Share => (
+                    "event_share",
+                    "this address holds its share of the event streams (three quarters of http.max_event_streams): \
+                     try again later",
+                ),
+                Refused::All => {
+                    ("event_streams", "too many event streams open (http.max_event_streams): try again later")
+                }
+            };
+            s.metrics.refused.get_or_create(&ReasonLabel { reason }).inc();
+            return conn::busy(message, 5);
         }
-        *held += 1;
-    }
-    let client = ClientStream { clients: s.event_clients.clone(), ip };
-    let Ok(permit) = s.event_streams.clone().try_acquire_owned() else {
-        return refused("event_streams", "too many event streams open (http.max_event_streams): try again later");
     };
     s.metrics.event_streams.inc();
-    let slot = StreamSlot { _permit: permit, open: s.metrics.event_streams.clone(), _client: client };
+    let slot = StreamSlot { _held: held, open: s.metrics.event_streams.clone() };
     let stop = s.shutdown.clone();
     let mut tick = tokio::time::interval(EVENT_PERIOD);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
@@ -712,7 +687,11 @@ const DOWNLOAD_CHUNK: usize = 64 * 1024;
 /// dashboard's routes answered 503 for 10–20 s at a time) and took the service from 12 to 310 MB.
 pub const MAX_DOWNLOADS: usize = 8;
 
-async fn recording_file(State(s): State<AppState>, Segment(file): Segment) -> Result<Response, ApiError> {
+async fn recording_file(
+    State(s): State<AppState>,
+    client: ClientAddr,
+    Segment(file): Segment,
+) -> Result<Response, ApiError> {
     if !valid_file_name(&file) {
         return Err(ApiError::bad_request(format!(
             "{} is not a recording name such as pump1-1700000000000.csv",
@@ -720,9 +699,16 @@ async fn recording_file(State(s): State<AppState>, Segment(file): Segment) -> Re
         )));
     }
     let Some(dir) = &s.service.recording_dir else { return Err(ApiError::not_found("recording is off")) };
-    let Ok(permit) = s.downloads.clone().try_acquire_owned() else {
-        s.metrics.refused.get_or_create(&ReasonLabel { reason: "downloads" }).inc();
-        return Ok(conn::busy("too many recordings being downloaded: try again in a moment", 5));
+    let permit = match s.downloads.take(throttle::key(client.ip())) {
+        Ok(held) => held,
+        Err(why) => {
+            let (reason, message) = match why {
+                Refused::Share => ("download_share", "this address holds its share of the downloads at once"),
+                Refused::All => ("downloads", "too many recordings being downloaded"),
+            };
+            s.metrics.refused.get_or_create(&ReasonLabel { reason }).inc();
+            return Ok(conn::busy(&format!("{message}: try again in a moment"), 5));
+        }
     };
     let (dir, name) = (dir.clone(), file.clone());
     let opened = tokio::task::spawn_blocking(move || files::open_regular(&dir, &name))

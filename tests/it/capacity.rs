@@ -42,6 +42,12 @@ async fn open(addr: std::net::SocketAddr, request: &str) -> Option<(u16, TcpStre
     tokio::time::timeout(Duration::from_secs(5), go).await.ok().flatten()
 }
 
+/// As [`open`], from the loopback address `from`.
+async fn open_from(addr: std::net::SocketAddr, from: [u8; 4], request: &str) -> Option<(u16, TcpStream)> {
+    let go = async { response_head(connect_from(addr, from, request).await).await };
+    tokio::time::timeout(Duration::from_secs(5), go).await.ok().flatten()
+}
+
 /// Reads up to the end of the response headers: the status code and the still-open connection.
 async fn response_head(mut s: TcpStream) -> Option<(u16, TcpStream)> {
     let mut head = Vec::new();
@@ -180,7 +186,8 @@ async fn with_every_connection_held_the_control_and_health_routes_keep_a_reserve
     drop(held);
 }
 
-/// As many slow downloads as may run at once (`MAX_DOWNLOADS`, 8) hold a small buffer each, and the next waits (503).
+/// As many slow downloads as may run at once (`MAX_DOWNLOADS`, 8, from two addresses: one holds at most six) hold a
+/// small buffer each, and the next waits (503).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn slow_downloads_of_a_64_mb_recording_hold_a_small_buffer_each_and_the_next_waits() {
     let dir = tempfile::tempdir().expect("tmp");
@@ -194,15 +201,18 @@ async fn slow_downloads_of_a_64_mb_recording_hold_a_small_buffer_each_and_the_ne
     std::fs::write(dir.path().join("rec").join("pump1-1.csv"), &text).expect("a large recording");
     let rss_before = s.rss_mb();
     let get = "GET /api/recordings/pump1-1.csv HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n";
+    // one address holds its share (three quarters), another the rest
+    let share = hydrolens::http::bounded::address_share(hydrolens::http::MAX_DOWNLOADS);
     let mut readers = Vec::new();
-    for _ in 0..hydrolens::http::MAX_DOWNLOADS {
-        let (code, mut c) = open(s.addr, get).await.expect("a download starts");
+    for k in 0..hydrolens::http::MAX_DOWNLOADS {
+        let from = if k < share { [127, 0, 0, 1] } else { [127, 0, 0, 2] };
+        let (code, mut c) = open_from(s.addr, from, get).await.expect("a download starts");
         assert_eq!(code, 200);
         let mut first = vec![0u8; 64 * 1024];
         c.read_exact(&mut first).await.expect("the first bytes");
         readers.push(c);
     }
-    let next = open(s.addr, get).await.map(|(c, _)| c);
+    let next = open_from(s.addr, [127, 0, 0, 3], get).await.map(|(c, _)| c);
     assert_eq!(next, Some(503), "the next download waits");
     // the eight now read nothing: what the service holds for them, once its memory has stopped moving (the same
     // to 0.1 MB over ten looks, 200 ms; a service that read whole files in would still be growing)

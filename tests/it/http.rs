@@ -5,6 +5,7 @@ use std::time::Duration;
 use axum::body::Body;
 use axum::http::{Request, StatusCode, header};
 use futures::StreamExt;
+use hydrolens::http::bounded::Bounded;
 use hydrolens::http::{AppState, router};
 use hydrolens::service;
 use tokio_util::sync::CancellationToken;
@@ -44,7 +45,7 @@ fn make_state(token: Option<&str>, mode: &str) -> (AppState, CancellationToken, 
 async fn history_replies_in_flight_are_bounded_until_read() {
     let (state, stop, _dir) = make_state(None, "monitor");
     let permits = state.history_replies.clone();
-    assert_eq!(permits.available_permits(), hydrolens::http::MAX_HISTORY_REPLIES);
+    assert_eq!(permits.available(), hydrolens::http::MAX_HISTORY_REPLIES);
     let body = bounded_until_read(router(state), "/api/history?drive=pump1&seconds=5", &permits).await;
     let json: serde_json::Value = serde_json::from_slice(&body).expect("json");
     assert_eq!(json["drive"], "pump1");
@@ -58,43 +59,57 @@ async fn downloads_at_once_are_bounded_until_read() {
     let (state, stop, dir) = make_state(None, "monitor");
     std::fs::write(dir.path().join("pump1-1.csv"), "t_s,omega_rad_s\n0,1\n").expect("a recording");
     let permits = state.downloads.clone();
-    assert_eq!(permits.available_permits(), hydrolens::http::MAX_DOWNLOADS);
+    assert_eq!(permits.available(), hydrolens::http::MAX_DOWNLOADS);
     let body = bounded_until_read(router(state), "/api/recordings/pump1-1.csv", &permits).await;
     assert_eq!(&body[..], b"t_s,omega_rad_s\n0,1\n");
     stop.cancel();
 }
 
-/// Asks `uri` as often as `permits` allow without reading the answers; the next gets 503 with `Retry-After`; a reply
-/// read to its end frees its permit, and the others dropped (their clients gone) free theirs. The body read.
-async fn bounded_until_read(app: axum::Router, uri: &str, permits: &tokio::sync::Semaphore) -> axum::body::Bytes {
-    let max = permits.available_permits();
-    let ask = || app.clone().oneshot(get(uri));
+/// Asks `uri` from one address as often as its share allows ([`hydrolens::http::bounded::address_share`]) without
+/// reading the answers, then from another for the rest of `permits`; beyond, each gets 503 with `Retry-After`, the
+/// first address for its share, the next for all taken. A reply read to its end frees its permit, and the others
+/// dropped (their clients gone) free theirs. The body read.
+async fn bounded_until_read(app: axum::Router, uri: &str, permits: &Bounded) -> axum::body::Bytes {
+    let max = permits.available();
+    let share = hydrolens::http::bounded::address_share(max);
+    let ask = |ip: [u8; 4]| {
+        let mut req = get(uri);
+        req.extensions_mut().insert(axum::extract::ConnectInfo(std::net::SocketAddr::from((ip, 40000))));
+        app.clone().oneshot(req)
+    };
+    let (a, b) = ([127, 0, 0, 2], [127, 0, 0, 3]);
     let mut unread = Vec::new();
-    for _ in 0..max {
-        let resp = ask().await.expect("infallible");
+    for k in 0..max {
+        let resp = ask(if k < share { a } else { b }).await.expect("infallible");
         assert_eq!(resp.status(), StatusCode::OK);
         unread.push(resp);
+        if k + 1 == share {
+            let busy = ask(a).await.expect("infallible");
+            assert_eq!(busy.status(), StatusCode::SERVICE_UNAVAILABLE, "beyond its address's share");
+            let body = axum::body::to_bytes(busy.into_body(), usize::MAX).await.expect("body");
+            assert!(String::from_utf8_lossy(&body).contains("share"), "{body:?}");
+        }
     }
-    assert_eq!(permits.available_permits(), 0);
-    let busy = ask().await.expect("infallible");
+    assert_eq!(permits.available(), 0);
+    let busy = ask(b).await.expect("infallible");
     assert_eq!(busy.status(), StatusCode::SERVICE_UNAVAILABLE);
     assert!(busy.headers().contains_key(header::RETRY_AFTER));
     let read = unread.pop().expect("a reply").into_body();
     let bytes = axum::body::to_bytes(read, usize::MAX).await.expect("body");
-    assert_eq!(permits.available_permits(), 1, "a reply read to its end frees its permit");
+    assert_eq!(permits.available(), 1, "a reply read to its end frees its permit");
     drop(unread);
-    assert_eq!(permits.available_permits(), max, "a client gone frees its reply's");
-    assert_eq!(ask().await.expect("infallible").status(), StatusCode::OK);
+    assert_eq!(permits.available(), max, "a client gone frees its reply's");
+    assert_eq!(ask(a).await.expect("infallible").status(), StatusCode::OK);
     bytes
 }
 
-/// One client address holds at most [`hydrolens::http::event_share`] of the event streams; the rest stay for the
+/// One client address holds at most [`hydrolens::http::bounded::address_share`] of the event streams; the rest stay for the
 /// others, up to `http.max_event_streams` in all. One address held all 64 with streams it did not read, and every
 /// other client got 503.
 #[tokio::test]
 async fn one_address_holds_at_most_its_share_of_the_event_streams() {
     let (state, stop, _dir) = make_state(None, "monitor");
-    let (max, share) = (64, hydrolens::http::event_share(64));
+    let (max, share) = (64, hydrolens::http::bounded::address_share(64));
     assert_eq!(share, 48);
     let app = router(state);
     let from = |ip: [u8; 4]| {
