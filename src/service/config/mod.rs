@@ -336,21 +336,35 @@ pub fn parse(text: &str, origin: &str, base: Option<&Path>) -> Result<Settings, 
 }
 
 /// A TOML error's text with the value cut from any quoted source line whose key names a secret (`password`,
-/// `token`, `secret`, any case or spelling around them): the error quotes the line it is on, and a typo there put
-/// the MQTT password or the HTTP token in the journal.
+/// `token`, `secret`, any case or spelling around them) or is unknown (a misspelt key: `pasword`, `tokn`; its value
+/// helps nobody mend the name), and, where a secret's line is quoted, from serde's own words on the value (`invalid
+/// type: integer `12345678``): the error quotes the line it is on, and a typo there put the MQTT password or the HTTP
+/// token in the journal.
 fn without_secrets(rendered: &str) -> String {
     let secret = |key: &str| {
         let key = key.to_ascii_lowercase();
         ["pass", "token", "secret", "pwd"].iter().any(|k| key.contains(k))
     };
-    let lines = rendered.lines().map(|line| {
-        // a quoted source line: `23 | password = "…`
-        let Some((gutter, source)) = line.split_once(" | ") else { return line.to_string() };
-        let quoted = !gutter.trim().is_empty() && gutter.trim().bytes().all(|b| b.is_ascii_digit());
-        match source.split_once('=') {
-            Some((key, _)) if quoted && secret(key) => format!("{gutter} | {}= … (a secret: not repeated)", key),
-            _ => line.to_string(),
+    let unknown_key = rendered.contains("unknown field");
+    // a quoted source line: `23 | password = "…`, as (gutter, key)
+    let quoted = |line: &str| {
+        let (gutter, source) = line.split_once(" | ")?;
+        let numbered = !gutter.trim().is_empty() && gutter.trim().bytes().all(|b| b.is_ascii_digit());
+        let (key, _) = source.split_once('=')?;
+        numbered.then(|| (gutter.to_string(), key.to_string()))
+    };
+    let secret_quoted = rendered.lines().filter_map(quoted).any(|(_, key)| secret(&key));
+    let lines = rendered.lines().map(|line| match quoted(line) {
+        Some((gutter, key)) if secret(&key) || unknown_key => format!("{gutter} | {key}= … (not repeated)"),
+        None if secret_quoted && (line.contains("invalid type") || line.contains("invalid value")) => {
+            // every `…` span of serde's message: the value given (and what was expected, which is no secret)
+            line.split('`')
+                .enumerate()
+                .map(|(k, part)| if k % 2 == 1 { "…" } else { part })
+                .collect::<Vec<_>>()
+                .join("`")
         }
+        _ => line.to_string(),
     });
     lines.collect::<Vec<_>>().join("\n")
 }

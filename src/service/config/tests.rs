@@ -343,6 +343,14 @@ fn errors_do_not_repeat_secrets() {
     }
     let e = err(&format!("[http]\ntoken = \"HttpSecretToken42{MINIMAL}"));
     assert!(!e.contains("HttpSecretToken42"), "{e}");
+    // a misspelt key names no secret, but is unknown: its value is not repeated either
+    for line in ["pasword = \"SuperSecretPw9876\"", "tokn = \"SuperSecretPw9876\""] {
+        let e = err(&format!("{MINIMAL}[mqtt]\nurl = \"mqtt://127.0.0.1:1883\"\n{line}\n"));
+        assert!(e.contains("unknown field") && !e.contains("SuperSecretPw9876"), "{line}: {e}");
+    }
+    // a secret given as a number: serde's message names the value
+    let e = err(&format!("{MINIMAL}[mqtt]\nurl = \"mqtt://127.0.0.1:1883\"\npassword = 98765432\n"));
+    assert!(e.contains("invalid type") && !e.contains("98765432"), "{e}");
     // other lines are quoted as they are
     let e = err(&format!("{MINIMAL}poll_ms = \"ten\"\n"));
     assert!(e.contains("\"ten\""), "{e}");
