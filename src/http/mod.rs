@@ -418,14 +418,7 @@ async fn history(
     let drive = s.service.drive(&q.drive).ok_or_else(|| ApiError::not_found(format!("no drive {}", echo(&q.drive))))?;
     let permit = match s.history_replies.take(throttle::key(client.ip())) {
         Ok(held) => held,
-        Err(why) => {
-            let (reason, message) = match why {
-                Refused::Share => ("history_share", "this address holds its share of the history replies in flight"),
-                Refused::All => ("history_replies", "too many history replies in flight"),
-            };
-            s.metrics.refused.get_or_create(&ReasonLabel { reason }).inc();
-            return Ok(conn::busy(&format!("{message}: try again in a moment"), 1));
-        }
+        Err(why) => return Ok(refused(&s, why, &HISTORY_REFUSALS, 1)),
     };
     let points = drive.history(q.seconds, q.max_points);
     let body = HistoryBody { drive: &q.drive, columns: PointColumns(&points) };
@@ -450,6 +443,36 @@ pub const MAX_HISTORY_REPLIES: usize = 8;
 /// The SSE period: about 10 Hz.
 const EVENT_PERIOD: Duration = Duration::from_millis(100);
 
+/// What a refused [`Bounded`] place is counted under and said with: where the address holds its share, and where
+/// every place is held.
+type Refusals = [(&'static str, &'static str); 2];
+
+const EVENT_REFUSALS: Refusals = [
+    (
+        "event_share",
+        "this address holds its share of the event streams (three quarters of http.max_event_streams): try again later",
+    ),
+    ("event_streams", "too many event streams open (http.max_event_streams): try again later"),
+];
+const HISTORY_REFUSALS: Refusals = [
+    ("history_share", "this address holds its share of the history replies in flight: try again in a moment"),
+    ("history_replies", "too many history replies in flight: try again in a moment"),
+];
+const DOWNLOAD_REFUSALS: Refusals = [
+    ("download_share", "this address holds its share of the downloads at once: try again in a moment"),
+    ("downloads", "too many recordings being downloaded: try again in a moment"),
+];
+
+/// 503 with `Retry-After` for a [`Bounded`] place refused, counted and said as `refusals` give.
+fn refused(s: &AppState, why: Refused, refusals: &Refusals, retry_after_s: u64) -> Response {
+    let (reason, message) = match why {
+        Refused::Share => refusals[0],
+        Refused::All => refusals[1],
+    };
+    s.metrics.refused.get_or_create(&ReasonLabel { reason }).inc();
+    conn::busy(message, retry_after_s)
+}
+
 /// Holds an event stream's place and counts it open while it lives.
 struct StreamSlot {
     _held: bounded::Held,
@@ -469,20 +492,7 @@ impl Drop for StreamSlot {
 async fn events(State(s): State<AppState>, client: ClientAddr) -> Response {
     let held = match s.event_streams.take(throttle::key(client.ip())) {
         Ok(held) => held,
-        Err(why) => {
-            let (reason, message) = match why {
-                Refused::Share => (
-                    "event_share",
-                    "this address holds its share of the event streams (three quarters of http.max_event_streams): \
-                     try again later",
-                ),
-                Refused::All => {
-                    ("event_streams", "too many event streams open (http.max_event_streams): try again later")
-                }
-            };
-            s.metrics.refused.get_or_create(&ReasonLabel { reason }).inc();
-            return conn::busy(message, 5);
-        }
+        Err(why) => return refused(&s, why, &EVENT_REFUSALS, 5),
     };
     s.metrics.event_streams.inc();
     let slot = StreamSlot { _held: held, open: s.metrics.event_streams.clone() };
@@ -701,14 +711,7 @@ async fn recording_file(
     let Some(dir) = &s.service.recording_dir else { return Err(ApiError::not_found("recording is off")) };
     let permit = match s.downloads.take(throttle::key(client.ip())) {
         Ok(held) => held,
-        Err(why) => {
-            let (reason, message) = match why {
-                Refused::Share => ("download_share", "this address holds its share of the downloads at once"),
-                Refused::All => ("downloads", "too many recordings being downloaded"),
-            };
-            s.metrics.refused.get_or_create(&ReasonLabel { reason }).inc();
-            return Ok(conn::busy(&format!("{message}: try again in a moment"), 5));
-        }
+        Err(why) => return Ok(refused(&s, why, &DOWNLOAD_REFUSALS, 5)),
     };
     let (dir, name) = (dir.clone(), file.clone());
     let opened = tokio::task::spawn_blocking(move || files::open_regular(&dir, &name))
