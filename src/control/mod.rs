@@ -125,7 +125,7 @@ pub const STALL_S: f64 = 0.5;
 /// drive was sent 0 Hz from 40 when it followed again (a reviewer's run: the shaft fell to 2 rad/s under a 30 rad/s
 /// target).
 pub const LEAD_HZ: f64 = 2.0 * FOLLOW_TOLERANCE_HZ;
-/// A drive found not following: the setpoint holds its read-back this long before the regulator tries again (s).
+/// A drive found not following: the setpoint holds where it was this long before the regulator tries again (s).
 pub const HOLD_S: f64 = 2.0;
 /// A drive that follows again for this long (s) ends the alarm.
 pub const FOLLOWED_AGAIN_S: f64 = 1.0;
@@ -194,15 +194,18 @@ impl SpeedLaw {
         self.alarm
     }
 
-    /// The drive-follows test of one cycle: `Some(read-back)` while the setpoint must hold the drive's read-back
-    /// (for [`HOLD_S`] after the drive was found not following; then the regulator tries again, from there).
+    /// The drive-follows test of one cycle: `Some(setpoint)` while the setpoint must hold where it was (for
+    /// [`HOLD_S`] after the drive was found not following; then the regulator tries again, from there).
     fn follow_test(&mut self, x: &Inputs, dt: f64) -> Option<f64> {
         let last = self.last_hz?;
         let known = x.drive_hz.is_finite();
         let within = known && (x.drive_hz - last).abs() <= FOLLOW_TOLERANCE_HZ && x.drive_running;
-        // never above the last setpoint: a read-back above it is another hand on the drive or a wrong scale (a
-        // frequency register read at twice the truth took the setpoint to max_hz in one write), never a setpoint
-        let held = known.then(|| x.drive_hz.min(last).clamp(self.limits.min_hz, self.limits.max_hz));
+        // where it was, never the read-back: above it, a read-back is another hand on the drive or a wrong scale (a
+        // frequency register read at twice the truth took the setpoint to max_hz in one write); below it, a read-back
+        // scaled a few per cent low was followed down, the drive following each lower setpoint and reading lower
+        // again (40 → 1.7 Hz in 2 s, and a 5 Hz drop in one write where it read 25 % low). The lead band brings a
+        // setpoint that ran ahead back to the drive, a ramp step a cycle, once the regulator tries again
+        let held = known.then(|| last.clamp(self.limits.min_hz, self.limits.max_hz));
         if let Some(t) = self.held_s {
             self.followed_s = 0.0;
             self.held_s = (t + dt < HOLD_S).then_some(t + dt);
@@ -269,8 +272,9 @@ impl SpeedLaw {
     /// The setpoint for this cycle, or None when nothing may be written (monitor mode or stale data).
     ///
     /// The regulator follows the drive, not its own wish: after a gap or a stale stretch (`resumed`) the ramp starts
-    /// again from the drive's read-back, and a drive found not following is held at its read-back with the integral
-    /// back-calculated to it, so that the first setpoint it follows again is a ramp step from where it runs.
+    /// again from the drive's read-back, and a drive found not following is held where it was with the integral
+    /// back-calculated to it; the lead band keeps a setpoint within a few hertz of a running drive's read-back, so that
+    /// the first setpoint it follows again is near where it runs. No write moves more than a ramp step.
     pub fn step(&mut self, x: &Inputs) -> Option<f64> {
         if !self.mode.writes() || !x.fresh {
             return None;
@@ -281,8 +285,8 @@ impl SpeedLaw {
             self.start_from(self.last_hz.map_or(x.drive_hz, |last| x.drive_hz.min(last)));
         }
         if let Some(held) = self.follow_test(x, dt) {
-            // not following: the setpoint holds what the drive runs at, and the integral is back-calculated so
-            // that the regulator's output is that frequency (it resumes from there, wound up by nothing)
+            // not following: the setpoint holds where it was, and the integral is back-calculated so that the
+            // regulator's output is that frequency (it resumes from there, wound up by nothing)
             if self.mode == Mode::Speed && !x.tripped {
                 self.back_calculate(x, held);
             }
@@ -383,6 +387,37 @@ mod tests {
             drive_hz: f64::NAN,
             drive_running: true,
             resumed: false,
+        }
+    }
+
+    /// A drive that follows every setpoint but reads back low (a slip-compensated read-back, a 50/60 Hz scale): the
+    /// setpoint is not taken down after it. Held at the read-back, the setpoint followed it down, the drive each
+    /// lower setpoint, and the read-back lower again: manual 40 Hz read 5 % low went to 1.7 Hz in 2 s, speed mode
+    /// read 10 % low to 0.04 Hz, and read 25 % low one write dropped 4.9 Hz (a reviewer's proxy).
+    #[test]
+    fn a_read_back_a_little_low_does_not_take_the_setpoint_down() {
+        let ff = reference_ff();
+        for (mode, scale, settle_hz, floor_hz) in
+            [(Mode::Manual, 0.95, 40.0, 39.9), (Mode::Speed, 0.9, 19.5, 19.0), (Mode::Speed, 0.75, 19.5, 19.0)]
+        {
+            let mut s = law(mode);
+            s.fixed_hz = 40.0;
+            s.target_omega_rad_s = ff.omega_rad_s(settle_hz);
+            // the drive runs at its own ramp of 20 Hz/s towards each setpoint, and reads back `scale` of it
+            let (mut drive, mut last, mut lowest) = (0.0_f64, 0.0_f64, f64::INFINITY);
+            for k in 0..3000 {
+                let x = Inputs { drive_hz: scale * drive, ..fresh(ff.omega_rad_s(drive), 0.0) };
+                let x = if k < 1000 { Inputs { drive_hz: drive, ..x } } else { x };
+                let hz = s.step(&x).expect("writes");
+                assert!((hz - last).abs() <= 20.0 * 0.01 + 1e-9, "{mode:?} ×{scale} at {k}: {last} → {hz}: a jump");
+                if k >= 1000 {
+                    lowest = lowest.min(hz);
+                }
+                last = hz;
+                drive += (hz - drive).clamp(-0.2, 0.2);
+            }
+            eprintln!("{mode:?}, read back ×{scale}: lowest setpoint {lowest:.2} Hz");
+            assert!(lowest >= floor_hz, "{mode:?}, read back ×{scale}: the setpoint went down to {lowest:.2} Hz");
         }
     }
 
