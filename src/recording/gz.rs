@@ -23,10 +23,14 @@ pub fn temp_path(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}{GZ_SUFFIX}.tmp"))
 }
 
-/// Whether `name` is a temporary file left by compressing one of `drive`'s recordings.
+/// Whether `name` is a temporary file left by compressing one of `drive`'s recordings ([`temp_path`] of a name
+/// [`super::drive_file_key`] gives `drive`: `.pump-2-….csv.gz.tmp` is drive `pump-2`'s, and `pump`'s recorder removed
+/// it).
 pub fn is_temp_of(name: &str, drive: &str) -> bool {
-    name.strip_prefix('.').and_then(|n| n.strip_prefix(drive)).is_some_and(|n| n.starts_with('-'))
-        && name.ends_with(".csv.gz.tmp")
+    name.strip_prefix('.')
+        .and_then(|n| n.strip_suffix(".gz.tmp"))
+        .and_then(|plain| super::drive_file_key(plain, drive))
+        .is_some_and(|(_, compressed)| !compressed)
 }
 
 /// Compresses the closed recording `path` to `path` + `.gz` and removes `path`; returns the new path. On failure
@@ -347,5 +351,7 @@ mod tests {
         assert_eq!(std::fs::read_dir(dir.path()).expect("dir").count(), 1);
         assert!(is_temp_of(".pump1-1.csv.gz.tmp", "pump1"));
         assert!(!is_temp_of(".pump12-1.csv.gz.tmp", "pump1") && !is_temp_of("pump1-1.csv.gz", "pump1"));
+        assert!(!is_temp_of(".pump1-2-1796702003802.csv.gz.tmp", "pump1"), "drive pump1-2's");
+        assert!(is_temp_of(".pump1-2-1796702003802.csv.gz.tmp", "pump1-2"));
     }
 }

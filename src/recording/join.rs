@@ -98,7 +98,8 @@ fn drive_of(path: &str) -> Option<&str> {
 }
 
 /// Where `name` sorts among `drive`'s recording files `<drive>-<unix ms>[-<n>].csv[.gz]`: the stamp and the
-/// counter, and whether it is compressed; None for any other name (`pump1-…` never picks up `pump1-a-…`).
+/// counter, and whether it is compressed; None for any other name (`pump1-…` never picks up `pump1-a-…`, nor
+/// `pump1-2-<stamp>…`, drive `pump1-2`'s).
 pub fn drive_file_key(name: &str, drive: &str) -> Option<(Vec<u64>, bool)> {
     let rest = name.strip_prefix(drive)?.strip_prefix('-')?;
     let (stem, compressed) = match rest.strip_suffix(".csv.gz") {
@@ -110,7 +111,10 @@ pub fn drive_file_key(name: &str, drive: &str) -> Option<(Vec<u64>, bool)> {
         return None;
     }
     let key: Vec<u64> = stem.split('-').map(|p| p.parse().ok()).collect::<Option<_>>()?;
-    (key.len() <= 2).then_some((key, compressed))
+    // a counter is small beside its stamp: `pump-2-1796702003802.csv` is drive `pump-2`'s, not `pump`'s with stamp 2
+    // (taken as `pump`'s, it was deleted by `pump`'s retention and joined into `pump`'s runs)
+    let counted_beyond_its_stamp = key.len() == 2 && key[1] >= key[0];
+    (key.len() <= 2 && !counted_beyond_its_stamp).then_some((key, compressed))
 }
 
 /// The files `<drive>-<unix ms>[-<n>].csv[.gz]` the service wrote for `drive` in `dir`, oldest first. A file
@@ -266,6 +270,8 @@ mod tests {
             "pump1-a-5.csv",
             "pump1-5.csv.gz.tmp",
             "pump10-1.csv",
+            "pump1-2-1796702003802.csv.gz",
+            "pump1-2-1796702003802-1.csv",
             "x.csv",
         ] {
             std::fs::write(dir.path().join(n), "t_s\n0\n").expect("write");
