@@ -117,6 +117,11 @@ impl DriveLoop {
         if !self.settings.mode.writes() {
             return;
         }
+        // with recording off, nothing else makes the directory
+        if let Err(e) = std::fs::create_dir_all(dir) {
+            tracing::warn!(drive = %self.settings.name, dir = %dir.display(), error = %e,
+                "the trip latch's directory cannot be made: a restart would not know of a trip");
+        }
         let path = dir.join(format!("{}.tripped", self.settings.name));
         let latched = path.exists();
         if latched {

@@ -125,8 +125,13 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
         let estimator = crate::estimator::build(&d.estimator, &d.model);
         let connection = connection_for(d, &buses);
         let mut drive = DriveLoop::new(d.clone(), connection, estimator, state.clone(), recorder, started);
-        if let Some(dir) = &settings.recording.dir {
-            drive.keep_trip_latch_in(dir);
+        match &settings.recording.latch_dir {
+            Some(dir) => drive.keep_trip_latch_in(dir),
+            None if d.mode.writes() => tracing::warn!(drive = %d.name,
+                "no recording.dir: a trip latched while this service runs is not kept across a restart (a service \
+                 killed while its drive was latched would send RUN when started again); give recording.dir, even \
+                 with recording off"),
+            None => {}
         }
         loops.push(drive);
         let cond = Arc::new(condition::DriveCondition::new(&d.name, &d.condition));

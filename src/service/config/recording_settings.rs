@@ -44,6 +44,9 @@ pub struct RecordingSettings {
     pub keep: Option<Duration>,
     /// Closed files are compressed to `<name>.csv.gz`, off the poll loop; readers take either.
     pub compress: bool,
+    /// Where a writing drive keeps its trip latch across restarts: `recording.dir` whenever it is given, recording on
+    /// or off (with recording off, a service killed while its drive was latched sent RUN when started again).
+    pub latch_dir: Option<PathBuf>,
 }
 
 /// The smallest `recording.max_file_mb`: about 500 rows, half a second at a 1 ms poll.
@@ -116,6 +119,7 @@ pub(super) fn validate_recording(r: RawRecording) -> Result<RecordingSettings, I
         }
     };
     Ok(RecordingSettings {
+        latch_dir: (!r.dir.is_empty()).then(|| PathBuf::from(&r.dir)),
         dir: r.enabled.then(|| PathBuf::from(r.dir)),
         max_file_bytes: (max_mb * 1024.0 * 1024.0) as u64,
         rotate_after: Duration::from_secs_f64(hours * 3600.0),

@@ -355,3 +355,15 @@ fn errors_do_not_repeat_secrets() {
     let e = err(&format!("{MINIMAL}poll_ms = \"ten\"\n"));
     assert!(e.contains("\"ten\""), "{e}");
 }
+
+/// A writing drive's trip latch is kept in `recording.dir` with recording on or off: with it off, the latch had no
+/// place, and a service killed while its drive was latched sent RUN when started again (a reviewer's run).
+#[test]
+fn the_trip_latch_has_its_place_with_recording_off() {
+    let off = parse(&format!("[recording]\nenabled = false\ndir = \"/var/lib/hl\"\n{MINIMAL}"), "t.toml", None)
+        .expect("valid");
+    assert_eq!(off.recording.dir, None, "nothing recorded");
+    assert_eq!(off.recording.latch_dir.as_deref(), Some(std::path::Path::new("/var/lib/hl")));
+    let none = parse(&format!("[recording]\nenabled = false\ndir = \"\"\n{MINIMAL}"), "t.toml", None).expect("valid");
+    assert_eq!(none.recording.latch_dir, None);
+}
