@@ -437,6 +437,11 @@ impl DriveCycle {
             .then(|| (spec.address, spec.kind.words()))
     }
 
+    /// The watchdog read-back went unanswered within the call timeout (see [`super::owner::Echo::timed_out`]).
+    pub fn echo_timed_out(&mut self, now: Instant) -> Option<Finding> {
+        self.echo.timed_out(now)
+    }
+
     /// The watchdog register read back (`None`: the device refused the read): what it showed, where that changed
     /// anything. Once another master is found, this service writes nothing, and on a clean stop sends nothing.
     pub fn echo_read(&mut self, now: Instant, read: Option<&[u16]>) -> Option<Finding> {

@@ -310,6 +310,10 @@ impl DriveLoop {
                 self.error(&e);
                 self.cycle.echo_read(now, None)
             }
+            Err(e) if e.kind() == "timeout" => {
+                self.error(&e);
+                self.cycle.echo_timed_out(now)
+            }
             // a lost link shows as such; the read-back waits for the next check
             Err(e) => return self.error(&e),
         };

@@ -109,6 +109,19 @@ impl Echo {
 
     /// The device refused the read (a Modbus exception): [`REFUSALS`] in a row, the check cannot work on it.
     pub fn refused(&mut self) -> Option<Finding> {
+        self.failed("the drive refuses to read back its watchdog register (a Modbus exception)")
+    }
+
+    /// The read went unanswered within the call timeout, at `now`: not due again for [`CHECK_EVERY`], and
+    /// [`REFUSALS`] in a row stand the check down as refusals do. A gateway slow only on holding registers timed out
+    /// the read-back first thing after every reconnect, before the cycle's own reads: 13 reconnects and no sample
+    /// for 7.5 s, and the drive tripped on its lost link (a reviewer's proxy, 260 ms against a 200 ms timeout).
+    pub fn timed_out(&mut self, now: Instant) -> Option<Finding> {
+        self.last_check = Some(now);
+        self.failed("the drive does not answer the read-back of its watchdog register within the call timeout")
+    }
+
+    fn failed(&mut self, why: &'static str) -> Option<Finding> {
         if matches!(self.state, State::Unavailable | State::Found) {
             return None;
         }
@@ -117,7 +130,7 @@ impl Echo {
             return None;
         }
         self.state = State::Unavailable;
-        Some(Finding::Unavailable("the drive refuses to read back its watchdog register (a Modbus exception)"))
+        Some(Finding::Unavailable(why))
     }
 
     /// An operator's reset: a master that stood back writes again and looks afresh, and a check that stood down
@@ -205,5 +218,12 @@ mod tests {
             r.observe(at(10_200 + 200 * u64::from(i)), &[900 + i], &[7]);
         }
         assert!(r.found(), "and finds a second master again");
+        // timeouts likewise, and each puts the next read-back off by the check's period
+        let mut t = Echo::default();
+        assert_eq!(t.timed_out(at(0)), None);
+        assert!(!t.due(at(100)) && t.due(at(200)), "not again at once");
+        assert_eq!(t.timed_out(at(200)), None);
+        assert!(matches!(t.timed_out(at(400)), Some(Finding::Unavailable(why)) if why.contains("timeout")));
+        assert!(!t.due(at(10_000)));
     }
 }
