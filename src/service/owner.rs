@@ -18,6 +18,10 @@ use tokio::time::Instant;
 /// How often the watchdog register is read back: an extra read (function 03) every this long.
 pub const CHECK_EVERY: Duration = Duration::from_millis(200);
 
+/// How long a read-back that timed out puts the next one off: each costs the link (the client reconnects after a
+/// timeout) and a cycle's sample, so three of them close together took the drive past its comm-loss watchdog.
+pub const TIMED_OUT_WAIT: Duration = Duration::from_secs(2);
+
 /// Read-backs remembered.
 const WINDOW: u32 = 8;
 
@@ -112,12 +116,13 @@ impl Echo {
         self.failed("the drive refuses to read back its watchdog register (a Modbus exception)")
     }
 
-    /// The read went unanswered within the call timeout, at `now`: not due again for [`CHECK_EVERY`], and
+    /// The read went unanswered within the call timeout, at `now`: not due again for [`TIMED_OUT_WAIT`], and
     /// [`REFUSALS`] in a row stand the check down as refusals do. A gateway slow only on holding registers timed out
     /// the read-back first thing after every reconnect, before the cycle's own reads: 13 reconnects and no sample
     /// for 7.5 s, and the drive tripped on its lost link (a reviewer's proxy, 260 ms against a 200 ms timeout).
     pub fn timed_out(&mut self, now: Instant) -> Option<Finding> {
-        self.last_check = Some(now);
+        // `due` counts the check's period from here
+        self.last_check = Some(now + TIMED_OUT_WAIT.saturating_sub(CHECK_EVERY));
         self.failed("the drive does not answer the read-back of its watchdog register within the call timeout")
     }
 
@@ -218,12 +223,12 @@ mod tests {
             r.observe(at(10_200 + 200 * u64::from(i)), &[900 + i], &[7]);
         }
         assert!(r.found(), "and finds a second master again");
-        // timeouts likewise, and each puts the next read-back off by the check's period
+        // timeouts likewise, and each puts the next read-back off by TIMED_OUT_WAIT
         let mut t = Echo::default();
         assert_eq!(t.timed_out(at(0)), None);
-        assert!(!t.due(at(100)) && t.due(at(200)), "not again at once");
-        assert_eq!(t.timed_out(at(200)), None);
-        assert!(matches!(t.timed_out(at(400)), Some(Finding::Unavailable(why)) if why.contains("timeout")));
+        assert!(!t.due(at(1900)) && t.due(at(2000)), "not again for a while");
+        assert_eq!(t.timed_out(at(2000)), None);
+        assert!(matches!(t.timed_out(at(4000)), Some(Finding::Unavailable(why)) if why.contains("timeout")));
         assert!(!t.due(at(10_000)));
     }
 }

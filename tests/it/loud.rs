@@ -109,6 +109,39 @@ async fn a_drive_that_refuses_every_write_is_not_ready_counted_and_logged_at_war
     tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
 
+/// A gateway slow only on holding-register reads (300 ms against a 200 ms call timeout): the watchdog read-back
+/// (function 3) times out, each putting the next off by 2 s, three in a row stand its check down (said once), and the
+/// samples and writes go on, the drive untripped. Timed out, the
+/// read-back was due again at once, first thing after every reconnect and before the cycle's own reads: no sample
+/// for as long as it lasted (a reviewer's proxy: 13 reconnects in 7.5 s, and the drive tripped on its lost link).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_watchdog_read_back_that_times_out_stands_its_check_down_and_the_samples_go_on() {
+    let run = async {
+        let Proxied { _sim, sim_stop, proxy, s, _dir, _task } = Proxied::start(10).await;
+        proxy.set(Fault::SlowHoldingReads(Duration::from_millis(300)));
+        let said =
+            || s.log().contains("does not answer the read-back of its watchdog register within the call timeout");
+        wait_for(Duration::from_secs(15), || async { said() }).await.expect("the check stands down");
+        // then fresh samples, and setpoint writes, through the next 100 cycles
+        let link = || async { s.drive_status().await["link"].clone() };
+        let (from_polls, from_writes) = {
+            let l = link().await;
+            (l["polls"].as_u64().unwrap_or(0), l["writes"].as_u64().unwrap_or(0))
+        };
+        wait_for(Duration::from_secs(15), || async { link().await["polls"].as_u64().unwrap_or(0) >= from_polls + 100 })
+            .await
+            .expect("polls go on");
+        let l = link().await;
+        eprintln!("after the check stood down: {l}");
+        assert_eq!(l["stale"], false, "{l}");
+        assert_eq!(l["trips"], 0, "the drive's comm-loss watchdog was fed throughout: {l}");
+        assert!(l["sample_age_ms"].as_f64().is_some_and(|a| a < 200.0), "{l}");
+        assert!(l["writes"].as_u64().unwrap_or(0) >= from_writes + 50, "writes go on: {l}");
+        sim_stop.cancel();
+    };
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn slow_write_echoes_that_make_the_loop_overrun_are_counted_and_logged() {
     let run = async {

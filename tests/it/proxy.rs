@@ -36,6 +36,9 @@ pub enum Fault {
     RefuseWrites,
     /// Hold the reply to every write this long; reads pass at once.
     SlowWrites(Duration),
+    /// Hold the reply to every holding-register read (function 3) this long; the rest pass at once (a gateway slow
+    /// only on holding registers).
+    SlowHoldingReads(Duration),
 }
 
 /// A proxy in front of an upstream Modbus TCP server.
@@ -153,6 +156,7 @@ async fn relay(mut client: TcpStream, upstream: SocketAddr, fault: Arc<Mutex<Fau
             Fault::Drop | Fault::Refuse => return Ok(()),
             Fault::Slow(d) => tokio::time::sleep(d).await,
             Fault::SlowWrites(d) if write => tokio::time::sleep(d).await,
+            Fault::SlowHoldingReads(d) if request.len() > 7 && request[7] == 3 => tokio::time::sleep(d).await,
             Fault::RefuseWrites if write => {
                 // MBAP with length 3 (unit, function | 0x80, exception code)
                 let mut reply = request[..7].to_vec();
