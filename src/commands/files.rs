@@ -45,6 +45,7 @@ const SIMULATE_BYTES_PER_ROW: f64 = 160.0;
 pub fn simulate(model_path: &Path, duration: f64, seed: u64, out: &Path) -> anyhow::Result<()> {
     remove_temporaries_on_signal();
     if !(duration.is_finite() && duration > 0.0 && duration <= 1e6) {
+        let duration = hydrolens::units::shown(duration);
         return Err(BadInput(format!("--duration {duration}: expected seconds, > 0 and ≤ 1e6")).into());
     }
     output::check(&[model_path], &[("--out", out)])?;

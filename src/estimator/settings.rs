@@ -224,6 +224,9 @@ impl EstimatorSettings {
         let nonneg = |key: &str, v: f64| check(key, v, v >= 0.0, "≥ 0");
         // paper-literal's P: from 1e308 its first update overflowed and the estimate stood at 0 without a word
         let covariance = |key: &str, v: f64| check(key, v, v > 0.0 && v <= MAX_COVARIANCE, "in (0, 1e12]");
+        // a noise or a rate squares into a variance: at 1e154 it overflowed, and ω̂ stood at 0 on a third of the rows
+        // without a word (`estimate --speed-noise=1e154`, a reviewer's run)
+        let spread = |key: &str, v: f64| check(key, v, v > 0.0 && v <= MAX_SPREAD, "in (0, 1e6]");
         let j0 = model.motor.inertia_kg_m2;
         let b0 = model.motor.viscous_nm_s_rad;
         let [jlo, jhi] = s.inertia_bounds_factor;
@@ -281,10 +284,10 @@ impl EstimatorSettings {
             initial_inertia_kg_m2: initial_inertia,
             initial_viscous_nm_s_rad: initial_viscous,
             initial_load_nm: initial_load,
-            speed_noise_rad_s: pos("speed_noise_rad_s", speed_noise)?,
-            torque_noise_nm: pos("torque_noise_nm", torque_noise)?,
-            load_rate_nm_per_s: pos("load_rate_nm_per_s", s.load_rate_nm_per_s)?,
-            initial_load_sigma_nm: pos("initial_load_sigma_nm", s.initial_load_sigma_nm)?,
+            speed_noise_rad_s: spread("speed_noise_rad_s", speed_noise)?,
+            torque_noise_nm: spread("torque_noise_nm", torque_noise)?,
+            load_rate_nm_per_s: spread("load_rate_nm_per_s", s.load_rate_nm_per_s)?,
+            initial_load_sigma_nm: spread("initial_load_sigma_nm", s.initial_load_sigma_nm)?,
             max_gap_s: pos("max_gap_s", s.max_gap_s)?,
             displacement_m3_rad: displacement,
         })
@@ -296,6 +299,10 @@ pub const DEFAULT_SPEED_NOISE_RAD_S: f64 = 0.1;
 
 /// The largest covariance a setting may start from or be bounded by: beyond it an update's products overflow.
 const MAX_COVARIANCE: f64 = 1e12;
+
+/// The largest noise or load rate a setting may give (its unit's standard deviation): squared and summed, larger ones
+/// overflow.
+const MAX_SPREAD: f64 = 1e6;
 
 #[cfg(test)]
 mod tests {
@@ -346,11 +353,13 @@ mod tests {
             ("initial_viscous_nm_s_rad", "50.0"),
             ("initial_covariance", "1e308"),
             ("max_covariance_trace", "1e300"),
+            ("speed_noise_rad_s", "1e154"),
+            ("load_rate_nm_per_s", "1e200"),
         ] {
             let bad = text.replace("lambda = 0.98", &format!("{key} = {v}"));
             let m = PlantModel::parse(&bad, "p.toml").expect("model");
             let e = EstimatorSettings::from_model(&m, "p.toml").expect_err("beyond the bounds").to_string();
-            let why = e.contains("within") || e.contains("1e12");
+            let why = e.contains("within") || e.contains("1e12") || e.contains("1e6");
             assert!(e.contains(&format!("estimator.{key}")) && why && e.len() < 300, "{e}");
         }
     }

@@ -112,14 +112,20 @@ impl Effects {
             if v.is_finite() && v >= 0.0 {
                 Ok(())
             } else {
-                Err(KeyError::new(format!("effects.{key}"), format!("must be finite and ≥ 0, got {v}")))
+                Err(KeyError::new(
+                    format!("effects.{key}"),
+                    format!("must be finite and ≥ 0, got {}", crate::units::shown(v)),
+                ))
             }
         };
         let positive = |key: &str, v: f64| -> Result<(), KeyError> {
             if v.is_finite() && v > 0.0 {
                 Ok(())
             } else {
-                Err(KeyError::new(format!("effects.{key}"), format!("must be finite and > 0, got {v}")))
+                Err(KeyError::new(
+                    format!("effects.{key}"),
+                    format!("must be finite and > 0, got {}", crate::units::shown(v)),
+                ))
             }
         };
         if let Some(e) = self.coulomb_friction {

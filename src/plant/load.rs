@@ -342,12 +342,12 @@ fn finite(key: &str, v: f64) -> Result<(), KeyError> {
 
 /// `load.<key>` must be finite and > 0.
 fn positive(key: &str, v: f64) -> Result<(), KeyError> {
-    if v > 0.0 && v.is_finite() { Ok(()) } else { bad(key, format!("must be > 0, got {v}")) }
+    if v > 0.0 && v.is_finite() { Ok(()) } else { bad(key, format!("must be > 0, got {}", crate::units::shown(v))) }
 }
 
 /// `load.<key>` must be finite and ≥ 0.
 fn nonneg(key: &str, v: f64) -> Result<(), KeyError> {
-    if v >= 0.0 && v.is_finite() { Ok(()) } else { bad(key, format!("must be ≥ 0, got {v}")) }
+    if v >= 0.0 && v.is_finite() { Ok(()) } else { bad(key, format!("must be ≥ 0, got {}", crate::units::shown(v))) }
 }
 
 fn steps(levels: &[f64], period_s: f64, t_s: f64) -> f64 {

@@ -212,14 +212,14 @@ impl PlantModel {
             if v.is_finite() && v > 0.0 {
                 Ok(())
             } else {
-                Err(KeyError::new(key.into(), format!("must be finite and > 0, got {v}")))
+                Err(KeyError::new(key.into(), format!("must be finite and > 0, got {}", crate::units::shown(v))))
             }
         }
         fn nonneg(key: &str, v: f64) -> Result<(), KeyError> {
             if v.is_finite() && v >= 0.0 {
                 Ok(())
             } else {
-                Err(KeyError::new(key.into(), format!("must be finite and ≥ 0, got {v}")))
+                Err(KeyError::new(key.into(), format!("must be finite and ≥ 0, got {}", crate::units::shown(v))))
             }
         }
         fn at_most(key: &str, v: f64, max: f64) -> Result<(), KeyError> {
@@ -264,7 +264,10 @@ impl PlantModel {
         if !(ms.is_finite() && (MIN_SAMPLE_MS..=MAX_SAMPLE_MS).contains(&ms)) {
             return Err(KeyError::new(
                 "sensors.sample_ms".into(),
-                format!("must be {MIN_SAMPLE_MS} ..= {MAX_SAMPLE_MS} (10 kHz to 1 Hz), got {ms}"),
+                format!(
+                    "must be {MIN_SAMPLE_MS} ..= {MAX_SAMPLE_MS} (10 kHz to 1 Hz), got {}",
+                    crate::units::shown(ms)
+                ),
             ));
         }
         self.load.validate()?;

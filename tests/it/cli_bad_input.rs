@@ -206,6 +206,11 @@ fn simulate_refuses_a_run_of_more_rows_than_it_may_write() {
     let (code, msg) = simulate(&model_sampling_at(dir.path(), "1e-9"), "8");
     assert_eq!(code, Some(2), "{msg}");
     assert!(msg.contains("sensors.sample_ms"), "{msg}");
+    // numbers far out of range said in exponent form (1e308 was printed as 309 digits)
+    let (code, msg) = simulate(&model_sampling_at(dir.path(), "1e300"), "8");
+    assert!(code == Some(2) && msg.contains("got 1e300") && msg.len() < 300, "{msg}");
+    let (code, msg) = simulate(&root().join("config/plant.toml"), "1e308");
+    assert!(code == Some(2) && msg.contains("--duration 1e308") && msg.len() < 200, "{msg}");
     let (code, msg) = simulate(&root().join("config/plant.toml"), "1000000");
     assert_eq!(code, Some(2), "{msg}");
     assert!(msg.contains("--duration") && msg.contains("rows"), "{msg}");

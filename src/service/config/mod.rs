@@ -372,14 +372,18 @@ fn without_secrets(rendered: &str) -> String {
 type Invalid = KeyError;
 
 fn finite(key: &str, v: f64) -> Result<f64, Invalid> {
-    if v.is_finite() { Ok(v) } else { Err(KeyError::new(key.into(), format!("must be a finite number, got {v}"))) }
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(KeyError::new(key.into(), format!("must be a finite number, got {}", crate::units::shown(v))))
+    }
 }
 
 fn nonneg(key: &str, v: f64) -> Result<f64, Invalid> {
     if v.is_finite() && v >= 0.0 {
         Ok(v)
     } else {
-        Err(KeyError::new(key.into(), format!("must be finite and ≥ 0, got {v}")))
+        Err(KeyError::new(key.into(), format!("must be finite and ≥ 0, got {}", crate::units::shown(v))))
     }
 }
 
@@ -387,7 +391,7 @@ fn positive(key: &str, v: f64) -> Result<f64, Invalid> {
     if v.is_finite() && v > 0.0 {
         Ok(v)
     } else {
-        Err(KeyError::new(key.into(), format!("must be finite and > 0, got {v}")))
+        Err(KeyError::new(key.into(), format!("must be finite and > 0, got {}", crate::units::shown(v))))
     }
 }
 
