@@ -15,6 +15,7 @@ pub(super) fn validate_drive(d: RawDrive, i: usize, base: Option<&Path>) -> Resu
     let registers = apply_overrides(d.registers, &key("registers"))?;
     let condition = validate_condition(d.condition, &key("condition"), &model, |p| resolve(p, base))?;
     check_setpoint_fits(&registers.frequency_setpoint_hz, &c, &key)?;
+    check_within_the_drive(&c, &model, &key)?;
     check_watchdog(d.comm_timeout_ms, (d.watchdog_ms, d.poll_ms, c.mode), &model, &key)?;
     if c.mode.writes() && d.unit_id == 0 {
         // on TCP too: a gateway passes a write to unit 0 to every device on its serial line, none of which answers
@@ -242,6 +243,24 @@ pub(super) fn check_setpoint_fits(
         }
     }
     Ok(())
+}
+
+/// In a writing mode, no setpoint above the drive's own top frequency as the plant model gives it (`[drive] max_hz`):
+/// `control.max_hz = 400` against a model's 60 was taken in silence, and a speed target to match (a reviewer's config).
+fn check_within_the_drive(c: &Control, model: &PlantModel, key: &dyn Fn(&str) -> String) -> Result<(), Invalid> {
+    let Some(drive) = model.drive.as_ref().filter(|_| c.mode.writes()) else { return Ok(()) };
+    if c.limits.max_hz <= drive.max_hz {
+        return Ok(());
+    }
+    Err(KeyError::new(
+        key("control.max_hz"),
+        format!(
+            "{} Hz is above the drive's own max_hz ({} Hz) in the plant model (drives.estimator.model, else the \
+             reference plant): raise it there if the drive runs faster",
+            crate::units::shown(c.limits.max_hz),
+            drive.max_hz
+        ),
+    ))
 }
 
 /// The watchdog is refreshed well within the drive's comm timeout (`comm_timeout_ms`, else the model's): every

@@ -367,3 +367,15 @@ fn the_trip_latch_has_its_place_with_recording_off() {
     let none = parse(&format!("[recording]\nenabled = false\ndir = \"\"\n{MINIMAL}"), "t.toml", None).expect("valid");
     assert_eq!(none.recording.latch_dir, None);
 }
+
+/// A writing drive's `control.max_hz` above the plant model's own `[drive] max_hz` (the reference plant's 60 Hz here)
+/// is refused naming both: 400 Hz was taken in silence (a reviewer's config).
+#[test]
+fn a_top_frequency_above_the_drives_own_is_refused() {
+    let speed = |max_hz: &str| format!("{MINIMAL}[drives.control]\nmode = \"speed\"\nmax_hz = {max_hz}\n");
+    let e = err(&speed("400.0"));
+    assert!(e.contains("drives[0].control.max_hz") && e.contains("max_hz (60 Hz)"), "{e}");
+    parse(&speed("60.0"), "t.toml", None).expect("at the drive's own top");
+    parse(&format!("{MINIMAL}[drives.control]\nmax_hz = 400.0\n"), "t.toml", None)
+        .expect("monitor mode writes nothing");
+}
