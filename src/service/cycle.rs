@@ -516,6 +516,14 @@ impl DriveCycle {
         self.trip_latched |= self.mode.writes();
     }
 
+    /// Goes on from the setpoint a previous run left moments ago (writing modes): the first setpoint of this run is
+    /// then at most it, as after a gap within a run, whatever the read-back says.
+    pub fn resume_below(&mut self, hz: f64) {
+        if self.mode.writes() {
+            self.law.start_from(hz);
+        }
+    }
+
     /// The drive reports a fault or a comm-loss trip, or (writing modes) one was seen and not yet reset.
     pub fn tripped(&self) -> bool {
         self.status.fault || self.status.comm_loss_trip || self.trip_latched

@@ -125,6 +125,9 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
         let estimator = crate::estimator::build(&d.estimator, &d.model);
         let connection = connection_for(d, &buses);
         let mut drive = DriveLoop::new(d.clone(), connection, estimator, state.clone(), recorder, started);
+        if let Some(dir) = &settings.recording.dir {
+            drive.resume_below_the_last_run_in(dir);
+        }
         match &settings.recording.latch_dir {
             Some(dir) => drive.keep_trip_latch_in(dir),
             None if d.mode.writes() => tracing::warn!(drive = %d.name,

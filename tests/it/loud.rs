@@ -227,6 +227,38 @@ async fn a_tripped_drive_is_sent_no_run_until_it_is_reset_and_ready() {
     tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
 
+/// A service killed while regulating and started again at once (`restart: unless-stopped`) goes on below the setpoint
+/// its last run left in the recording, whatever the drive's frequency read-back says: started afresh, the first write
+/// was the read-back, and one 1.4× the truth stepped a drive held at 19.9 Hz to 27.6 Hz in one write (a reviewer's
+/// proxy).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restart_goes_on_below_the_last_runs_setpoint_whatever_the_read_back() {
+    let run = async {
+        let Regulating { sim, sim_stop, mut s, _dir, _task } = Regulating::start().await;
+        // settled: the recording holds the setpoint (its rows go to disk in batches)
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        let before = sim.lock().truth().f_set_hz;
+        sim.lock().faults.frequency_scale = Some(1.4);
+        s.kill();
+        s = ServeProcess::start_limited("true", &_dir.path().join("serve.toml"));
+        // every setpoint of the new instance's first 100 cycles
+        let mut highest = f64::NEG_INFINITY;
+        loop {
+            let polls = s.drive_status().await["link"]["polls"].as_u64().unwrap_or(0);
+            highest = highest.max(sim.lock().truth().f_set_hz);
+            if polls >= 100 {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(2)).await;
+        }
+        eprintln!("last run's setpoint {before:.2} Hz; the new run's highest in its first 100 cycles {highest:.2} Hz");
+        assert!(highest <= before + 0.5, "{before:.2} → {highest:.2} Hz: the new run stepped up to its read-back");
+        assert!(s.log().contains("the last run's setpoint"), "{}", s.log());
+        sim_stop.cancel();
+    };
+    tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
+}
+
 /// A clean stop (SIGHUP here: a closed session; it killed the process outright) sends a drive the service ran
 /// control word 0, instead of leaving RUN and the setpoint for the drive's watchdog (up to an hour).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -32,6 +32,9 @@ pub struct Faults {
     pub speed_override_rad_s: Option<f64>,
     /// Report the shaft speed times this: a tachometer on a slipping coupling, or read with the wrong scale.
     pub speed_scale: Option<f64>,
+    /// Report the drive's output frequency times this: a read-back scaled wrong (a 50/60 Hz scale, slip
+    /// compensation).
+    pub frequency_scale: Option<f64>,
     /// Every value but the sample counter stops updating: the PLC's copy of the drive's data stopped (a fieldbus
     /// link to the drive, an input task) while its own counter runs on.
     pub freeze_values: bool,
@@ -252,7 +255,7 @@ impl DriveSim {
                         .unwrap_or(self.faults.speed_scale.unwrap_or(1.0) * s.omega_rad_s + self.noise.speed()),
                 ),
             ),
-            (self.map.drive_frequency_hz, s.f_hz),
+            (self.map.drive_frequency_hz, self.faults.frequency_scale.unwrap_or(1.0) * s.f_hz),
             (self.map.status_word, f64::from(self.status_word())),
             (self.map.sample_counter, f64::from(self.counter)),
             (DRIVE_POWER_W, self.drive_power_w()),
