@@ -30,7 +30,7 @@ pub use explain::slip_as_leakage;
 pub use mismatch::Mismatch;
 pub use predict::Errors;
 pub use result::{
-    Ambiguity, Analysis, CandidateScore, Evidence, Finding, Gaps, Interval, NotIdentified, Summary, Traces,
+    Ambiguity, Analysis, CandidateScore, Evidence, Finding, Gaps, Interval, Misfit, NotIdentified, Summary, Traces,
 };
 pub use series::{Family, Series};
 
@@ -201,6 +201,10 @@ fn analyze_series(
             break;
         }
     }
+    let model_misfit = misfit(&sel.current, &s, nominal);
+    if model_misfit.is_some() {
+        sel.name_nothing(&baseline);
+    }
     sel.final_fold_models();
     let baseline_intervals =
         jackknife(&baseline.model, &sel.fold_baseline, &interval_keys(&baseline.model, family, &sel.kept), s.sample_hz);
@@ -241,6 +245,7 @@ fn analyze_series(
         baseline: base_summary,
         mismatches,
         findings,
+        model_misfit,
         ambiguities,
         not_identified,
         improved: improved_summary,
@@ -261,18 +266,66 @@ fn analyze_series(
 /// plant (a run at rest, a steady speed). Fitted to anyway, J came out a tenth of the truth or less and a finding was
 /// named from noise, or the fit failed (J ≤ 0) and the command refused: which of the two depended on the noise's
 /// seed. With the load unknown J is not fitted (the nominal's stands), and nothing is checked.
+///
+/// The refusal says which of three things it saw, for they need different repairs: a J significantly below zero is
+/// a speed that falls where the drive torque accelerates it, a sign or a wiring (a negated speed gave J = −0.0762 ±
+/// 0.0010, swapped `p_in_bar`/`p_out_bar` −0.079 ± 0.001, on runs whose J is 0.08: both were said to be "a speed
+/// that hardly changes"); a speed whose noise is as large as its movement (σ 50 rad/s added to a 4 s run) hides the
+/// acceleration; only otherwise does the speed hardly change.
 fn inertia_told_from_zero(s: &Series, terms: search::MechTerms, source: &str) -> Result<(), BadInput> {
     if s.family == Family::Flow {
         return Ok(());
     }
-    match search::inertia_with_sd(s, terms) {
-        Some((j, sd)) if j <= INERTIA_FROM_ZERO_SD * sd => Err(BadInput(format!(
-            "recording {source}: inertia and viscous friction cannot be fitted: the fitting segment does not tell the \
-             inertia from zero (J = {j:.3e} ± {sd:.1e} kg·m²): the speed hardly changes (it needs accelerations and \
-             several speeds)"
-        ))),
-        _ => Ok(()),
+    let Some((j, sd)) = search::inertia_with_sd(s, terms) else { return Ok(()) };
+    if j > INERTIA_FROM_ZERO_SD * sd {
+        return Ok(());
     }
+    let head = format!("recording {source}: inertia and viscous friction cannot be fitted");
+    if j < -INERTIA_FROM_ZERO_SD * sd {
+        let torque =
+            if s.family == Family::Torque { "`torque_nm`" } else { "the pressures (`p_in_bar` − `p_out_bar`)" };
+        return Err(BadInput(format!(
+            "{head}: the fitting segment gives a significantly negative inertia (J = {j:.3e} ± {sd:.1e} kg·m²): the \
+             speed falls where the drive torque accelerates it. A sign or wiring error: is the speed (`{}`) negated, \
+             or {torque} swapped or negated?",
+            s.speed_source
+        )));
+    }
+    let (noise, spread) = speed_noise_and_spread(s);
+    if noise >= NOISE_AS_LARGE_AS_MOVEMENT * spread {
+        return Err(BadInput(format!(
+            "{head}: the fitting segment does not tell the inertia from zero (J = {j:.3e} ± {sd:.1e} kg·m²): the \
+             speed's noise (σ ≈ {noise:.3} rad/s) is as large as its movement (a spread of {spread:.3} rad/s), so \
+             its acceleration cannot be read; check the speed sensor and its column (`{}`)",
+            s.speed_source
+        )));
+    }
+    Err(BadInput(format!(
+        "{head}: the fitting segment does not tell the inertia from zero (J = {j:.3e} ± {sd:.1e} kg·m²): the speed \
+         hardly changes (it needs accelerations and several speeds)"
+    )))
+}
+
+/// The speed sensor's noise is called as large as the movement from this fraction of the filtered speed's spread:
+/// the reference plant's tachogenerator (σ 0.8 rad/s) against its test-stand run (a spread of about 17 rad/s) is 0.05.
+const NOISE_AS_LARGE_AS_MOVEMENT: f64 = 0.5;
+
+/// The speed's white noise σ (robust, from what the low-pass removed, scaled for the pass band) and the standard
+/// deviation of the filtered speed over the fitting segment (rad/s).
+fn speed_noise_and_spread(s: &Series) -> (f64, f64) {
+    let fit = 0..s.split;
+    let d: Vec<f64> = s.omega_rad_s[fit.clone()]
+        .iter()
+        .zip(&s.omega_f[fit.clone()])
+        .map(|(w, f)| (w - f).abs())
+        .filter(|d| d.is_finite())
+        .collect();
+    let passed = (2.0 * s.cutoff_hz / s.sample_hz).clamp(0.0, 0.9);
+    let noise = 1.4826 * series::percentile(&d, 0.5) / (1.0 - passed).sqrt();
+    let w: Vec<f64> = s.omega_f[fit].iter().copied().filter(|w| w.is_finite()).collect();
+    let mean = w.iter().sum::<f64>() / w.len().max(1) as f64;
+    let spread = (w.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / w.len().max(1) as f64).sqrt();
+    (noise, spread)
 }
 
 /// How many standard deviations from zero the fitting segment must put J.
@@ -300,6 +353,56 @@ fn within_any_plant(nominal: &PlantModel, s: &Series) -> Result<(), BadInput> {
         }
     }
     Ok(())
+}
+
+/// A judged signal's free run is taken as not describing the recording at all beyond this NRMSE on the validation
+/// segment, where a model that fits leaves about 1 at most (its error is the sensor's noise, and so is the spread of
+/// a segment at one steady speed: 0.88 on the last 1.2 s of a 4 s run of the reference plant)…
+const MISFIT_VALIDATION_NRMSE: f64 = 1.5;
+/// …and, over the whole recording, where the signal moves well beyond its noise, beyond this: no better than the
+/// recording's own mean.
+const MISFIT_WHOLE_NRMSE: f64 = 1.0;
+
+/// Whether the model, as the search leaves it, describes the recording at all: a judged signal (speed and ΔP; the
+/// torque for a torque-driven recording; ΔP and the drive frequency with the load unknown) whose free run is worse
+/// than the recording's own mean on the validation segment ([`MISFIT_VALIDATION_NRMSE`]) and over the whole
+/// recording ([`MISFIT_WHOLE_NRMSE`]) is a model of another plant, or a column in another unit. An effect fitted to
+/// such a model is whatever bends it nearest the recording: a speed column in rpm got a Stribeck friction at
+/// 433 rad/s (a zero-width interval; speed NRMSE 2.21 before, 2.22 after), a bulk modulus of 1e-300 bar one at
+/// 723 rad/s (3.03 after). Such an effect says nothing of the plant, so nothing is named.
+fn misfit(m: &Scored, s: &Series, nominal: &PlantModel) -> Option<Misfit> {
+    let whole = predict::errors(&m.prediction, s, 0, s.len());
+    let (v, w) = (&m.validation, &whole);
+    let judged: Vec<(&'static str, Option<f64>, Option<f64>)> = match s.family {
+        Family::Hydraulic => vec![("omega", Some(v.omega_nrmse), Some(w.omega_nrmse)), ("dp", v.dp_nrmse, w.dp_nrmse)],
+        Family::Torque => vec![("torque", v.torque_nrmse, w.torque_nrmse)],
+        Family::Flow => vec![("dp", v.dp_nrmse, w.dp_nrmse), ("f_drive", v.f_drive_nrmse, w.f_drive_nrmse)],
+    };
+    let (signal, held, all) = judged
+        .into_iter()
+        .filter_map(|(name, h, a)| Some((name, h?, a?)))
+        .filter(|(_, h, a)| *h > MISFIT_VALIDATION_NRMSE && *a > MISFIT_WHOLE_NRMSE)
+        .max_by(|a, b| a.1.total_cmp(&b.1))?;
+    let mut explanation = format!(
+        "the model does not describe this recording: even fitted, its free run misses {signal} by an NRMSE of \
+         {held:.2} on the validation segment and {all:.2} over the whole recording, worse than the recording's own \
+         mean; no effect is named, for any would only bend a model of another plant towards it. Check the columns' \
+         units and scales (speed in rad/s, not rpm; pressures in bar; torque in N·m) and the model's values"
+    );
+    if s.family != Family::Flow {
+        let off = |fitted: f64, model: f64| model > 0.0 && !(1.0 / 3.0..=3.0).contains(&(fitted / model));
+        let (j, b) = (m.model.motor.inertia_kg_m2, m.model.motor.viscous_nm_s_rad);
+        let (j0, b0) = (nominal.motor.inertia_kg_m2, nominal.motor.viscous_nm_s_rad);
+        if off(j, j0) || off(b, b0) {
+            explanation += &format!(
+                "; the fit puts J at {j:.3e} kg·m² and B at {b:.3e} N·m·s/rad against the model's {j0} and {b0} \
+                 (×{:.2} and ×{:.2}), what a speed or a torque in another unit does",
+                j / j0,
+                if b0 > 0.0 { b / b0 } else { f64::NAN }
+            );
+        }
+    }
+    Some(Misfit { signal, validation_nrmse: held, whole_recording_nrmse: all, explanation })
 }
 
 /// The baseline's mismatch windows: the largest `MAX_MISMATCHES` by RMS, in time order.

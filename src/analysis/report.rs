@@ -179,7 +179,9 @@ fn validation_table(out: &mut String, a: &Analysis) {
 /// The findings with their evidence, and the validation rule.
 fn findings(out: &mut String, a: &Analysis) {
     out.push_str("<h2>Findings</h2>");
-    if a.findings.is_empty() {
+    if let Some(m) = &a.model_misfit {
+        out.push_str(&format!("<p><strong>{}</strong></p>", escape(&m.explanation)));
+    } else if a.findings.is_empty() {
         out.push_str("<p>Nothing is missing: no catalogue effect lowers the validation error by a clear margin.</p>");
     }
     for f in &a.findings {

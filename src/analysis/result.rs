@@ -27,6 +27,10 @@ pub struct Analysis {
     pub baseline: Summary,
     pub mismatches: Vec<Mismatch>,
     pub findings: Vec<Finding>,
+    /// Set when the model does not describe the recording at all (a judged signal's free run worse than the
+    /// recording's own mean, on the validation segment and over the whole recording, even after the search): then
+    /// nothing is named and `improved` is the baseline. `null` otherwise.
+    pub model_misfit: Option<Misfit>,
     pub ambiguities: Vec<Ambiguity>,
     /// Parameters this recording does not determine, and why (with the load unknown: J and B).
     pub not_identified: Vec<NotIdentified>,
@@ -49,6 +53,16 @@ pub struct Analysis {
     pub improved_model: PlantModel,
     #[serde(skip)]
     pub traces: Traces,
+}
+
+/// A model that does not describe the recording: the signal it misses most, by how much, and what to check.
+#[derive(Debug, Clone, Serialize)]
+pub struct Misfit {
+    /// `omega`, `dp`, `torque` or `f_drive`.
+    pub signal: &'static str,
+    pub validation_nrmse: f64,
+    pub whole_recording_nrmse: f64,
+    pub explanation: String,
 }
 
 /// The recording's gaps in time.

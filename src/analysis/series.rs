@@ -159,7 +159,9 @@ impl<'a> Columns<'a> {
     /// constant written in its place: fitted to, it gave an inertia of 10⁸ with "nothing named". Refused, naming
     /// the column. So is a drive torque that holds one value while the inlet pressure, which makes it, moves (a
     /// column of zeros beside real pressures was fitted to, "named: nothing"). (An outlet pressure may be a steady
-    /// back pressure, and a torque alone a steady command: not checked.)
+    /// back pressure, and a torque alone a steady command: not checked.) A position beside a speed is not read (the
+    /// speed comes from `omega_rad_s`), so it is not judged either: a `theta_rad` of zeros beside a measured speed
+    /// was refused, where `estimate` took the same file.
     fn refuse_stuck(&self) -> Result<(), BadInput> {
         let stuck = |name: &str| {
             let c = self.raw_of(name)?;
@@ -170,6 +172,9 @@ impl<'a> Columns<'a> {
         // in this order: a torque is judged only beside an inlet pressure already found moving
         for name in ["omega_rad_s", "theta_rad", "p_in_bar", "torque_nm"] {
             if name == "torque_nm" && self.raw_of("p_in_bar").is_none() {
+                continue;
+            }
+            if name == "theta_rad" && self.raw_of("omega_rad_s").is_some_and(|c| c.iter().any(|v| v.is_finite())) {
                 continue;
             }
             if let Some(first) = stuck(name) {

@@ -240,6 +240,9 @@ pub fn analyze(
     if let (Some(file), Some(path)) = (report_file, report) {
         commit(file, path)?;
     }
+    if let Some(m) = &result.model_misfit {
+        eprintln!("analyze: warning: {}", m.explanation);
+    }
     let named: Vec<&str> = result.findings.iter().map(|f| f.effect.as_str()).collect();
     eprintln!(
         "analyze: {} samples; validation from {:.1} s; named: {}",

@@ -154,6 +154,7 @@ impl Effects {
         }
         if let Some(e) = self.entrained_air {
             positive("entrained_air.bulk_modulus_bar", e.bulk_modulus_bar)?;
+            super::model::bulk_modulus_in_range("effects.entrained_air.bulk_modulus_bar", e.bulk_modulus_bar)?;
         }
         if let Some(e) = self.motor_slip {
             nonneg("motor_slip.rpm_per_nm", e.rpm_per_nm)?;

@@ -409,3 +409,83 @@ fn a_recording_that_does_not_excite_the_plant_is_refused_whatever_its_seed() {
         assert!(err.contains("cannot be fitted"), "{}: {err}", rec.display());
     }
 }
+
+/// A J that the data put significantly below zero is a sign or a wiring error, and a speed as noisy as it moves hides
+/// the acceleration: the refusal says which (a black-box tester's negated speed, J = −0.0762 ± 0.0010, and swapped
+/// pressures were both "a speed that hardly changes").
+#[test]
+fn a_negative_inertia_or_a_speed_lost_in_noise_is_refused_saying_which() {
+    use rand::SeedableRng;
+    use rand_distr::Distribution;
+    let tmp = tempfile::tempdir().expect("tmp");
+    let rec = simulated(tmp.path(), "r.csv");
+    let (w, p_in, p_out) = (column(&rec, "omega_rad_s"), column(&rec, "p_in_bar"), column(&rec, "p_out_bar"));
+    let negated = tmp.path().join("negated.csv");
+    edited(&rec, &negated, |_, c| c[w] = format!("{}", -c[w].parse::<f64>().expect("speed")));
+    let swapped = tmp.path().join("swapped.csv");
+    edited(&rec, &swapped, |_, c| c.swap(p_in, p_out));
+    let noisy = tmp.path().join("noisy.csv");
+    let rng = std::cell::RefCell::new(rand_chacha::ChaCha8Rng::seed_from_u64(1));
+    let normal = rand_distr::Normal::new(0.0, 50.0).expect("σ");
+    edited(&rec, &noisy, |_, c| {
+        c[w] = format!("{}", c[w].parse::<f64>().expect("speed") + normal.sample(&mut *rng.borrow_mut()))
+    });
+    for (path, says) in
+        [(&negated, "significantly negative inertia"), (&swapped, "significantly negative inertia"), (&noisy, "noise")]
+    {
+        let (o, _) = analyze(tmp.path(), &[path.as_os_str()]);
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "{}: {err}", path.display());
+        assert!(err.contains("cannot be fitted") && err.contains(says), "{}: {err}", path.display());
+        assert!(!err.contains("hardly changes"), "{}: {err}", path.display());
+    }
+}
+
+/// A position column beside the speed is not read (the speed is `omega_rad_s`): a `theta_rad` of zeros there was
+/// refused as a stuck sensor, where `estimate` took the file.
+#[test]
+fn a_constant_position_beside_a_measured_speed_is_not_refused() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let rec = simulated(tmp.path(), "r.csv");
+    let text = std::fs::read_to_string(&rec).expect("read");
+    let mut lines = text.lines();
+    let mut out = format!("{},theta_rad\n", lines.next().expect("header"));
+    for line in lines {
+        out += &format!("{line},0\n");
+    }
+    let with_theta = tmp.path().join("theta.csv");
+    std::fs::write(&with_theta, out).expect("write");
+    let (o, v) = analyze(tmp.path(), &[with_theta.as_os_str()]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert_eq!(v.expect("json")["speed_source"], "omega_rad_s");
+}
+
+/// A model's oil beyond any liquid (`bulk_modulus_bar = 1e-300`, `volume_l = 1e300`) is refused at load, exit 2,
+/// naming the key: the first was analysed to a speed NRMSE of 20 and a Stribeck friction at 723 rad/s.
+#[test]
+fn an_oil_beyond_any_liquid_is_refused_naming_the_key() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    let rec = simulated(tmp.path(), "r.csv");
+    let plant = std::fs::read_to_string(support::root().join("config/plant.toml")).expect("plant");
+    for (from, to, key) in [
+        ("bulk_modulus_bar = 15000.0", "bulk_modulus_bar = 1e-300", "hydraulics.bulk_modulus_bar"),
+        ("volume_l = 0.3", "volume_l = 1e300", "hydraulics.volume_l"),
+    ] {
+        assert!(plant.contains(from), "{from}");
+        let model = tmp.path().join("m.toml");
+        std::fs::write(&model, plant.replace(from, to)).expect("write");
+        let json = tmp.path().join("a.json");
+        let args: Vec<&std::ffi::OsStr> = vec![
+            "analyze".as_ref(),
+            rec.as_os_str(),
+            "--model".as_ref(),
+            model.as_os_str(),
+            "--json".as_ref(),
+            json.as_os_str(),
+        ];
+        let o = run(&args, Duration::from_secs(60));
+        let err = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "{to}: {err}");
+        assert!(err.contains(key), "{to}: {err}");
+    }
+}

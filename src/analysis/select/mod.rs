@@ -407,6 +407,19 @@ impl<'a> Selection<'a> {
         refit_named(&mut self.current, &mut self.fold_current, &self.folds, self.s, &self.std_rows, (nominal, opts))
     }
 
+    /// Drops what was named (a model that does not describe the recording, [`super::misfit`]): the model and its
+    /// fold models back to the baseline, no candidate kept.
+    pub(super) fn name_nothing(&mut self, baseline: &Scored) {
+        self.kept.clear();
+        self.ties.clear();
+        self.current = baseline.clone();
+        self.fold_current = self.fold_baseline.clone();
+        self.cv_before = self.cv_baseline;
+        for c in &mut self.candidates {
+            c.kept = false;
+        }
+    }
+
     /// The fold models of the final set, for the intervals: under cross-validation those chained through the
     /// selection; otherwise the named effects fitted on each fold in the order they were named.
     pub(super) fn final_fold_models(&mut self) {
