@@ -489,3 +489,23 @@ fn an_oil_beyond_any_liquid_is_refused_naming_the_key() {
         assert!(err.contains(key), "{to}: {err}");
     }
 }
+
+/// A recording too short to fit J and B is refused rather than given a confident wrong answer: a 2 s run (at rest for
+/// its first second) gave B = 0.104 with a 95 % interval of 0.092…0.116 on seed 5 (truth 0.04), B = 0.000 on seeds
+/// 2 and 4. A 4 s run is analysed (its B within 10 %).
+#[test]
+fn a_recording_too_short_to_fit_is_refused_not_answered_with_confidence() {
+    let tmp = tempfile::tempdir().expect("tmp");
+    for seed in ["2", "4", "5"] {
+        let rec = simulated_for(tmp.path(), &format!("short{seed}.csv"), "2", seed);
+        let (o, v) = analyze(tmp.path(), &[rec.as_os_str()]);
+        let err = stderr(&o);
+        let b = v.as_ref().map(|v| &v["baseline"]["confidence_intervals"]["viscous_nm_s_rad"]);
+        assert_eq!(o.status.code(), Some(2), "seed {seed}: {err} {b:?}");
+        assert!(err.contains("cannot be fitted") && err.contains("too short"), "seed {seed}: {err}");
+    }
+    let (o, v) = analyze(tmp.path(), &[simulated(tmp.path(), "r.csv").as_os_str()]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let b = v.expect("json")["baseline"]["parameters"]["viscous_nm_s_rad"].as_f64().expect("B");
+    assert!((b - 0.04).abs() < 0.004, "B {b}");
+}

@@ -259,6 +259,15 @@ pub fn inertia_with_sd(s: &Series, terms: MechTerms) -> Option<(f64, f64)> {
     Some((theta[0], sd[0] * 2.5f64.sqrt()))
 }
 
+/// How long the fitting segment's torque-balance rows (the nominal fit's, without a dry term) move: the rows away
+/// from a standstill ([`Series::standstill_speed`]) times the rows' spacing, in seconds.
+pub fn moving_balance_s(s: &Series) -> f64 {
+    let rows = BalanceRows::new(s, &[(0, s.split)], false);
+    let spacing = ((s.sample_hz / (5.0 * s.cutoff_hz)).round()).max(1.0) / s.sample_hz;
+    let still = s.standstill_speed();
+    rows.rows.iter().filter(|&&k| s.omega_f[k].abs() > still).count() as f64 * spacing
+}
+
 /// IDIM-IV from the least-squares fit of `fit`, or, where the noise's bias makes least squares unphysical (a
 /// negative dry level), from `base`'s free run. `None` when neither gives a fit.
 fn instrumented(
