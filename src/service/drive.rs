@@ -54,32 +54,47 @@ pub struct DriveLoop {
 }
 
 /// How recent a last run's setpoint must be for a new run to go on below it
-/// ([`DriveLoop::resume_below_the_last_run_in`]): a drive's comm-loss watchdog stops it well within this, and a drive
+/// ([`DriveLoop::resume_below_the_last_run`]): a drive's comm-loss watchdog stops it well within this, and a drive
 /// that stopped reads back 0, below any setpoint.
 const RESUME_WITHIN: std::time::Duration = std::time::Duration::from_secs(60);
 
 /// The last setpoint written in `drive`'s newest recording in `dir`, and how long ago: its file's stamp (the wall
-/// clock when it was opened) plus its rows' span. None without a readable recording or a written setpoint.
-fn last_setpoint(dir: &std::path::Path, drive: &str) -> Option<(f64, std::time::Duration)> {
+/// clock when it was opened) plus its rows' span. Only a plain file is read, its header, first row and last 64 kB (a
+/// run that ended by a crash leaves its file plain; the whole of 64 MB took a second per drive at the start). None
+/// without such a file or a written setpoint. Read before the recorder compresses what a run left.
+pub(super) fn last_setpoint(dir: &std::path::Path, drive: &str) -> Option<(f64, std::time::Duration)> {
+    use std::io::{BufRead, Read, Seek};
     let files = crate::recording::drive_files(dir, drive).ok()?;
     let path = files.last()?;
     let name = path.file_name()?.to_string_lossy().into_owned();
-    let (key, _) = crate::recording::drive_file_key(&name, drive)?;
-    let mut reader = crate::recording::StreamReader::open(path).ok()?;
-    let column = reader.index_of("f_set_hz")?;
-    reader.select(&[column]);
-    let mut batch = crate::recording::Batch::default();
-    let (mut first_t, mut last_t, mut last_hz) = (None, f64::NAN, None);
-    while reader.read_batch(&mut batch, 1 << 16).ok()? > 0 {
-        first_t = first_t.or(batch.t_s.first().copied());
-        last_t = batch.t_s.last().copied().unwrap_or(last_t);
-        last_hz = batch.columns[0].iter().rev().find(|v| v.is_finite()).copied().or(last_hz);
+    let (key, compressed) = crate::recording::drive_file_key(&name, drive)?;
+    if compressed {
+        return None;
     }
-    let span = std::time::Duration::try_from_secs_f64(last_t - first_t?).ok()?;
+    let mut file = std::io::BufReader::new(std::fs::File::open(path).ok()?);
+    let (mut header, mut first) = (String::new(), String::new());
+    file.read_line(&mut header).ok()?;
+    file.read_line(&mut first).ok()?;
+    let names: Vec<&str> = header.trim_end().split(',').collect();
+    let (t, f) = (names.iter().position(|n| *n == "t_s")?, names.iter().position(|n| *n == "f_set_hz")?);
+    let cell = |line: &str, i: usize| line.trim_end().split(',').nth(i).and_then(|c| c.parse::<f64>().ok());
+    let first_t = cell(&first, t)?;
+    let len = file.get_ref().metadata().ok()?.len();
+    file.seek(std::io::SeekFrom::Start(len.saturating_sub(TAIL_BYTES))).ok()?;
+    let mut tail = String::new();
+    file.take(TAIL_BYTES).read_to_string(&mut tail).ok()?;
+    // whole rows only: the tail's first line is the header or cut, and its last may be cut (a kill mid-write)
+    let rows: Vec<&str> = tail.lines().skip(1).filter(|l| l.split(',').count() == names.len()).collect();
+    let last_t = rows.iter().rev().find_map(|l| cell(l, t))?;
+    let last_hz = rows.iter().rev().find_map(|l| cell(l, f).filter(|v| v.is_finite()))?;
+    let span = std::time::Duration::try_from_secs_f64(last_t - first_t).ok()?;
     let last_row = std::time::UNIX_EPOCH + std::time::Duration::from_millis(key[0]) + span;
     let ago = std::time::SystemTime::now().duration_since(last_row).unwrap_or_default();
-    Some((last_hz?, ago))
+    Some((last_hz, ago))
 }
+
+/// How much of a recording's end [`last_setpoint`] reads: some hundreds of rows.
+const TAIL_BYTES: u64 = 64 * 1024;
 
 /// Failed setpoint writes in a row after which the drive is not ready: every write is refused.
 const WRITES_FAILING_AFTER: u32 = 3;
@@ -161,15 +176,13 @@ impl DriveLoop {
         self.latch_file = Some((path, latched));
     }
 
-    /// Goes on below the setpoint this drive's last run left in its recording in `dir`, where that run ended within
-    /// [`RESUME_WITHIN`] (a crash, a kill, `restart: unless-stopped`): the first setpoint of this run is at most it, as
-    /// after a gap within a run. Started afresh, the first write was the drive's read-back, and a read-back 1.2–1.4×
-    /// the truth stepped a drive the last run held at 20.0 Hz to 23.8 and 27.6 Hz in one write (a reviewer's proxy).
-    pub fn resume_below_the_last_run_in(&mut self, dir: &std::path::Path) {
-        if !self.settings.mode.writes() {
-            return;
-        }
-        let Some((hz, ago)) = last_setpoint(dir, &self.settings.name) else { return };
+    /// Goes on below the setpoint this drive's last run left in its recording (`last`: [`last_setpoint`]), where that
+    /// run ended within [`RESUME_WITHIN`] (a crash, a kill, `restart: unless-stopped`): the first setpoint of this run
+    /// is at most it, as after a gap within a run. Started afresh, the first write was the drive's read-back, and a
+    /// read-back 1.2–1.4× the truth stepped a drive the last run held at 20.0 Hz to 23.8 and 27.6 Hz in one write
+    /// (a reviewer's proxy).
+    pub fn resume_below_the_last_run(&mut self, last: Option<(f64, std::time::Duration)>) {
+        let Some((hz, ago)) = last.filter(|_| self.settings.mode.writes()) else { return };
         if ago <= RESUME_WITHIN {
             self.cycle.resume_below(hz);
             tracing::info!(drive = %self.settings.name, setpoint_hz = hz, ago_s = ago.as_secs_f64(),
@@ -519,5 +532,36 @@ impl DriveLoop {
             energy: None,
             condition: Vec::new(),
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The last run's setpoint from its plain file's header, first row and tail, a row cut by a kill left out, and
+    /// how long ago from the file's stamp and its rows' span; a compressed (closed) file is not read.
+    #[test]
+    fn the_last_runs_setpoint_comes_from_its_files_tail() {
+        let dir = tempfile::tempdir().expect("tmp");
+        let now_ms = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).expect("clock").as_millis();
+        let stamp = now_ms as u64 - 5_000;
+        let mut text = String::from("t_s,f_set_hz,omega_rad_s\n");
+        for k in 0..20_000 {
+            let hz = if k % 7 == 3 { String::new() } else { format!("{:.3}", 10.0 + k as f64 * 1e-3) };
+            text.push_str(&format!("{:.3},{hz},30.0\n", 1.0 + k as f64 * 1e-4));
+        }
+        text.push_str("3.0001,99.0"); // cut by a kill
+        std::fs::write(dir.path().join(format!("pump1-{stamp}.csv")), &text).expect("write");
+        let (hz, ago) = last_setpoint(dir.path(), "pump1").expect("found");
+        assert!((hz - 29.999).abs() < 1e-9, "the last whole row's setpoint: {hz}");
+        // the rows span 2 s after the file was opened 5 s ago: 3 s
+        assert!((ago.as_secs_f64() - 3.0).abs() < 0.5, "{ago:?}");
+        std::fs::rename(
+            dir.path().join(format!("pump1-{stamp}.csv")),
+            dir.path().join(format!("pump1-{stamp}.csv.gz")),
+        )
+        .expect("rename");
+        assert_eq!(last_setpoint(dir.path(), "pump1"), None, "a closed, compressed file: the run ended cleanly");
     }
 }

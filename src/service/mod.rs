@@ -120,14 +120,14 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
             d.stale_after,
             history_len(settings, d).min(1 << 20),
         ));
+        // before the recorder compresses what the last run left
+        let last_run = settings.recording.dir.as_deref().and_then(|dir| drive::last_setpoint(dir, &d.name));
         let recorder = recorder_for(settings, d, recording_lock.clone())?;
         tracing::info!(drive = %d.name, method = ?d.estimator.method, "estimator");
         let estimator = crate::estimator::build(&d.estimator, &d.model);
         let connection = connection_for(d, &buses);
         let mut drive = DriveLoop::new(d.clone(), connection, estimator, state.clone(), recorder, started);
-        if let Some(dir) = &settings.recording.dir {
-            drive.resume_below_the_last_run_in(dir);
-        }
+        drive.resume_below_the_last_run(last_run);
         match &settings.recording.latch_dir {
             Some(dir) => drive.keep_trip_latch_in(dir),
             None if d.mode.writes() => tracing::warn!(drive = %d.name,
