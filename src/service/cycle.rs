@@ -341,6 +341,7 @@ impl DriveCycle {
                 drive_hz,
                 drive_running: running,
                 resumed,
+                dp_pa,
             })
         };
         self.note_following();
