@@ -19,6 +19,10 @@ macro_rules! columns {
             pub fn values(&self) -> [f64; [$(stringify!($field)),*].len()] {
                 [$(self.$field),*]
             }
+
+            /// Every value missing (NaN: an empty cell in a recording).
+            #[allow(dead_code)]
+            pub const MISSING: Self = Self { $($field: f64::NAN),* };
         }
     };
 }

@@ -512,6 +512,26 @@ impl DriveCycle {
         self.trip_latched
     }
 
+    /// A sample a range or freshness check refused, as the recording keeps it (what was read is kept, as the
+    /// record of the incident): the refused entry's value left out (`rejected`'s), no estimate, nothing written.
+    /// None where the whole sample is refused (an image that stopped repeats the last one). A sensor out of range or
+    /// a tachometer the frequency contradicts was left out of the recording whole: 2 s of the incident missing, and
+    /// `rows_lost` 0 (a reviewer's proxy).
+    pub fn refused_point(&self, sample: &Sample, now: Instant, rejected: &Rejected) -> Option<Point> {
+        let entry = rejected.entry()?;
+        let t_s = now.saturating_duration_since(self.started).as_secs_f64();
+        let mut m = Measured { t_s, f_set_hz: f64::NAN, ..sample.measured };
+        match entry {
+            "inlet_pressure_bar" | "p_in_bar" => m.p_in_bar = f64::NAN,
+            "outlet_pressure_bar" | "p_out_bar" => m.p_out_bar = f64::NAN,
+            "shaft_speed_rpm" | "omega_rad_s" => m.omega_rad_s = f64::NAN,
+            "drive_frequency_hz" | "f_drive_hz" => m.f_drive_hz = f64::NAN,
+            _ => return None,
+        }
+        let target_omega_rad_s = if self.mode == Mode::Speed { self.law.target_omega_rad_s } else { f64::NAN };
+        Some(Point { sample: m, estimate: Estimate::MISSING, status_word: sample.status_word, target_omega_rad_s })
+    }
+
     /// Latches the trip a previous run of the service left unreset (writing modes).
     pub fn latch_from_before(&mut self) {
         self.trip_latched |= self.mode.writes();

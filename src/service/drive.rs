@@ -332,22 +332,28 @@ impl DriveLoop {
 
         match self.read().await {
             Err(e) => self.error(&e),
-            Ok(blocks) => match decode_sample(&self.settings.registers, &blocks)
-                .map_err(Rejected::from)
-                .and_then(|s| out_of_range(&s, &self.settings.ranges).map_or(Ok(s), Err))
-            {
+            Ok(blocks) => match decode_sample(&self.settings.registers, &blocks).map_err(Rejected::from) {
                 Err(r) => self.reject(&r),
-                Ok(sample) => {
-                    // a good poll: the link may forget its back-off
-                    self.client.good_poll();
-                    let step = self.cycle.step(&sample, now, Instant::now());
-                    if self.cycle.take_reset_lapsed() {
-                        tracing::warn!(drive = %self.settings.name,
-                            "a requested fault reset lapsed unsent (the drive was not seen fresh within a second of \
-                             the request): POST /api/drives/<name>/reset again once it is");
+                Ok(sample) => match out_of_range(&sample, &self.settings.ranges) {
+                    Some(r) => {
+                        self.record_refused(&sample, now, &r);
+                        self.reject(&r)
                     }
-                    self.act(now, step).await
-                }
+                    None => {
+                        // a good poll: the link may forget its back-off
+                        self.client.good_poll();
+                        let step = self.cycle.step(&sample, now, Instant::now());
+                        if self.cycle.take_reset_lapsed() {
+                            tracing::warn!(drive = %self.settings.name,
+                                "a requested fault reset lapsed unsent (the drive was not seen fresh within a second \
+                                 of the request): POST /api/drives/<name>/reset again once it is");
+                        }
+                        if let Verdict::Rejected(r) = &step.verdict {
+                            self.record_refused(&sample, now, r);
+                        }
+                        self.act(now, step).await
+                    }
+                },
             },
         }
 
@@ -385,6 +391,13 @@ impl DriveLoop {
             Some(Finding::Unavailable(why)) => tracing::warn!(drive = %name, register = address,
                 "{why}: another master writing this drive cannot be detected"),
             None => {}
+        }
+    }
+
+    /// Keeps a refused sample in the recording, its refused entry left out ([`super::cycle::DriveCycle::refused_point`]).
+    fn record_refused(&mut self, sample: &crate::modbus::map::Sample, now: Instant, r: &Rejected) {
+        if let (Some(rec), Some(point)) = (&self.recorder, self.cycle.refused_point(sample, now, r)) {
+            rec.record(point);
         }
     }
 

@@ -46,6 +46,21 @@ pub enum Rejected {
     ImageFrozen { f_drive_hz: f64, held_s: f64 },
 }
 
+impl Rejected {
+    /// The entry refused, where one is (a register's name, or a measured column's): its value is left out of the
+    /// row the recording keeps. None where the whole sample is refused (not decoded, or an image that stopped).
+    pub fn entry(&self) -> Option<&'static str> {
+        match self {
+            Rejected::Range { entry, .. }
+            | Rejected::Jump { entry, .. }
+            | Rejected::Frozen { entry, .. }
+            | Rejected::NoTurn { entry, .. }
+            | Rejected::Mismatch { entry, .. } => Some(entry),
+            Rejected::Decode { .. } | Rejected::ImageFrozen { .. } => None,
+        }
+    }
+}
+
 /// How far the drive's frequency may move (Hz) while the speed reads the very same non-zero value: 2 Hz is
 /// hundreds of the speed register's steps, which no turning shaft holds still.
 pub const FROZEN_SPEED_HZ: f64 = 2.0;

@@ -157,7 +157,20 @@ async fn exceptions_and_out_of_range_values_are_counted_and_rejected() {
         assert_eq!(stack.readyz().await, 503);
         set(&stack, |f| f.inlet_pressure_override_bar = None);
         ready_within(&stack, Duration::from_secs(2)).await.expect("ready again");
-        stack.stop().await;
+        let dir = stack.stop().await;
+        // the refused samples are in the recording, their inlet pressure left out: the record of the incident (they
+        // were left out whole, a 2 s gap in a reviewer's run)
+        let files = hydrolens::recording::drive_files(dir.path(), "pump1").expect("a recording");
+        let rec = hydrolens::recording::load(files.last().expect("a file")).expect("a valid recording");
+        let (p_in, omega, hat) = (
+            rec.column("p_in_bar").expect("p_in"),
+            rec.column("omega_rad_s").expect("omega"),
+            rec.column("omega_hat_rad_s").expect("omega_hat"),
+        );
+        let refused = (0..rec.len()).filter(|&k| p_in[k].is_nan() && omega[k].is_finite() && hat[k].is_nan()).count();
+        assert!(refused >= 20, "{refused} refused samples recorded");
+        let gap = rec.t_s().windows(2).map(|w| w[1] - w[0]).fold(0.0, f64::max);
+        assert!(gap < 0.5, "the longest gap between rows: {gap:.3} s");
     };
     tokio::time::timeout(Duration::from_secs(120), run).await.expect("bounded");
 }
