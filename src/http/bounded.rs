@@ -60,8 +60,10 @@ impl Bounded {
         self.permits.available_permits()
     }
 
-    /// One more for `ip`, unless it holds its share or every one is held.
+    /// One more for the client at `ip` (an IPv6 client by its /64, [`super::throttle::key`]), unless its address
+    /// holds its share or every one is held.
     pub fn take(&self, ip: IpAddr) -> Result<Held, Refused> {
+        let ip = super::throttle::key(ip);
         let mut m = self.by_address.lock().unwrap_or_else(|e| e.into_inner());
         let held = m.get(&ip).copied().unwrap_or(0);
         if held >= self.share {

@@ -416,7 +416,7 @@ async fn history(
         return Err(ApiError::bad_request(format!("max_points must be 1 ..= 100000, got {}", q.max_points)));
     }
     let drive = s.service.drive(&q.drive).ok_or_else(|| ApiError::not_found(format!("no drive {}", echo(&q.drive))))?;
-    let permit = match s.history_replies.take(throttle::key(client.ip())) {
+    let permit = match s.history_replies.take(client.ip()) {
         Ok(held) => held,
         Err(why) => return Ok(refused(&s, why, &HISTORY_REFUSALS, 1)),
     };
@@ -490,7 +490,7 @@ impl Drop for StreamSlot {
 /// every connection, nor one address every stream. A client that stops reading is closed by the accept loop (see
 /// [`conn`]).
 async fn events(State(s): State<AppState>, client: ClientAddr) -> Response {
-    let held = match s.event_streams.take(throttle::key(client.ip())) {
+    let held = match s.event_streams.take(client.ip()) {
         Ok(held) => held,
         Err(why) => return refused(&s, why, &EVENT_REFUSALS, 5),
     };
@@ -709,7 +709,7 @@ async fn recording_file(
         )));
     }
     let Some(dir) = &s.service.recording_dir else { return Err(ApiError::not_found("recording is off")) };
-    let permit = match s.downloads.take(throttle::key(client.ip())) {
+    let permit = match s.downloads.take(client.ip()) {
         Ok(held) => held,
         Err(why) => return Ok(refused(&s, why, &DOWNLOAD_REFUSALS, 5)),
     };

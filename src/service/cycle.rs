@@ -522,10 +522,11 @@ impl DriveCycle {
         let t_s = now.saturating_duration_since(self.started).as_secs_f64();
         let mut m = Measured { t_s, f_set_hz: f64::NAN, ..sample.measured };
         match entry {
-            "inlet_pressure_bar" | "p_in_bar" => m.p_in_bar = f64::NAN,
-            "outlet_pressure_bar" | "p_out_bar" => m.p_out_bar = f64::NAN,
+            // the register entries, and the measured column the jump test names
+            "inlet_pressure_bar" => m.p_in_bar = f64::NAN,
+            "outlet_pressure_bar" => m.p_out_bar = f64::NAN,
             "shaft_speed_rpm" | "omega_rad_s" => m.omega_rad_s = f64::NAN,
-            "drive_frequency_hz" | "f_drive_hz" => m.f_drive_hz = f64::NAN,
+            "drive_frequency_hz" => m.f_drive_hz = f64::NAN,
             _ => return None,
         }
         let target_omega_rad_s = if self.mode == Mode::Speed { self.law.target_omega_rad_s } else { f64::NAN };

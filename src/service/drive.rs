@@ -73,8 +73,10 @@ pub(super) fn last_setpoint(dir: &std::path::Path, drive: &str) -> Option<(f64, 
     }
     let mut file = std::io::BufReader::new(std::fs::File::open(path).ok()?);
     let (mut header, mut first) = (String::new(), String::new());
-    file.read_line(&mut header).ok()?;
-    file.read_line(&mut first).ok()?;
+    // each line at most what a recording's reader takes (a file without a newline is not read whole)
+    let cap = crate::recording::MAX_LINE_BYTES as u64;
+    (&mut file).take(cap).read_line(&mut header).ok()?;
+    (&mut file).take(cap).read_line(&mut first).ok()?;
     let names: Vec<&str> = header.trim_end().split(',').collect();
     let (t, f) = (names.iter().position(|n| *n == "t_s")?, names.iter().position(|n| *n == "f_set_hz")?);
     let cell = |line: &str, i: usize| line.trim_end().split(',').nth(i).and_then(|c| c.parse::<f64>().ok());
@@ -176,13 +178,13 @@ impl DriveLoop {
         self.latch_file = Some((path, latched));
     }
 
-    /// Goes on below the setpoint this drive's last run left in its recording (`last`: [`last_setpoint`]), where that
-    /// run ended within [`RESUME_WITHIN`] (a crash, a kill, `restart: unless-stopped`): the first setpoint of this run
-    /// is at most it, as after a gap within a run. Started afresh, the first write was the drive's read-back, and a
-    /// read-back 1.2–1.4× the truth stepped a drive the last run held at 20.0 Hz to 23.8 and 27.6 Hz in one write
-    /// (a reviewer's proxy).
+    /// Goes on below the setpoint this (writing) drive's last run left in its recording (`last`: [`last_setpoint`]),
+    /// where that run ended within [`RESUME_WITHIN`] (a crash, a kill, `restart: unless-stopped`): the first setpoint
+    /// of this run is at most it, as after a gap within a run. Started afresh, the first write was the drive's
+    /// read-back, and a read-back 1.2–1.4× the truth stepped a drive the last run held at 20.0 Hz to 23.8 and 27.6 Hz
+    /// in one write (a reviewer's proxy).
     pub fn resume_below_the_last_run(&mut self, last: Option<(f64, std::time::Duration)>) {
-        let Some((hz, ago)) = last.filter(|_| self.settings.mode.writes()) else { return };
+        let Some((hz, ago)) = last else { return };
         if ago <= RESUME_WITHIN {
             self.cycle.resume_below(hz);
             tracing::info!(drive = %self.settings.name, setpoint_hz = hz, ago_s = ago.as_secs_f64(),

@@ -120,8 +120,10 @@ pub fn start(settings: &Settings, shutdown: CancellationToken) -> std::io::Resul
             d.stale_after,
             history_len(settings, d).min(1 << 20),
         ));
-        // before the recorder compresses what the last run left
-        let last_run = settings.recording.dir.as_deref().and_then(|dir| drive::last_setpoint(dir, &d.name));
+        // a writing drive's, before the recorder compresses what the last run left
+        let last_run = (settings.recording.dir.as_deref())
+            .filter(|_| d.mode.writes())
+            .and_then(|dir| drive::last_setpoint(dir, &d.name));
         let recorder = recorder_for(settings, d, recording_lock.clone())?;
         tracing::info!(drive = %d.name, method = ?d.estimator.method, "estimator");
         let estimator = crate::estimator::build(&d.estimator, &d.model);
